@@ -1,0 +1,17 @@
+"""sbrdf: measured surface appearance as declarative dask/zarr graphs.
+
+The core knows node kinds, artifacts and plugins, and no BRDF model, device or
+renderer by name.  Where things live:
+
+- ``hookspecs.py``  the plugin author's contract (read this first)
+- ``registry.py``   plugin discovery through the ``sbrdf`` entry-point group
+- ``params.py``     how a plugin declares its parameters
+- ``artifacts.py``  the typed artifacts that flow between nodes
+- ``store.py``      how an artifact lives in zarr, chunk by chunk
+- ``graph.py``      YAML -> validated graph, errors with file and line
+- ``runner.py``     executes a graph with dask: caching, resume, progress
+- ``nodes/``        one module per node kind
+- ``brdf.py``       the BRDF-model protocol
+"""
+
+__version__ = "0.1.0"

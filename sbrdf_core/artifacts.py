@@ -1,0 +1,119 @@
+"""The typed artifacts that flow between nodes.
+
+An artifact kind names the arrays it holds, their dimensions and meaning.  The
+zarr layout (chunking, attributes, completion) is in :mod:`sbrdf_core.store`.
+Dimension letters: ``P`` poses, ``H, W`` image rows/columns, ``V, U`` texel
+rows/columns (v along +y, u along +x of the sample frame), ``C`` colour or
+parameter channels, ``K`` texture channels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """One array an artifact kind holds (``name`` may contain ``/`` for sub-groups)."""
+
+    name: str
+    dims: str
+    dtype: str
+    doc: str
+    required: bool = True
+
+
+@dataclass(frozen=True)
+class ArtifactKind:
+    """A kind of artifact: its name, layout version and arrays."""
+
+    kind: str
+    version: int
+    doc: str
+    arrays: tuple[ArraySpec, ...] = ()
+
+    def spec(self, name: str) -> ArraySpec | None:
+        for a in self.arrays:
+            if a.name == name or (a.name.endswith("/*") and name.startswith(a.name[:-1])):
+                return a
+        return None
+
+
+CaptureSet = ArtifactKind(
+    "CaptureSet",
+    1,
+    "Linear HDR photographs, one per pose, pose-major, with per-pose light and camera metadata. "
+    "Attributes: sample (size_mm, fiducials), camera (width, height, K, dist, model), light (type, intensity).",
+    (
+        ArraySpec("images", "PHWC", "float32", "linear relative radiance per pixel, C = 3 (linear RGB)"),
+        ArraySpec("valid", "PHW", "bool", "pixel usable: not saturated, not under-exposed, inside the frame"),
+        ArraySpec("light_pos", "P3", "float64", "point-light position in the sample frame, mm (nominal)"),
+        ArraySpec("camera_R", "P33", "float64", "world(sample)-to-camera rotation, OpenCV convention (nominal)"),
+        ArraySpec("camera_t", "P3", "float64", "world(sample)-to-camera translation, mm (nominal)"),
+        ArraySpec("exposure_s", "P", "float64", "exposure time used for the HDR image, s"),
+    ),
+)
+
+RegisteredStack = ArtifactKind(
+    "RegisteredStack",
+    1,
+    "Every accepted pose resampled onto the sample's V x U texel grid, pose-major. "
+    "Attributes: texels [U, V], size_mm, light intensity, rejected poses with reasons.",
+    (
+        ArraySpec("radiance", "PVUC", "float32", "radiance per texel per accepted pose"),
+        ArraySpec("valid", "PVU", "bool", "texel sample usable"),
+        ArraySpec("pose_ids", "P", "int64", "capture pose index of each accepted pose"),
+        ArraySpec("light_pos", "P3", "float64", "light position, sample frame, mm"),
+        ArraySpec("camera_pos", "P3", "float64", "camera centre recovered by registration, sample frame, mm"),
+        ArraySpec("homography", "P33", "float64", "sample-plane mm -> image pixel homography"),
+        ArraySpec("rms_mm", "P", "float64", "registration RMS residual on the sample plane, mm"),
+    ),
+)
+
+SampledReflectance = ArtifactKind(
+    "SampledReflectance",
+    1,
+    "BRDF samples f_r (sr^-1, linear RGB) per texel per pose, texel-tile-major: all poses of a tile in one chunk. "
+    "omega_i, omega_r per texel follow from light_pos, camera_pos and the texel grid (sbrdf_core.geometry).",
+    (
+        ArraySpec("f_r", "VUPC", "float32", "sampled BRDF value, sr^-1"),
+        ArraySpec("valid", "VUP", "bool", "sample usable (lit, seen, not saturated, above the horizon)"),
+        ArraySpec("light_pos", "P3", "float64", "light position, sample frame, mm"),
+        ArraySpec("camera_pos", "P3", "float64", "camera centre, sample frame, mm"),
+    ),
+)
+
+ParamMaps = ArtifactKind(
+    "ParamMaps",
+    1,
+    "Per-texel BRDF-model parameters and error maps. Attributes: model, model_config, parameters (declarations).",
+    (
+        ArraySpec("params/*", "VUC", "float32", "one array per model parameter"),
+        ArraySpec("rms", "VU", "float32", "RMS residual of the fit over the texel's valid samples, sr^-1"),
+        ArraySpec("samples", "VU", "int32", "number of valid samples the texel was fitted to"),
+    ),
+)
+
+TextureSet = ArtifactKind(
+    "TextureSet",
+    1,
+    "Quantized textures plus the scale/bias that decode them. Attributes: quantizer, model, model_config, "
+    "bytes_per_texel, added_rms (sr^-1).",
+    (
+        ArraySpec("textures/*", "VUK", "uint8|uint16|float16|float32", "encoded texture"),
+        ArraySpec("scale/*", "K", "float64", "decode: value = texel * scale + bias"),
+        ArraySpec("bias/*", "K", "float64", "decode offset"),
+        ArraySpec("error", "VU", "float32", "RMS error quantizing added per texel, sr^-1"),
+    ),
+)
+
+Images = ArtifactKind(
+    "Images",
+    1,
+    "Rendered frames (linear float) plus EXR and PNG files beside the arrays. Attributes: renderer, timings.",
+    (ArraySpec("image", "HWC", "float32", "linear RGB radiance"),),
+)
+
+KINDS: dict[str, ArtifactKind] = {
+    k.kind: k for k in (CaptureSet, RegisteredStack, SampledReflectance, ParamMaps, TextureSet, Images)
+}

@@ -1,0 +1,141 @@
+"""The BRDF-model protocol every model plugin implements.
+
+A model declares its per-texel parameters once (:class:`ModelParameter`),
+evaluates vectorised over texels × direction pairs × RGB in NumPy, and may
+supply an analytic Jacobian and a GLSL function.  Fitters, quantizers and
+renderers work with any model through this protocol alone.
+
+Shapes: ``params[name]`` is ``(T, C)`` (C = 1 or 3 channels); ``wi``, ``wo``
+are ``(T, S, 3)`` unit vectors in the surface frame (+z the normal); ``eval``
+returns ``f_r`` as ``(T, S, 3)`` in sr⁻¹.  Directions below the horizon give
+zero, never NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ModelParameter:
+    """One parameter of a BRDF model.
+
+    Parameters
+    ----------
+    name
+        Spelled out from the seeds' vocabulary: ``rho_d``, ``rho_s``, ``c_x``, ``exponent``.
+    channels
+        3 for a per-colour-channel value (``rho_d``), 1 for a shared one (lobe shape).
+    bounds
+        Physically valid ``(low, high)``, enforced by fitters.
+    typical
+        A range seen on real materials: used to synthesise test materials and
+        as the default quantization range.
+    default
+        Value a fitter starts from and uses for texels with no valid samples.
+    scope
+        ``"texel"`` (a map) or ``"global"`` (one value for the material).
+    """
+
+    name: str
+    channels: int = 1
+    bounds: tuple[float, float] = (-np.inf, np.inf)
+    typical: tuple[float, float] = (0.0, 1.0)
+    default: float = 0.0
+    scope: str = "texel"
+    unit: str = ""
+    doc: str = ""
+
+
+class BRDFModel:
+    """Base class of BRDF-model implementations.
+
+    Subclasses set ``name`` and ``parameters`` (per instance when the
+    configuration changes them, e.g. one ``c_x`` per lobe) and implement
+    :meth:`eval`; the default :meth:`jacobian` uses central differences.
+    """
+
+    name: ClassVar[str] = ""
+    parameters: tuple[ModelParameter, ...] = ()
+
+    # -- required ---------------------------------------------------------------
+
+    def eval(self, params: Mapping[str, np.ndarray], wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """``f_r(wi, wo)`` per texel and sample, ``(T, S, 3)`` sr⁻¹."""
+        raise NotImplementedError
+
+    # -- optional ---------------------------------------------------------------
+
+    def jacobian(self, params: Mapping[str, np.ndarray], wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """``∂f_r/∂x`` as ``(T, S, 3, K)`` for the packed parameter vector x (see :meth:`pack`).
+
+        Default: central finite differences; models override with analytic forms.
+        """
+        x = self.pack(params)
+        T, K = x.shape
+        out = np.empty(wi.shape[:2] + (3, K))
+        scale = np.maximum(np.abs(x), 1e-3)
+        lo, hi = self.bounds()
+        for k in range(K):
+            h = 1e-4 * scale[:, k]
+            xp, xm = x.copy(), x.copy()
+            xp[:, k] = np.minimum(x[:, k] + h, hi[k])
+            xm[:, k] = np.maximum(x[:, k] - h, lo[k])
+            span = (xp[:, k] - xm[:, k])
+            span = np.where(span > 0, span, 1.0)
+            out[..., k] = (self.eval(self.unpack(xp), wi, wo) - self.eval(self.unpack(xm), wi, wo)) / span[:, None, None]
+        return out
+
+    def glsl(self) -> str:
+        """GLSL source of ``vec3 brdf(...)`` for the GL renderer."""
+        raise NotImplementedError(f"model {self.name!r} supplies no GLSL")
+
+    def initial_guess(self, f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> dict[str, np.ndarray]:
+        """Starting parameters for a fit (default: each parameter's ``default``)."""
+        T = f_r.shape[0]
+        return {p.name: np.full((T, p.channels), p.default, dtype=np.float64) for p in self.parameters}
+
+    # -- packing ------------------------------------------------------------------
+
+    @property
+    def size(self) -> int:
+        """Length of the packed per-texel parameter vector."""
+        return sum(p.channels for p in self.parameters)
+
+    def slices(self) -> dict[str, slice]:
+        out, i = {}, 0
+        for p in self.parameters:
+            out[p.name] = slice(i, i + p.channels)
+            i += p.channels
+        return out
+
+    def pack(self, params: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Dict of ``(T, C)`` arrays -> ``(T, K)``."""
+        return np.concatenate([np.asarray(params[p.name], dtype=np.float64).reshape(-1, p.channels) for p in self.parameters], axis=1)
+
+    def unpack(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """``(T, K)`` -> dict of ``(T, C)`` views."""
+        return {name: x[:, s] for name, s in self.slices().items()}
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Packed lower and upper bounds, ``(K,)`` each."""
+        lo = np.concatenate([np.full(p.channels, p.bounds[0], float) for p in self.parameters])
+        hi = np.concatenate([np.full(p.channels, p.bounds[1], float) for p in self.parameters])
+        return lo, hi
+
+    def describe(self) -> list[dict]:
+        """JSON declaration of the parameters, stored with ParamMaps so they decode without the plugin."""
+        return [
+            {"name": p.name, "channels": p.channels, "bounds": [float(b) for b in p.bounds],
+             "typical": list(p.typical), "default": p.default, "scope": p.scope, "unit": p.unit}
+            for p in self.parameters
+        ]
+
+
+def above_horizon(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """``(T, S)`` mask of direction pairs where both are above the surface."""
+    return (wi[..., 2] > 0) & (wo[..., 2] > 0)

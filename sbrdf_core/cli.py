@@ -1,0 +1,157 @@
+"""``sbrdf``: run, validate, list plugins, inspect artifacts.
+
+    sbrdf run GRAPH [--scheduler tcp://host:8786] [--store URL] [--only NODE ...]
+    sbrdf validate GRAPH
+    sbrdf plugins [--category fitter]
+    sbrdf info STORE_OR_ARTIFACT
+
+``-p MODULE`` registers an extra plugin module (pytest's ``-p``), and
+``-p no:NAME`` disables an installed plugin by entry-point name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from .errors import SbrdfError
+
+
+def _registry(args):
+    from .registry import Registry
+
+    disabled = [p[3:] for p in args.plugin if p.startswith("no:")]
+    extra = [p for p in args.plugin if not p.startswith("no:")]
+    return Registry(disabled=disabled, extra=extra)
+
+
+def cmd_validate(args) -> int:
+    from .graph import load_graph
+
+    g = load_graph(args.graph, _registry(args), store=args.store)
+    print(f"{args.graph}: graph {g.name!r} is valid: {len(g.nodes)} nodes -> {g.store}")
+    for n in g.nodes.values():
+        ins = ", ".join(f"{p}<-{s}" for p, s in n.inputs.items())
+        print(f"  {n.name:<14} {n.kind.name:<12} {n.plugin or '-':<16} {ins}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    from .graph import load_graph
+    from .runner import Runner
+
+    reg = _registry(args)
+    g = load_graph(args.graph, reg, store=args.store)
+    runner = Runner(reg, scheduler=args.scheduler, num_workers=args.workers, progress=not args.quiet)
+    t0 = time.perf_counter()
+    report = runner.run(g, only=args.only)
+    print(report.table())
+    print(f"graph {g.name!r} done in {time.perf_counter() - t0:.1f} s; artifacts in {g.store}")
+    return 0
+
+
+def cmd_plugins(args) -> int:
+    from .params import format_table
+
+    reg = _registry(args)
+    print("node kinds:")
+    for name, kind in reg.node_kinds.items():
+        ins = ", ".join(f"{p.name}: {p.kind_names}" for p in kind.inputs) or "-"
+        plug = f"plugin: {kind.plugin_category}" if kind.plugin_category else "no plugin"
+        print(f"  {name:<12} ({ins}) -> {kind.output.kind}; {plug}")
+        if kind.params:
+            print(format_table(kind.params))
+    for category, specs in reg.specs.items():
+        if args.category and category != args.category:
+            continue
+        if not specs and not args.category:
+            continue
+        print(f"\n{category}:")
+        for spec in specs.values():
+            src = f"{spec.distribution} {spec.version}".strip() or spec.plugin
+            print(f"  {spec.name}  [{src}]  {spec.summary}")
+            print(format_table(spec.params))
+    for name, err in reg.failed.items():
+        print(f"\nfailed to load plugin {name!r}: {err}", file=sys.stderr)
+    return 0
+
+
+def cmd_info(args) -> int:
+    import fsspec
+    import zarr
+
+    from .store import open_artifact
+
+    fs, root = fsspec.core.url_to_fs(args.store)
+    if fs.exists(root.rstrip("/") + "/zarr.json"):
+        urls = [args.store]
+    else:
+        urls = sorted(args.store.rstrip("/") + "/" + p.rstrip("/").rsplit("/", 1)[-1]
+                      for p in fs.ls(root, detail=False) if fs.exists(p.rstrip("/") + "/zarr.json"))
+        if not urls:
+            raise SbrdfError(f"{args.store}: no sbrdf artifacts here")
+    for url in urls:
+        art = open_artifact(url, require_complete=False)
+        prov = art.provenance
+        plugin = prov.get("plugin") or {}
+        print(f"{url}\n  {art.kind} v{art.version}  {'complete' if art.complete else 'INCOMPLETE'}  "
+              f"{art.nbytes_stored() / 2**20:.2f} MiB stored  token {art.token}")
+        print(f"  node {prov.get('node')!r} ({prov.get('node_kind')}) of graph {prov.get('graph', {}).get('name')!r}"
+              + (f", plugin {plugin.get('name')} {plugin.get('distribution', '')} {plugin.get('version', '')}" if plugin else ""))
+        print(f"  parameters: {json.dumps(prov.get('parameters', {}))}")
+        for port, i in prov.get("inputs", {}).items():
+            print(f"  input {port}: {i['kind']} {i['url']} (token {i['token']})")
+        for name in art.names():
+            z: zarr.Array = art.zarr_array(name)
+            print(f"  {name:<22} {str(z.shape):<22} {str(z.dtype):<8} chunks {z.chunks}")
+        skip = {"provenance", "kind", "version", "token", "complete"}
+        for k, v in art.attrs.items():
+            if k not in skip:
+                print(f"  @{k}: {json.dumps(v)[:200]}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="sbrdf", description="Measured surface appearance pipelines.")
+    ap.add_argument("-p", dest="plugin", action="append", default=[], metavar="MODULE",
+                    help="register a plugin module, or 'no:NAME' to disable an installed one")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("run", help="validate and execute a graph")
+    p.add_argument("graph")
+    p.add_argument("--scheduler", default="threads",
+                   help="threads (default), sync, processes, or tcp://host:port of a dask.distributed scheduler")
+    p.add_argument("--workers", type=int, default=None, help="threads/processes for local schedulers")
+    p.add_argument("--store", default=None, help="override the graph's store")
+    p.add_argument("--only", nargs="+", help="run only these nodes (and what they need)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a graph without running anything")
+    p.add_argument("graph")
+    p.add_argument("--store", default=None)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("plugins", help="list node kinds and installed plugins with their parameters")
+    p.add_argument("--category", default=None)
+    p.set_defaults(func=cmd_plugins)
+
+    p = sub.add_parser("info", help="describe an artifact or every artifact in a store")
+    p.add_argument("store")
+    p.set_defaults(func=cmd_info)
+
+    args = ap.parse_args(argv)
+    try:
+        return args.func(args)
+    except SbrdfError as e:
+        print(f"sbrdf: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sbrdf: interrupted; re-run to resume from the chunks already written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""Sample-frame geometry: texel centres and per-texel light and view directions.
+
+Conventions (DESIGN.md): millimetres; the sample plane is z = 0, +z its normal,
++x along texel u, +y along texel v; the origin is the centre of the sample
+area; directions point away from the surface.  Array index order is ``[v, u]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def texel_centres(texels_uv: tuple[int, int], size_mm: tuple[float, float],
+                  v0: int = 0, v1: int | None = None, u0: int = 0, u1: int | None = None) -> np.ndarray:
+    """Texel-centre positions ``(V', U', 3)`` in mm for rows ``v0:v1`` and columns ``u0:u1``.
+
+    >>> texel_centres((2, 2), (10.0, 10.0))[0, 0]
+    array([-2.5, -2.5,  0. ])
+    """
+    n_u, n_v = texels_uv
+    v1 = n_v if v1 is None else v1
+    u1 = n_u if u1 is None else u1
+    x = (np.arange(u0, u1) + 0.5) / n_u * size_mm[0] - size_mm[0] / 2
+    y = (np.arange(v0, v1) + 0.5) / n_v * size_mm[1] - size_mm[1] / 2
+    p = np.zeros((v1 - v0, u1 - u0, 3))
+    p[..., 0] = x[None, :]
+    p[..., 1] = y[:, None]
+    return p
+
+
+def directions_to(points: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions and distances from ``points (..., 3)`` to ``targets (P, 3)``.
+
+    Returns ``(omega (..., P, 3), r (..., P))``.  Coincident points give a zero
+    distance and the +z direction rather than NaN.
+    """
+    d = targets[(None,) * (points.ndim - 1)] - points[..., None, :]
+    r = np.linalg.norm(d, axis=-1)
+    safe = np.where(r > 0, r, 1.0)
+    omega = d / safe[..., None]
+    omega = np.where((r > 0)[..., None], omega, np.array([0.0, 0.0, 1.0]))
+    return omega, r
+
+
+def camera_centre(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Camera centre ``-Rᵀ t`` from OpenCV world-to-camera extrinsics (broadcast over poses)."""
+    return -np.einsum("...ji,...j->...i", R, t)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray = np.zeros(3), up: np.ndarray = np.array([0.0, 1.0, 0.0])) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV extrinsics ``(R, t)`` of a camera at ``eye`` looking at ``target``.
+
+    Camera axes: +z forward, +x right, +y down.  When ``up`` is parallel to the
+    view direction, another up vector is chosen instead of producing NaN.
+    """
+    eye = np.asarray(eye, float)
+    f = np.asarray(target, float) - eye
+    f /= np.linalg.norm(f)
+    upv = np.asarray(up, float)
+    if abs(np.dot(f, upv)) > 0.999:
+        upv = np.array([1.0, 0.0, 0.0])
+    x = np.cross(f, upv)
+    x /= np.linalg.norm(x)
+    y = np.cross(f, x)
+    R = np.stack([x, y, f])
+    return R, -R @ eye
+
+
+def fibonacci_hemisphere(n: int, max_theta_deg: float = 80.0, offset: float = 0.0) -> np.ndarray:
+    """``n`` roughly uniform unit directions on the upper hemisphere, θ ≤ ``max_theta_deg``."""
+    i = np.arange(n) + 0.5
+    cos_max = np.cos(np.radians(max_theta_deg))
+    z = 1 - (1 - cos_max) * i / n
+    phi = np.pi * (3 - np.sqrt(5)) * i + offset
+    s = np.sqrt(np.clip(1 - z * z, 0, None))
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)

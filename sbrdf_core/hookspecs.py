@@ -1,0 +1,195 @@
+"""The plugin author's contract: every hook sbrdf calls, in one module.
+
+A plugin is a module (or object) with functions named after these hooks and
+decorated with :data:`sbrdf_core.plugin.hookimpl`, registered through the
+``sbrdf`` entry-point group of its distribution::
+
+    [project.entry-points.sbrdf]
+    my_models = "my_package.plugin"
+
+The built-in plugins under ``plugins/`` come in through exactly the same door.
+
+Most hooks are *registration hooks*: they take no arguments and return a list
+of :class:`~sbrdf_core.plugin.PluginSpec` describing contributions of one
+category.  The implementation named by ``PluginSpec.impl`` is imported only
+when a graph uses it, and must follow the protocol documented on the hook.
+
+Call semantics of every registration hook: *collected* (every plugin's list is
+concatenated), called once per process when the registry loads.  A name
+contributed twice in one category is an error naming both plugins.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import pluggy
+
+if TYPE_CHECKING:  # importing the contract never imports the engine
+    from .nodes.base import NodeKind
+    from .plugin import PluginSpec
+
+hookspec = pluggy.HookspecMarker("sbrdf")
+
+
+# ---------------------------------------------------------------------------
+# Framework
+# ---------------------------------------------------------------------------
+
+
+@hookspec
+def sbrdf_node_kinds() -> list[type[NodeKind]]:
+    """Node kinds that graphs may use (``kind:`` in YAML).
+
+    :returns: :class:`~sbrdf_core.nodes.base.NodeKind` subclasses.
+
+    The six kinds of the pipeline (Capture, Register, Reflectance, Fit,
+    Quantize, Render) are registered by the essential plugin
+    :mod:`sbrdf_core.nodes`, which cannot be disabled.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+# ---------------------------------------------------------------------------
+# Capture
+# ---------------------------------------------------------------------------
+
+
+@hookspec
+def sbrdf_captures() -> list[PluginSpec]:
+    """Capture sources: the ``plugin:`` of a ``Capture`` node.
+
+    :returns: specs whose ``impl`` is a class constructed with the declared
+        parameters and providing
+
+        - ``describe() -> sbrdf_core.nodes.capture.CaptureDescription``:
+          pose count, image size, per-pose light/camera metadata; no pixels.
+        - ``read_pose(index) -> (image, valid)``: linear HDR image
+          ``(H, W, 3) float32`` in relative radiance and a ``(H, W) bool``
+          mask of usable pixels (not saturated, not under-exposed).
+        - ``sequential`` (class attribute, default ``False``): ``True`` for
+          sources that drive hardware and must take poses one at a time, in
+          order, in this process.
+        - ``fingerprint() -> str`` (optional): changes when the source's data
+          changes (e.g. a capture folder's files), so cached results are redone.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+@hookspec
+def sbrdf_devices() -> list[PluginSpec]:
+    """Device drivers (motor controllers, cameras) that capture sources drive.
+
+    :returns: specs whose ``impl`` is a driver class; devices are looked up by
+        capture sources through :meth:`sbrdf_core.registry.Registry.create`,
+        never by graphs directly.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+# ---------------------------------------------------------------------------
+# Register
+# ---------------------------------------------------------------------------
+
+
+@hookspec
+def sbrdf_registrations() -> list[PluginSpec]:
+    """Registration methods: the ``plugin:`` of a ``Register`` node.
+
+    :returns: specs whose ``impl`` provides
+
+        - ``register(capture) -> sbrdf_core.nodes.register.Registration``:
+          given the opened ``CaptureSet`` artifact, the texel grid and per-pose
+          geometry (homography, RMS in mm, recovered camera centre, rejected
+          poses with reasons).  May read pixels (e.g. fiducials) eagerly: it
+          measures geometry, not the stack.
+        - ``resample(image, valid, pose, registration) -> (texels, texel_valid)``:
+          one accepted pose resampled onto the ``(V, U)`` texel grid.  Pure
+          NumPy; called inside dask tasks.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+# ---------------------------------------------------------------------------
+# Fit
+# ---------------------------------------------------------------------------
+
+
+@hookspec
+def sbrdf_brdf_models() -> list[PluginSpec]:
+    """BRDF models: what fitters fit, quantizers store and renderers shade.
+
+    :returns: specs whose ``impl`` is a :class:`sbrdf_core.brdf.BRDFModel`
+        subclass; ``params`` are its configuration (number of lobes,
+        anisotropy), not its per-texel parameters, which the instance declares
+        in ``parameters``.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+@hookspec
+def sbrdf_fitters() -> list[PluginSpec]:
+    """Fitters: the ``plugin:`` of a ``Fit`` node.
+
+    :returns: specs whose ``impl`` provides
+
+        - ``model`` (attribute): the :class:`~sbrdf_core.brdf.BRDFModel`
+          instance it fits.
+        - ``fit(f_r, valid, wi, wo) -> FitResult``: per-texel parameters for a
+          batch of T texels with S samples each: ``f_r (T, S, 3)`` in sr^-1,
+          ``valid (T, S)``, directions ``(T, S, 3)`` in the sample frame.
+          Vectorised over texels; called inside dask tasks, one texel tile
+          at a time.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+# ---------------------------------------------------------------------------
+# Quantize
+# ---------------------------------------------------------------------------
+
+
+@hookspec
+def sbrdf_quantizers() -> list[PluginSpec]:
+    """Texture layouts: the ``plugin:`` of a ``Quantize`` node.
+
+    :returns: specs whose ``impl`` provides ``encode(param_maps, model)``
+        returning lazy texture arrays and ``decode(texture_set, model)``
+        returning lazy parameter maps; see :mod:`sbrdf_core.nodes.quantize`.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+# ---------------------------------------------------------------------------
+# Render
+# ---------------------------------------------------------------------------
+
+
+@hookspec
+def sbrdf_renderers() -> list[PluginSpec]:
+    """Renderers: the ``plugin:`` of a ``Render`` node.
+
+    :returns: specs whose ``impl`` provides ``render(material) -> RenderResult``
+        where ``material`` is a :class:`sbrdf_core.nodes.render.Material`
+        (model + lazy parameter maps); see :mod:`sbrdf_core.nodes.render`.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+@hookspec
+def sbrdf_scene_effects() -> list[PluginSpec]:
+    """Scene effects (environment lighting, shadows, mirrors, camera noise).
+
+    :returns: specs whose ``impl`` a renderer consults only when a scene calls
+        for the effect, so that scenes pay only for what they use.
+
+    Call semantics: collected; called once when the registry loads.
+    """

@@ -1,0 +1,108 @@
+"""What a node kind is: typed ports, an output artifact kind, and a ``build``.
+
+``build`` describes the computation as lazy dask arrays and never computes;
+the runner (:mod:`sbrdf_core.runner`) decides which chunks still need writing
+and executes them.  Kernels stay plain NumPy so they can be tested without dask.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from ..artifacts import ArtifactKind
+from ..params import Param
+
+if TYPE_CHECKING:
+    import dask.array as da
+
+    from ..plugin import PluginSpec
+    from ..registry import Registry
+    from ..store import Artifact
+
+
+@dataclass(frozen=True)
+class Port:
+    """A typed input of a node kind: which artifact kinds it accepts."""
+
+    name: str
+    kinds: tuple[ArtifactKind, ...]
+    doc: str = ""
+
+    def accepts(self, kind: ArtifactKind) -> bool:
+        return any(k.kind == kind.kind for k in self.kinds)
+
+    @property
+    def kind_names(self) -> str:
+        return " or ".join(k.kind for k in self.kinds)
+
+
+@dataclass
+class Output:
+    """A node's lazy result: the arrays to write and how to finish the artifact.
+
+    Parameters
+    ----------
+    arrays
+        Output name -> lazy dask array.  Stored chunks equal the dask chunks
+        unless ``chunks`` says otherwise (the runner rechunks lazily).
+    chunks
+        Optional zarr chunk shape per array.
+    attrs
+        JSON attributes known at build time (e.g. model name, texel grid).
+    finalize
+        Called after every chunk is written with the (still incomplete)
+        artifact; returns more attributes (summary statistics, files written
+        beside the arrays).  The artifact is marked complete after it.
+    sequential
+        Compute chunks one at a time, in order, in this process (hardware).
+    """
+
+    arrays: dict[str, da.Array]
+    chunks: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    attrs: dict[str, Any] = field(default_factory=dict)
+    finalize: Callable[[Artifact], Mapping[str, Any]] | None = None
+    sequential: bool = False
+
+
+@dataclass
+class BuildContext:
+    """Everything a node kind's ``build`` may use."""
+
+    node: str
+    params: dict[str, Any]
+    inputs: dict[str, Artifact]
+    plugin: Any = None
+    spec: PluginSpec | None = None
+    registry: Registry | None = None
+    url: str = ""
+
+
+class NodeKind:
+    """Base class of node kinds; subclasses set the class attributes and ``build``."""
+
+    name: ClassVar[str]
+    doc: ClassVar[str] = ""
+    inputs: ClassVar[tuple[Port, ...]] = ()
+    output: ClassVar[ArtifactKind]
+    #: Category of the plugin a node of this kind names, or ``None`` if it takes none.
+    plugin_category: ClassVar[str | None] = None
+    #: Plugin used when the YAML omits ``plugin:``.
+    default_plugin: ClassVar[str | None] = None
+    #: Parameters of the node itself, accepted beside the plugin's.
+    params: ClassVar[tuple[Param, ...]] = ()
+
+    @classmethod
+    def port(cls, name: str) -> Port | None:
+        return next((p for p in cls.inputs if p.name == name), None)
+
+    @classmethod
+    def fingerprint(cls, ctx: BuildContext) -> str:
+        """Extra cache-key material beyond parameters and inputs (e.g. files on disk)."""
+        fp = getattr(ctx.plugin, "fingerprint", None)
+        return fp() if callable(fp) else ""
+
+    @classmethod
+    def build(cls, ctx: BuildContext) -> Output:  # pragma: no cover - abstract
+        raise NotImplementedError

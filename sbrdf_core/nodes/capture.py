@@ -1,0 +1,90 @@
+"""Capture: photographs of the sample under many light and view directions.
+
+The node's plugin is a *capture source* (a device rig, a capture folder, a
+simulator).  The source describes the poses up front and hands over one linear
+HDR image per pose; the node stores them pose-major, one pose per chunk, so an
+interrupted capture resumes from the last pose written.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..artifacts import CaptureSet
+from .base import BuildContext, NodeKind, Output
+
+
+@dataclass
+class CaptureDescription:
+    """Everything about a capture except its pixels.
+
+    ``sample``, ``camera`` and ``light`` follow the capture-folder format
+    (``sbrdf-capture/1`` in DESIGN.md); ``camera["model"]`` is ``"pinhole"``
+    for ordinary photographs or ``"texel-aligned"`` for images that are
+    already resampled onto the texel grid (simulators).
+    """
+
+    height: int
+    width: int
+    light_pos: np.ndarray  # (P, 3) mm
+    camera_R: np.ndarray  # (P, 3, 3)
+    camera_t: np.ndarray  # (P, 3) mm
+    exposure_s: np.ndarray  # (P,)
+    sample: dict[str, Any] = field(default_factory=dict)
+    camera: dict[str, Any] = field(default_factory=dict)
+    light: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_poses(self) -> int:
+        return int(self.light_pos.shape[0])
+
+    def attrs(self) -> dict[str, Any]:
+        return {"sample": self.sample, "camera": self.camera, "light": self.light}
+
+
+def _read_block(index: np.ndarray, source) -> np.ndarray:
+    """Kernel: one pose -> ``(1, H, W, 4)`` = RGB radiance + validity."""
+    image, valid = source.read_pose(int(index[0]))
+    image = np.asarray(image, dtype=np.float32)
+    finite = np.isfinite(image).all(axis=-1)
+    out = np.empty(image.shape[:2] + (4,), np.float32)
+    out[..., :3] = np.where(finite[..., None], image, 0.0)
+    out[..., 3] = np.asarray(valid, bool) & finite
+    return out[None]
+
+
+class Capture(NodeKind):
+    name = "Capture"
+    doc = "Photograph the sample from a capture source; stores a pose-major CaptureSet."
+    output = CaptureSet
+    plugin_category = "capture"
+
+    @classmethod
+    def build(cls, ctx: BuildContext) -> Output:
+        import dask.array as da
+
+        source = ctx.plugin
+        desc: CaptureDescription = source.describe()
+        P, H, W = desc.n_poses, desc.height, desc.width
+        index = da.arange(P, chunks=1)
+        packed = da.map_blocks(
+            _read_block, index, source,
+            new_axis=[1, 2, 3], chunks=((1,) * P, (H,), (W,), (4,)), dtype=np.float32,
+            name=f"capture-read-{ctx.node}",
+        )
+        small = lambda a: da.from_array(np.asarray(a, dtype=np.float64))  # noqa: E731
+        return Output(
+            arrays={
+                "images": packed[..., :3],
+                "valid": packed[..., 3] > 0.5,
+                "light_pos": small(desc.light_pos),
+                "camera_R": small(desc.camera_R),
+                "camera_t": small(desc.camera_t),
+                "exposure_s": small(desc.exposure_s),
+            },
+            attrs=desc.attrs(),
+            sequential=bool(getattr(source, "sequential", False)),
+        )

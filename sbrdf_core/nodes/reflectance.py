@@ -1,0 +1,89 @@
+"""Reflectance: radiance -> sampled BRDF, transposed texel-tile-major.
+
+Per texel and pose, from the registered geometry (not per pose: the light
+falls off by ≈10 % across a sample, seed 000 §3.7):
+
+    f_r = L · r² / (I · cos θ_i)
+
+with r the texel-to-light distance and I the light's radiant intensity.
+Samples lit or seen at grazing angles (cos θ < ``min_cos``), non-finite or
+masked by registration are marked invalid and stored as 0, never NaN.
+
+The result is stored with all poses of a texel tile in one chunk because
+fitting needs every sample of a texel at once; the pose-major -> tile-major
+transpose is the pipeline's one big shuffle, done by dask's rechunk so the
+scan is never loaded whole.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..artifacts import RegisteredStack, SampledReflectance
+from ..geometry import directions_to, texel_centres
+from ..params import Param
+from ..store import texel_tile
+from .base import BuildContext, NodeKind, Output, Port
+
+
+def reflectance_block(radiance: np.ndarray, valid: np.ndarray, light_pos: np.ndarray, camera_pos: np.ndarray,
+                      texels: tuple[int, int], size_mm: tuple[float, float], intensity: float, min_cos: float) -> np.ndarray:
+    """Kernel over a pose block: ``radiance (p, V, U, 3)`` -> ``(p, V, U, 4)`` = f_r RGB + validity."""
+    p = texel_centres(texels, size_mm)  # (V, U, 3)
+    wi, r = directions_to(p, light_pos)  # (V, U, p, 3), (V, U, p)
+    wo, _ = directions_to(p, camera_pos)
+    cos_i = np.moveaxis(wi[..., 2], -1, 0)  # (p, V, U)
+    cos_o = np.moveaxis(wo[..., 2], -1, 0)
+    r2 = np.moveaxis(r, -1, 0) ** 2
+    ok = valid & (cos_i > min_cos) & (cos_o > min_cos)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = radiance * (r2 / (intensity * np.where(ok, cos_i, 1.0)))[..., None]
+    ok &= np.isfinite(f).all(axis=-1)
+    out = np.empty(radiance.shape[:3] + (4,), np.float32)
+    out[..., :3] = np.where(ok[..., None], f, 0.0)
+    out[..., 3] = ok
+    return out
+
+
+def _block(radiance, valid, light_pos, camera_pos, texels, size_mm, intensity, min_cos, block_info=None):
+    lo, hi = block_info[0]["array-location"][0]
+    return reflectance_block(radiance, valid[..., 0], light_pos[lo:hi], camera_pos[lo:hi], texels, size_mm, intensity, min_cos)
+
+
+class Reflectance(NodeKind):
+    name = "Reflectance"
+    doc = "Convert registered radiance to sampled BRDF values (sr^-1), stored texel-tile-major."
+    inputs = (Port("stack", (RegisteredStack,), "registered radiance"),)
+    output = SampledReflectance
+    params = (
+        Param("tile", "int", None, "edge of the texel tile stored per chunk; default picks 32..128 for ~16 MiB chunks",
+              bounds=(1, 4096), nullable=True),
+        Param("min_cos", "float", 0.02, "samples lit or seen with cos θ below this are invalid (grazing)", bounds=(0.0, 1.0)),
+    )
+
+    @classmethod
+    def build(cls, ctx: BuildContext) -> Output:
+        import dask.array as da
+
+        stack = ctx.inputs["stack"]
+        texels = tuple(stack.attrs["texels"])
+        size_mm = tuple(stack.attrs["size_mm"])
+        intensity = float(stack.attrs.get("light", {}).get("intensity", 1.0))
+        light_pos, camera_pos = stack.read("light_pos"), stack.read("camera_pos")
+        radiance, valid = stack.array("radiance"), stack.array("valid")
+        P, V, U = valid.shape
+        packed = da.map_blocks(
+            _block, radiance, valid[..., None], light_pos, camera_pos, texels, size_mm, intensity, ctx.params["min_cos"],
+            dtype=np.float32, chunks=radiance.chunks[:3] + ((4,),), name=f"reflectance-{ctx.node}",
+        )
+        t = texel_tile((V, U), P, channels=4, tile=ctx.params["tile"])
+        tiled = packed.rechunk((P, t, t, 4)).transpose(1, 2, 0, 3)  # (V, U, P, 4)
+        return Output(
+            arrays={
+                "f_r": tiled[..., :3],
+                "valid": tiled[..., 3] > 0.5,
+                "light_pos": da.from_array(light_pos),
+                "camera_pos": da.from_array(camera_pos),
+            },
+            attrs={"texels": list(texels), "size_mm": list(size_mm), "light": stack.attrs.get("light", {}), "tile": t},
+        )

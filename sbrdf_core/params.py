@@ -1,0 +1,178 @@
+"""Parameter declarations: one tuple of :class:`Param` per plugin.
+
+A plugin declares its parameters once, as data.  The same tuple validates YAML
+graphs (an unknown name gets an error listing the accepted ones), fills in
+defaults, feeds ``sbrdf plugins`` and the generated docs, and is the signature
+its implementation is constructed with.
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import ParameterError
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+#: Marker default for a parameter the graph must give.
+REQUIRED: Any = _Required()
+
+_TYPE_NAMES = {
+    "int": "int",
+    "float": "float",
+    "str": "str",
+    "bool": "bool",
+    "list": "list",
+    "dict": "dict",
+    "any": "any",
+}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One declared plugin parameter.
+
+    Parameters
+    ----------
+    name
+        The key used in YAML ``params:``.
+    type
+        One of ``int``, ``float``, ``str``, ``bool``, ``list``, ``dict``, ``any``.
+    default
+        Value used when the graph omits it; :data:`REQUIRED` if it must be given.
+    doc
+        One sentence for ``sbrdf plugins`` and the reference docs.
+    choices
+        Allowed values, if the parameter is an enumeration.
+    bounds
+        Inclusive ``(low, high)`` for numbers (either may be ``None``).
+    length
+        Required length for ``list`` parameters (e.g. 2 for ``[width, height]``).
+    item
+        Element type for ``list`` parameters (``int``, ``float``, ``str``).
+    unit
+        Unit of the value (``mm``, ``s``, ``sr^-1``), shown in docs.
+    nullable
+        Whether ``null`` is accepted (meaning "not set").
+    """
+
+    name: str
+    type: str
+    default: Any = REQUIRED
+    doc: str = ""
+    choices: tuple | None = None
+    bounds: tuple[float | None, float | None] | None = None
+    length: int | None = None
+    item: str | None = None
+    unit: str = ""
+    nullable: bool = False
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.type not in _TYPE_NAMES:
+            raise ValueError(f"Param {self.name!r}: unknown type {self.type!r}; use one of {sorted(_TYPE_NAMES)}")
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+    def describe(self) -> str:
+        """``name: type = default`` as shown in error messages and listings."""
+        t = f"list[{self.item}]" if self.type == "list" and self.item else self.type
+        if self.length:
+            t += f"[{self.length}]"
+        d = "required" if self.required else f"default {self.default!r}"
+        extra = ""
+        if self.choices:
+            extra = f", one of {list(self.choices)}"
+        if self.bounds:
+            extra += f", in [{self.bounds[0]}, {self.bounds[1]}]"
+        unit = f" {self.unit}" if self.unit else ""
+        return f"{self.name} ({t}{unit}, {d}{extra})"
+
+    def check(self, value: Any) -> Any:
+        """Return ``value`` coerced to the declared type, or raise :class:`ParameterError`."""
+        if value is None:
+            if self.nullable or self.default is None:
+                return None
+            raise ParameterError(f"parameter {self.name!r} may not be null; expected {self.describe()}")
+        value = _coerce(self.type, value, self.name)
+        if self.type == "list":
+            if self.length is not None and len(value) != self.length:
+                raise ParameterError(f"parameter {self.name!r} needs {self.length} items, got {len(value)}")
+            if self.item:
+                value = [_coerce(self.item, v, f"{self.name}[{i}]") for i, v in enumerate(value)]
+        if self.choices is not None and value not in self.choices:
+            raise ParameterError(f"parameter {self.name!r} is {value!r}; expected one of {list(self.choices)}")
+        if self.bounds is not None:
+            items = value if self.type == "list" else [value]
+            lo, hi = self.bounds
+            for v in items:
+                if (lo is not None and v < lo) or (hi is not None and v > hi):
+                    raise ParameterError(f"parameter {self.name!r} = {v!r} is outside [{lo}, {hi}]")
+        return value
+
+
+def _coerce(type_: str, value: Any, name: str) -> Any:
+    ok = {
+        "int": isinstance(value, numbers.Integral) and not isinstance(value, bool),
+        "float": isinstance(value, numbers.Real) and not isinstance(value, bool),
+        "str": isinstance(value, str),
+        "bool": isinstance(value, bool),
+        "list": isinstance(value, Sequence) and not isinstance(value, str),
+        "dict": isinstance(value, Mapping),
+        "any": True,
+    }[type_]
+    if not ok:
+        raise ParameterError(f"parameter {name!r} should be {type_}, got {type(value).__name__} {value!r}")
+    if type_ == "float":
+        return float(value)
+    if type_ == "int":
+        return int(value)
+    if type_ == "list":
+        return list(value)
+    if type_ == "dict":
+        return dict(value)
+    return value
+
+
+def resolve(declared: Sequence[Param], given: Mapping[str, Any] | None, owner: str) -> tuple[dict, list[tuple[str | None, str]]]:
+    """Check ``given`` against ``declared``; fill defaults.
+
+    Returns the resolved values and a list of ``(key, message)`` problems, where
+    ``key`` names the offending parameter (``None`` for a missing one) so that
+    callers can point at the right YAML line.
+    """
+    given = dict(given or {})
+    by_name = {p.name: p for p in declared}
+    accepted = "; ".join(p.describe() for p in declared) or "none"
+    values: dict[str, Any] = {}
+    problems: list[tuple[str | None, str]] = []
+    for key in given:
+        if key not in by_name:
+            problems.append((key, f"unknown parameter {key!r} for {owner}; accepted: {accepted}"))
+    for p in declared:
+        if p.name in given:
+            try:
+                values[p.name] = p.check(given[p.name])
+            except ParameterError as e:
+                problems.append((p.name, f"{owner}: {e}"))
+        elif p.required:
+            problems.append((None, f"missing required parameter {p.name!r} for {owner}; expected {p.describe()}"))
+        else:
+            values[p.name] = p.default
+    return values, problems
+
+
+def format_table(declared: Sequence[Param]) -> str:
+    """Plain-text table of parameters for ``sbrdf plugins``."""
+    if not declared:
+        return "    (no parameters)"
+    return "\n".join(f"    {p.describe()}" + (f"\n        {p.doc}" if p.doc else "") for p in declared)

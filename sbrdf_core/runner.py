@@ -1,0 +1,378 @@
+"""Execute a validated graph with dask, node by node, chunk by chunk.
+
+For each node, in dependency order:
+
+1. open its inputs (complete artifacts only) and construct its plugin;
+2. compute its *token*: ``tokenize`` of node kind, plugin name and version,
+   parameters, the plugin's fingerprint and the input tokens;
+3. if the artifact at ``<store>/<node>`` is complete with that token, skip it
+   (cached); if it is partial with that token, resume; otherwise start fresh;
+4. ``build`` the lazy output, and write only the chunks without a done
+   marker, each in its own dask task (:func:`sbrdf_core.store.write_chunk`);
+5. finalize and mark the artifact complete.
+
+Execution is on dask's threaded scheduler by default, or on a
+``dask.distributed`` cluster given its address.  A lost worker's tasks are
+recomputed elsewhere by distributed; writes are idempotent, so results are
+identical.
+"""
+
+from __future__ import annotations
+
+import getpass
+import platform
+import socket
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .errors import RunError, SbrdfError
+from .graph import Graph, Node
+from .nodes.base import BuildContext, Output
+from .registry import Registry, default_registry
+from .store import ArrayLayout, ArtifactWriter, open_artifact, write_chunk
+
+#: progress(node, done, total) is called after every chunk written.
+ProgressFn = Callable[[str, int, int], None]
+
+
+@dataclass
+class NodeReport:
+    """What running one node did."""
+
+    node: str
+    status: str  # cached | computed | resumed
+    chunks_total: int = 0
+    chunks_written: int = 0
+    chunks_resumed: int = 0
+    wall_s: float = 0.0
+    url: str = ""
+    token: str = ""
+
+
+@dataclass
+class RunReport:
+    graph: str
+    nodes: list[NodeReport] = field(default_factory=list)
+
+    def __getitem__(self, node: str) -> NodeReport:
+        return next(r for r in self.nodes if r.node == node)
+
+    def table(self) -> str:
+        rows = [f"{'node':<14} {'status':<9} {'chunks':>13} {'wall_s':>8}  artifact"]
+        for r in self.nodes:
+            chunks = f"{r.chunks_written}/{r.chunks_total}" + (f" +{r.chunks_resumed}" if r.chunks_resumed else "")
+            rows.append(f"{r.node:<14} {r.status:<9} {chunks:>13} {r.wall_s:>8.2f}  {r.url}")
+        return "\n".join(rows)
+
+
+def node_token(node: Node, spec_version: str, inputs: dict, fingerprint: str) -> str:
+    from dask.base import tokenize
+
+    return tokenize(
+        "sbrdf-node",
+        node.kind.name,
+        node.kind.output.version,
+        node.plugin,
+        spec_version,
+        sorted(node.params.items(), key=lambda kv: kv[0]).__repr__(),
+        sorted((port, art.token) for port, art in inputs.items()),
+        fingerprint,
+    )
+
+
+class Runner:
+    """Runs graphs.
+
+    Parameters
+    ----------
+    scheduler
+        ``"threads"`` (default), ``"sync"``, ``"processes"``, a
+        ``tcp://host:port`` address of a running ``dask.distributed``
+        scheduler, or a ``distributed.Client``.
+    num_workers
+        Threads or processes for the local schedulers.
+    progress
+        ``True`` for a tqdm bar per node on stderr, ``False`` for none, or a
+        callable ``progress(node, done, total)``.
+    no_worker_timeout
+        Seconds a distributed run waits with no workers at all before failing.
+    """
+
+    def __init__(
+        self,
+        registry: Registry | None = None,
+        scheduler: Any = "threads",
+        num_workers: int | None = None,
+        progress: bool | ProgressFn = False,
+        no_worker_timeout: float = 60.0,
+    ):
+        self.registry = registry or default_registry()
+        self.scheduler = scheduler
+        self.num_workers = num_workers
+        self.progress = progress
+        self.no_worker_timeout = no_worker_timeout
+        self._client = None
+
+    # -- public -----------------------------------------------------------------
+
+    def run(self, graph: Graph, only: Iterable[str] | None = None) -> RunReport:
+        """Execute ``graph`` (or the nodes in ``only`` and what they need)."""
+        report = RunReport(graph.name)
+        wanted = self._closure(graph, only)
+        try:
+            for node in graph.nodes.values():
+                if node.name in wanted:
+                    report.nodes.append(self._run_node(graph, node))
+        finally:
+            if self._client is not None and isinstance(self.scheduler, str):
+                self._client.close()
+                self._client = None
+        return report
+
+    # -- one node -------------------------------------------------------------------
+
+    def _run_node(self, graph: Graph, node: Node) -> NodeReport:
+        t0 = time.perf_counter()
+        url = graph.url(node.name)
+        inputs = {port: open_artifact(graph.url(src), kind=node.kind.port(port).kinds) for port, src in node.inputs.items()}
+        spec = plugin = None
+        plugin_params = node.params
+        if node.kind.plugin_category is not None:
+            spec = self.registry.get(node.kind.plugin_category, node.plugin)
+            own = {p.name for p in node.kind.params}
+            plugin_params = {k: v for k, v in node.params.items() if k not in own}
+            try:
+                plugin = self.registry.load(spec)(**plugin_params)
+                if hasattr(plugin, "bind"):  # plugins that look up other plugins (a model, a device)
+                    plugin.bind(self.registry)
+            except SbrdfError:
+                raise
+            except Exception as e:
+                raise RunError(f"node {node.name!r}: plugin {node.plugin!r} rejected its parameters: {e}") from e
+        ctx = BuildContext(node.name, dict(node.params), inputs, plugin, spec, self.registry, url)
+        token = node_token(node, spec.version if spec else __version__, inputs, node.kind.fingerprint(ctx))
+        writer = ArtifactWriter(url, node.kind.output, token)
+        state = writer.state()
+        rep = NodeReport(node.name, "cached", url=url, token=token)
+        if state == "complete":
+            rep.wall_s = time.perf_counter() - t0
+            return rep
+        try:
+            out = node.kind.build(ctx)
+        except SbrdfError:
+            raise
+        except Exception as e:
+            raise RunError(f"node {node.name!r} ({node.kind.name}/{node.plugin}): {type(e).__name__}: {e}") from e
+        arrays, layouts = _regularise(out)
+        provenance = self._provenance(graph, node, spec, inputs, token)
+        done = writer.prepare(layouts, {"provenance": provenance, **out.attrs})
+        tasks, n_done = self._write_tasks(url, token, arrays, layouts, done)
+        rep.status = "resumed" if n_done else "computed"
+        rep.chunks_total = sum(lay.nchunks for lay in layouts.values())
+        rep.chunks_resumed = n_done
+        self._execute(node.name, tasks, rep.chunks_total, n_done, sequential=out.sequential)
+        rep.chunks_written = len(tasks)
+        extra: dict[str, Any] = {}
+        if out.finalize is not None:
+            extra.update(out.finalize(open_artifact(url, require_complete=False)))
+        rep.wall_s = time.perf_counter() - t0
+        extra["run"] = {"wall_s": rep.wall_s, "chunks_written": rep.chunks_written, "chunks_resumed": n_done,
+                        "finished": datetime.now(timezone.utc).isoformat()}
+        writer.mark_complete(layouts, extra)
+        return rep
+
+    def _provenance(self, graph: Graph, node: Node, spec, inputs: dict, token: str) -> dict:
+        return {
+            "graph": {"name": graph.name, "file": graph.file, "sha256": graph.digest},
+            "node": node.name,
+            "node_kind": node.kind.name,
+            "parameters": _jsonable(node.params),
+            "plugin": None if spec is None else {
+                "name": spec.name, "category": spec.category, "entry_point": spec.plugin,
+                "distribution": spec.distribution, "version": spec.version,
+            },
+            "inputs": {port: {"url": a.url, "kind": a.kind, "token": a.token} for port, a in inputs.items()},
+            "token": token,
+            "sbrdf_version": __version__,
+            "created": datetime.now(timezone.utc).isoformat(),
+            "host": socket.gethostname(),
+            "user": _user(),
+            "python": platform.python_version(),
+        }
+
+    # -- tasks ----------------------------------------------------------------------
+
+    @staticmethod
+    def _write_tasks(url: str, token: str, arrays: dict, layouts: dict, done: dict) -> tuple[list, int]:
+        import dask
+        from dask import delayed
+
+        names = list(arrays)
+        optimized = dask.optimize(*[arrays[n] for n in names])
+        tasks, n_done = [], 0
+        for name, arr in zip(names, optimized):
+            starts = [np.concatenate([[0], np.cumsum(c)]) for c in arr.chunks]
+            blocks = arr.to_delayed(optimize_graph=False)
+            for index in np.ndindex(*arr.numblocks):
+                key = ".".join(map(str, index)) or "0"
+                if key in done[name]:
+                    n_done += 1
+                    continue
+                region = tuple(slice(int(s[i]), int(s[i + 1])) for s, i in zip(starts, index))
+                write = delayed(write_chunk, pure=True, name=f"write-{name}-{key}-{token}")
+                tasks.append(write(blocks[index], url, name, token, index, region))
+        return tasks, n_done
+
+    def _execute(self, node: str, tasks: list, total: int, already: int, sequential: bool = False) -> None:
+        if not tasks:
+            return
+        bar = self._bar(node, total, already)
+        try:
+            if sequential:
+                for t in tasks:
+                    t.compute(scheduler="sync")
+                    bar(1)
+            elif self._is_distributed():
+                self._execute_distributed(node, tasks, bar)
+            else:
+                self._execute_local(tasks, bar)
+        except SbrdfError:
+            raise
+        except Exception as e:
+            raise RunError(f"node {node!r} failed: {type(e).__name__}: {e}") from e
+        finally:
+            bar(None)
+
+    def _execute_local(self, tasks: list, bar) -> None:
+        import dask
+        from dask.callbacks import Callback
+
+        keys = {t.key for t in tasks}
+
+        def posttask(key, result, dsk, state, worker_id):
+            if key in keys:
+                bar(1)
+
+        with Callback(posttask=posttask):
+            dask.compute(*tasks, scheduler=self.scheduler, num_workers=self.num_workers)
+
+    def _is_distributed(self) -> bool:
+        s = self.scheduler
+        return not isinstance(s, str) or "://" in s
+
+    def _execute_distributed(self, node: str, tasks: list, bar) -> None:
+        from distributed import Client, as_completed
+
+        if self._client is None:
+            self._client = Client(self.scheduler) if isinstance(self.scheduler, str) else self.scheduler
+        client = self._client
+        futures = client.compute(tasks)
+        pending = set(futures)
+        seq = as_completed(futures, with_results=False)
+        no_workers_since = None
+        while pending:
+            batch = seq.next_batch(block=False)
+            for f in batch:
+                pending.discard(f)
+                if f.status == "error":
+                    client.cancel(list(pending))
+                    exc = f.exception()
+                    raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
+                bar(1)
+            if not batch:
+                workers = client.scheduler_info(n_workers=-1).get("workers", {}) if _takes_n_workers(client) else client.scheduler_info().get("workers", {})
+                if workers:
+                    no_workers_since = None
+                else:
+                    no_workers_since = no_workers_since or time.monotonic()
+                    if time.monotonic() - no_workers_since > self.no_worker_timeout:
+                        client.cancel(list(pending))
+                        raise RunError(
+                            f"node {node!r}: no dask workers left on {client.scheduler.address} for "
+                            f"{self.no_worker_timeout:.0f} s; {len(pending)} chunks unwritten (re-run to resume)"
+                        )
+                time.sleep(0.05)
+
+    def _bar(self, node: str, total: int, already: int):
+        if callable(self.progress):
+            count = [already]
+
+            def cb(n):
+                if n:
+                    count[0] += n
+                    self.progress(node, count[0], total)
+
+            return cb
+        if not self.progress:
+            return lambda n: None
+        from tqdm import tqdm
+
+        t = tqdm(total=total, initial=already, desc=f"{node:<12}", unit="chunk", file=sys.stderr, leave=True)
+        return lambda n: t.close() if n is None else t.update(n)
+
+    @staticmethod
+    def _closure(graph: Graph, only: Iterable[str] | None) -> set[str]:
+        if not only:
+            return set(graph.nodes)
+        wanted: set[str] = set()
+        stack = list(only)
+        while stack:
+            n = stack.pop()
+            if n not in graph.nodes:
+                raise RunError(f"no node {n!r} in graph {graph.name!r}; nodes: {', '.join(graph.nodes)}")
+            if n not in wanted:
+                wanted.add(n)
+                stack.extend(graph.nodes[n].inputs.values())
+        return wanted
+
+
+def _takes_n_workers(client) -> bool:
+    import inspect
+
+    return "n_workers" in inspect.signature(client.scheduler_info).parameters
+
+
+def _regularise(out: Output) -> tuple[dict, dict[str, ArrayLayout]]:
+    """Rechunk every output to its stored chunking so one task writes whole chunks."""
+    arrays, layouts = {}, {}
+    for name, arr in out.arrays.items():
+        chunks = out.chunks.get(name) or tuple(c[0] if c else 1 for c in arr.chunks)
+        chunks = tuple(max(1, min(c, s)) if s else 1 for c, s in zip(chunks, arr.shape))
+        if any(c and (any(x != k for x in c[:-1]) or c[-1] > k) for c, k in zip(arr.chunks, chunks)):
+            arr = arr.rechunk(chunks)
+        fill = float("nan") if np.dtype(arr.dtype).kind == "f" else 0
+        arrays[name] = arr
+        layouts[name] = ArrayLayout(tuple(arr.shape), chunks, np.dtype(arr.dtype).name, fill)
+    return arrays, layouts
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.generic,)):
+        return value.item()
+    return value
+
+
+def _user() -> str:
+    try:
+        return getpass.getuser()
+    except Exception:
+        return ""
+
+
+def run_graph(source, store: str | None = None, **runner_kwargs) -> RunReport:
+    """Load, validate and run a graph file: the one-call API."""
+    from .graph import load_graph
+
+    runner = Runner(**runner_kwargs)
+    return runner.run(load_graph(source, runner.registry, store=store))
