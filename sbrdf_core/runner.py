@@ -165,7 +165,7 @@ class Runner:
             rep.wall_s = time.perf_counter() - t0
             return rep
         try:
-            out = node.kind.build(ctx)
+            out = self._build(node, ctx)
         except SbrdfError:
             raise
         except Exception as e:
@@ -187,6 +187,15 @@ class Runner:
                         "finished": datetime.now(timezone.utc).isoformat()}
         writer.mark_complete(layouts, extra)
         return rep
+
+    def _build(self, node: Node, ctx: BuildContext) -> Output:
+        import dask
+
+        # dask picks p2p rechunking whenever a distributed client exists in the
+        # process; p2p tasks only run on workers, so local runs must use tasks.
+        method = dask.config.get("array.rechunk.method", None) if self._is_distributed() else "tasks"
+        with dask.config.set({"array.rechunk.method": method}):
+            return node.kind.build(ctx)
 
     def _provenance(self, graph: Graph, node: Node, spec, inputs: dict, token: str) -> dict:
         return {

@@ -102,7 +102,7 @@ class Artifact:
     provenance = property(lambda self: self.attrs.get("provenance", {}))
 
     def names(self) -> list[str]:
-        return sorted(name for name, m in self.group.members(max_depth=None)
+        return sorted(name for name, m in members(self.group)
                       if isinstance(m, zarr.Array) and not name.startswith(MARKERS))
 
     def zarr_array(self, name: str) -> zarr.Array:
@@ -129,6 +129,15 @@ class Artifact:
     def __repr__(self) -> str:
         state = "complete" if self.complete else "INCOMPLETE"
         return f"<{self.kind} v{self.version} {state} at {self.url}>"
+
+
+def members(group: zarr.Group):
+    """All members of a group, quietly skipping files kept beside the arrays (EXR, PNG)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*not recognized as a component of a Zarr hierarchy")
+        return list(group.members(max_depth=None))
 
 
 def open_artifact(url: str, kind: ArtifactKind | str | tuple | None = None, require_complete: bool = True) -> Artifact:

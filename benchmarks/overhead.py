@@ -1,0 +1,327 @@
+"""Overhead of the sbrdf graph runner against plain dask.array doing the same work.
+
+What it measures
+----------------
+The same three-stage pipeline is run two ways, each on a fresh temporary zarr
+store, and timed with ``time.perf_counter`` (wall clock):
+
+``graph``
+    A three-node YAML graph, written to a temporary directory and run with
+    ``Runner(progress=False, scheduler="threads")``::
+
+        capture (Capture, synthetic, model lambert, noise 0)
+          -> register (Register, texel-aligned)
+          -> reflectance (Reflectance)
+
+    The timing covers loading/validating the graph and the whole run: plugin
+    construction, cache tokens, provenance, one write task per chunk
+    (``write_chunk``) with its done marker, finalisation and completion checks.
+
+``plain dask``
+    The same computation with ``dask.array`` only (no Runner, no artifacts,
+    provenance or done markers), each stage stored with ``da.store(lock=False)``
+    into zarr arrays created with the same shapes, chunks, dtypes and fill
+    values as the graph's, and the next stage reading them back:
+
+    1. capture: ``SyntheticCapture.read_pose`` (built through
+       ``default_registry().create("capture", "synthetic", params)`` and
+       ``.bind(registry)``), packed by ``sbrdf_core.nodes.capture._read_block``
+       over ``da.arange(P, chunks=1)`` exactly as ``nodes/capture.py`` does;
+       stores ``images`` and ``valid``;
+    2. register: texel-aligned registration is the identity, so ``images`` and
+       ``valid`` are read back and stored again as ``radiance`` and ``valid``
+       (the graph additionally runs its per-pose resample kernel, a copy);
+    3. reflectance: ``sbrdf_core.nodes.reflectance.reflectance_block`` through
+       ``da.map_blocks`` per pose, then the same rechunk to texel tiles
+       (``sbrdf_core.store.texel_tile``) and transpose; stores ``f_r`` and
+       ``valid``.
+
+    The small per-pose metadata arrays (light and camera positions, ...) are
+    computed in memory instead of being stored.
+
+Both variants must produce bit-identical ``f_r`` and ``valid`` (all tiles with
+``--quick``, a sample of tiles at full size, all with ``--check-all``); the
+script exits with status 1 if they do not.
+
+Method: both variants are first run once, untimed, at a tiny size (texels
+[32, 32], 4 poses) to import and initialise everything.  Then each variant is
+run ``--repeat`` times (default 1), alternating graph / plain, each on a fresh
+store, with ``os.sync()`` before every timed run so dirty pages of the previous
+run are not flushed on the next one's clock; the best (minimum) time of each
+is reported.  All temporary stores are deleted at the end, also on error.
+
+Sizes: full size (no arguments) is texels [512, 512] x 341 poses, so the
+capture ``images`` array is 341*512*512*3*4 B = 1.07e9 B (~1 GiB float32);
+``--quick`` is texels [256, 256] x 64 poses (about a minute on 2 cores).
+
+How to run
+----------
+::
+
+    python benchmarks/overhead.py [--quick] [--repeat N] [--check-all] [--tmpdir DIR]
+
+Progress goes to stderr; the last line of stdout is::
+
+    overhead: graph_s=<float> plain_dask_s=<float> ratio=<float> bytes=<int> poses=.. texels=UxV tile=..
+
+What the numbers mean
+---------------------
+``graph_s`` and ``plain_dask_s`` are the wall-clock seconds of each variant,
+``ratio = graph_s / plain_dask_s`` (1.0 = no overhead; 1.10 = the runner costs
+10 % on top of the bare computation and I/O), ``bytes`` the size of the
+capture ``images`` array.  Per-stage seconds of both variants are printed to
+stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+FULL = ((512, 512), 341)
+QUICK = ((256, 256), 64)
+WARMUP = ((32, 32), 4)
+MIN_COS = 0.02  # the Reflectance node's default
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def capture_params(texels: tuple[int, int], poses: int) -> dict:
+    return {"texels": [int(texels[0]), int(texels[1])], "poses": int(poses), "model": "lambert", "noise": 0.0}
+
+
+# ---------------------------------------------------------------------------
+# graph variant
+# ---------------------------------------------------------------------------
+
+GRAPH_YAML = """\
+name: overhead
+description: benchmarks/overhead.py - capture -> register -> reflectance
+store: ./store
+nodes:
+  capture:
+    kind: Capture
+    plugin: synthetic
+    params: {{texels: [{u}, {v}], poses: {p}, model: lambert, noise: 0}}
+  register:
+    kind: Register
+    plugin: texel-aligned
+    in: {{capture: capture}}
+  reflectance:
+    kind: Reflectance
+    in: {{stack: register}}
+"""
+
+
+def run_graph_variant(workdir: Path, texels: tuple[int, int], poses: int) -> tuple[float, dict[str, float], Path]:
+    """Run the YAML graph on a fresh store under ``workdir``; return (seconds, per-node seconds, store)."""
+    from sbrdf_core.graph import load_graph
+    from sbrdf_core.runner import Runner
+
+    workdir.mkdir(parents=True)
+    yaml_path = workdir / "overhead.yaml"
+    yaml_path.write_text(GRAPH_YAML.format(u=texels[0], v=texels[1], p=poses))
+    store = workdir / "store"
+    t0 = time.perf_counter()
+    runner = Runner(progress=False, scheduler="threads")
+    report = runner.run(load_graph(yaml_path, runner.registry, store=str(store)))
+    dt = time.perf_counter() - t0
+    for r in report.nodes:
+        if r.status != "computed":
+            raise RuntimeError(f"graph node {r.node} was {r.status}, expected computed (store not fresh?)")
+    return dt, {r.node: r.wall_s for r in report.nodes}, store
+
+
+# ---------------------------------------------------------------------------
+# plain dask variant
+# ---------------------------------------------------------------------------
+
+
+def _create_like(group, name: str, arr):
+    """A zarr array with the chunking, dtype and fill value the runner would give ``arr``."""
+    chunks = tuple(c[0] if c else 1 for c in arr.chunks)
+    fill = float("nan") if np.dtype(arr.dtype).kind == "f" else 0
+    return group.create_array(name, shape=arr.shape, chunks=chunks, dtype=arr.dtype, fill_value=fill)
+
+
+def _store(group, arrays: dict) -> None:
+    import dask.array as da
+
+    targets = [_create_like(group, name, arr) for name, arr in arrays.items()]
+    da.store(list(arrays.values()), targets, lock=False, scheduler="threads")
+
+
+def _reflectance_pose_block(radiance, valid, light_pos, camera_pos, texels, size_mm, intensity, min_cos, block_info=None):
+    from sbrdf_core.nodes.reflectance import reflectance_block
+
+    lo, hi = block_info[0]["array-location"][0]
+    return reflectance_block(radiance, valid[..., 0], light_pos[lo:hi], camera_pos[lo:hi], texels, size_mm, intensity, min_cos)
+
+
+def run_plain_variant(workdir: Path, texels: tuple[int, int], poses: int) -> tuple[float, dict[str, float], Path]:
+    """The same computation with dask.array and da.store; return (seconds, per-stage seconds, store)."""
+    import dask.array as da
+    import zarr
+
+    from sbrdf_core.geometry import camera_centre
+    from sbrdf_core.nodes.capture import _read_block
+    from sbrdf_core.registry import default_registry
+    from sbrdf_core.store import texel_tile
+
+    workdir.mkdir(parents=True)
+    store = workdir / "store"
+    stages: dict[str, float] = {}
+    t0 = time.perf_counter()
+
+    # 1. capture -------------------------------------------------------------
+    registry = default_registry()
+    source = registry.create("capture", "synthetic", capture_params(texels, poses))
+    source.bind(registry)
+    desc = source.describe()
+    P, H, W = desc.n_poses, desc.height, desc.width
+    packed = da.map_blocks(
+        _read_block, da.arange(P, chunks=1), source,
+        new_axis=[1, 2, 3], chunks=((1,) * P, (H,), (W,), (4,)), dtype=np.float32, name="plain-capture-read",
+    )
+    g = zarr.open_group(store=str(store / "capture"), mode="w")
+    _store(g, {"images": packed[..., :3], "valid": packed[..., 3] > 0.5})
+    t1 = time.perf_counter()
+    stages["capture"] = t1 - t0
+
+    # 2. register (texel-aligned: identity) ---------------------------------------
+    cap = zarr.open_group(store=str(store / "capture"), mode="r")
+    g = zarr.open_group(store=str(store / "register"), mode="w")
+    _store(g, {"radiance": da.from_zarr(cap["images"]), "valid": da.from_zarr(cap["valid"])})
+    t2 = time.perf_counter()
+    stages["register"] = t2 - t1
+
+    # 3. reflectance -------------------------------------------------------------
+    U, V = texels
+    size_mm = tuple(float(s) for s in desc.sample["size_mm"])
+    intensity = float(desc.light["intensity"])
+    light_pos = np.asarray(desc.light_pos, float)
+    camera_pos = camera_centre(desc.camera_R, desc.camera_t)
+    stack = zarr.open_group(store=str(store / "register"), mode="r")
+    radiance, valid = da.from_zarr(stack["radiance"]), da.from_zarr(stack["valid"])
+    packed = da.map_blocks(
+        _reflectance_pose_block, radiance, valid[..., None], light_pos, camera_pos, (U, V), size_mm, intensity, MIN_COS,
+        dtype=np.float32, chunks=radiance.chunks[:3] + ((4,),), name="plain-reflectance",
+    )
+    t = texel_tile((V, U), P, channels=4)
+    tiled = packed.rechunk((P, t, t, 4)).transpose(1, 2, 0, 3)  # (V, U, P, 4)
+    g = zarr.open_group(store=str(store / "reflectance"), mode="w")
+    _store(g, {"f_r": tiled[..., :3], "valid": tiled[..., 3] > 0.5})
+    t3 = time.perf_counter()
+    stages["reflectance"] = t3 - t2
+    return t3 - t0, stages, store
+
+
+# ---------------------------------------------------------------------------
+# comparison
+# ---------------------------------------------------------------------------
+
+
+def compare(graph_store: Path, plain_store: Path, check_all: bool) -> tuple[bool, int]:
+    """Compare reflectance f_r and valid tile by tile; return (equal, tiles compared)."""
+    import zarr
+
+    a = zarr.open_group(store=str(graph_store / "reflectance"), mode="r")
+    b = zarr.open_group(store=str(plain_store / "reflectance"), mode="r")
+    fa, fb = a["f_r"], b["f_r"]
+    if fa.shape != fb.shape or fa.chunks != fb.chunks or fa.dtype != fb.dtype:
+        log(f"f_r differs in layout: graph {fa.shape} {fa.chunks} {fa.dtype}, plain {fb.shape} {fb.chunks} {fb.dtype}")
+        return False, 0
+    tv, tu = fa.chunks[0], fa.chunks[1]
+    nv, nu = -(-fa.shape[0] // tv), -(-fa.shape[1] // tu)
+    tiles = [(i, j) for i in range(nv) for j in range(nu)]
+    if not check_all:  # corners, centre and a diagonal
+        pick = {(0, 0), (0, nu - 1), (nv - 1, 0), (nv - 1, nu - 1), (nv // 2, nu // 2)}
+        pick |= {(k * (nv - 1) // 4, k * (nu - 1) // 4) for k in range(5)}
+        tiles = sorted(pick)
+    for i, j in tiles:
+        sl = (slice(i * tv, (i + 1) * tv), slice(j * tu, (j + 1) * tu))
+        for name in ("f_r", "valid"):
+            x, y = a[name][sl], b[name][sl]
+            if not np.array_equal(x, y, equal_nan=(name == "f_r")):
+                log(f"MISMATCH in reflectance/{name} tile ({i}, {j}): max |diff| = "
+                    f"{np.nanmax(np.abs(x.astype(float) - y.astype(float)))}")
+                return False, len(tiles)
+    return True, len(tiles)
+
+
+# ---------------------------------------------------------------------------
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help=f"small size: texels {list(QUICK[0])}, {QUICK[1]} poses")
+    ap.add_argument("--repeat", type=int, default=1, help="timed runs per variant; the best is reported (default 1)")
+    ap.add_argument("--check-all", action="store_true", help="compare every tile (always on with --quick)")
+    ap.add_argument("--tmpdir", default=None, help="where temporary stores go (default: the system temp dir)")
+    args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error("--repeat must be >= 1")
+
+    texels, poses = QUICK if args.quick else FULL
+    nbytes = poses * texels[0] * texels[1] * 3 * 4
+    check_all = args.check_all or args.quick
+    log(f"overhead: texels {texels[0]}x{texels[1]}, {poses} poses, images {nbytes / 2**30:.3f} GiB float32, "
+        f"{os.cpu_count()} CPUs, repeat {args.repeat}")
+
+    with tempfile.TemporaryDirectory(prefix="sbrdf-overhead-", dir=args.tmpdir) as tmp:
+        root = Path(tmp)
+        log("warm-up (untimed) at texels 32x32, 4 poses ...")
+        _, _, gs = run_graph_variant(root / "warm-graph", *WARMUP)
+        _, _, ps = run_plain_variant(root / "warm-plain", *WARMUP)
+        ok, _ = compare(gs, ps, True)
+        shutil.rmtree(root / "warm-graph")
+        shutil.rmtree(root / "warm-plain")
+        if not ok:
+            log("FAIL: warm-up results differ")
+            return 1
+
+        best = {"graph": (float("inf"), {}), "plain": (float("inf"), {})}
+        last: dict[str, Path] = {}
+        for rep in range(args.repeat):
+            for variant, fn in (("graph", run_graph_variant), ("plain", run_plain_variant)):
+                if variant in last:  # only the latest store of each variant is kept, for the comparison
+                    shutil.rmtree(last[variant].parent)
+                gc.collect()
+                os.sync()
+                dt, stages, store = fn(root / f"{variant}-{rep}", texels, poses)
+                last[variant] = store
+                log(f"  run {rep + 1}/{args.repeat} {variant:<5}: {dt:8.2f} s  "
+                    + "  ".join(f"{k} {v:.2f}" for k, v in stages.items()))
+                if dt < best[variant][0]:
+                    best[variant] = (dt, stages)
+
+        log("comparing reflectance f_r/valid ...")
+        ok, n = compare(last["graph"], last["plain"], check_all)
+        if not ok:
+            log("FAIL: graph and plain dask results differ")
+            return 1
+        log(f"  identical ({n} tiles compared)")
+        import zarr
+
+        tile = zarr.open_group(store=str(last["graph"] / "reflectance"), mode="r").attrs["tile"]
+
+    graph_s, plain_s = best["graph"][0], best["plain"][0]
+    log("per stage (best run), s:  " + "  ".join(
+        f"{k} graph {best['graph'][1].get(k, float('nan')):.2f} / plain {best['plain'][1][k]:.2f}" for k in best["plain"][1]))
+    print(f"overhead: graph_s={graph_s:.2f} plain_dask_s={plain_s:.2f} ratio={graph_s / plain_s:.3f} bytes={nbytes} "
+          f"poses={poses} texels={texels[0]}x{texels[1]} tile={tile} repeat={args.repeat}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

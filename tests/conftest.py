@@ -1,0 +1,70 @@
+"""Shared fixtures: small graphs on real zarr stores, and artifact comparison."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+from sbrdf_core.registry import Registry
+from sbrdf_core.store import members
+
+SMALL = {"texels": [24, 20], "poses": 12, "noise": 0.01, "seed": 3}
+
+
+def graph_yaml(store: Path | str, capture: dict | None = None, fit: dict | None = None, name: str = "small") -> str:
+    """A full six-node pipeline as YAML text, small enough for unit tests."""
+    cap = {**SMALL, **(capture or {})}
+    fitp = fit or {"model": "lambert"}
+    fmt = lambda d: "{" + ", ".join(f"{k}: {v!r}".replace("'", '"') for k, v in d.items()) + "}"  # noqa: E731
+    return textwrap.dedent(f"""\
+        name: {name}
+        store: {store}
+        nodes:
+          capture: {{kind: Capture, plugin: synthetic, params: {fmt(cap)}}}
+          register: {{kind: Register, plugin: texel-aligned, in: {{capture: capture}}}}
+          reflectance: {{kind: Reflectance, in: {{stack: register}}, params: {{tile: 8}}}}
+          fit: {{kind: Fit, plugin: lm, in: {{samples: reflectance}}, params: {fmt(fitp)}}}
+          quantize: {{kind: Quantize, plugin: linear, in: {{params: fit}}}}
+          render: {{kind: Render, plugin: preview, in: {{material: quantize}}}}
+        """)
+
+
+@pytest.fixture(scope="session")
+def registry() -> Registry:
+    return Registry()
+
+
+@pytest.fixture
+def write_graph(tmp_path):
+    """Write YAML text to a file and return its path."""
+
+    def write(text: str, name: str = "graph.yaml") -> Path:
+        p = tmp_path / name
+        p.write_text(text)
+        return p
+
+    return write
+
+
+def read_store(store: Path | str) -> dict[str, np.ndarray]:
+    """Every array of every artifact in a store (markers excluded), for comparisons."""
+    out = {}
+    root = Path(store)
+    for node in sorted(p for p in root.iterdir() if (p / "zarr.json").exists()):
+        g = zarr.open_group(str(node), mode="r")
+        for name, member in members(g):
+            if isinstance(member, zarr.Array) and not name.startswith("_done"):
+                out[f"{node.name}/{name}"] = member[...]
+    return out
+
+
+def assert_stores_equal(a, b) -> None:
+    A, B = read_store(a), read_store(b)
+    assert sorted(A) == sorted(B)
+    for key in A:
+        assert A[key].dtype == B[key].dtype, key
+        assert np.array_equal(A[key], B[key], equal_nan=A[key].dtype.kind == "f"), f"{key} differs"
