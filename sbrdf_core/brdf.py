@@ -96,7 +96,10 @@ class BRDFModel:
 
     def initial_guess(self, f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> dict[str, np.ndarray]:
         """Starting parameters for a fit (default: each parameter's ``default``)."""
-        T = f_r.shape[0]
+        return self.defaults(f_r.shape[0])
+
+    def defaults(self, T: int) -> dict[str, np.ndarray]:
+        """Every parameter at its declared default, for ``T`` texels."""
         return {p.name: np.full((T, p.channels), p.default, dtype=np.float64) for p in self.parameters}
 
     # -- packing ------------------------------------------------------------------

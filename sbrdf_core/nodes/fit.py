@@ -42,7 +42,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     x = model.pack(res.params)
     empty = res.samples == 0
     if empty.any():  # no data: defaults, flagged by samples == 0
-        x[empty] = model.pack(model.initial_guess(np.zeros((1, 1, 3)), np.zeros((1, 1), bool), wi[:1, :1], wo[:1, :1]))[0]
+        x[empty] = model.pack(model.defaults(1))[0]
     rms = np.where(empty, 0.0, res.rms)
     if not (np.isfinite(x).all() and np.isfinite(rms).all()):
         raise FloatingPointError(f"fitter {type(fitter).__name__} produced non-finite parameters in texels v{v0}:{v1} u{u0}:{u1}")

@@ -1,0 +1,59 @@
+"""Artifacts in zarr: markers, completion, chunking policies."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sbrdf_core.artifacts import ParamMaps
+from sbrdf_core.errors import ArtifactError
+from sbrdf_core.store import ArrayLayout, ArtifactWriter, open_artifact, texel_tile, write_chunk
+
+
+def test_never_complete_until_every_chunk_is_written(tmp_path):
+    url = str(tmp_path / "a")
+    lay = {"rms": ArrayLayout((4, 6), (2, 3), "float32", float("nan"))}
+    w = ArtifactWriter(url, ParamMaps, "tok")
+    assert w.state() == "missing"
+    assert w.prepare(lay, {}) == {"rms": set()}
+    write_chunk(np.zeros((2, 3)), url, "rms", "tok", (0, 0), (slice(0, 2), slice(0, 3)))  # equals fill? no: 0 != nan
+    write_chunk(np.full((2, 3), np.nan), url, "rms", "tok", (1, 1), (slice(2, 4), slice(3, 6)))  # equals fill value
+    assert w.done("rms") == {"0.0", "1.1"}
+    with pytest.raises(ArtifactError, match="2 chunks of 'rms' were not written"):
+        w.mark_complete(lay, {})
+    assert w.state() == "partial"
+    with pytest.raises(ArtifactError, match="incomplete"):
+        open_artifact(url)
+    # resume keeps what was written
+    assert ArtifactWriter(url, ParamMaps, "tok").prepare(lay, {}) == {"rms": {"0.0", "1.1"}}
+    for idx in ((0, 1), (1, 0)):
+        write_chunk(np.ones((2, 3)), url, "rms", "tok", idx, tuple(slice(i * c, (i + 1) * c) for i, c in zip(idx, (2, 3))))
+    w.mark_complete(lay, {"summary": 1})
+    art = open_artifact(url, kind=ParamMaps)
+    assert art.complete and art.names() == ["rms"] and art.attrs["summary"] == 1
+    # a different token (changed parameters) starts over
+    assert ArtifactWriter(url, ParamMaps, "other").state() == "stale"
+
+
+def test_chunk_shape_mismatch_is_refused(tmp_path):
+    url = str(tmp_path / "a")
+    ArtifactWriter(url, ParamMaps, "t").prepare({"rms": ArrayLayout((4,), (2,), "float32")}, {})
+    with pytest.raises(ArtifactError, match="shape"):
+        write_chunk(np.zeros(3), url, "rms", "t", (0,), (slice(0, 2),))
+
+
+def test_wrong_kind_is_refused(tmp_path):
+    url = str(tmp_path / "a")
+    w = ArtifactWriter(url, ParamMaps, "t")
+    w.prepare({}, {})
+    w.mark_complete({}, {})
+    with pytest.raises(ArtifactError, match="holds a ParamMaps, expected CaptureSet"):
+        open_artifact(url, kind="CaptureSet")
+    with pytest.raises(ArtifactError, match="no artifact"):
+        open_artifact(str(tmp_path / "nothing"))
+
+
+@pytest.mark.parametrize("poses, expected", [(10, 128), (2000, 32), (8000, 32), (200, 64)])
+def test_texel_tile_keeps_all_poses_of_a_tile_in_one_chunk(poses, expected):
+    assert texel_tile((512, 512), poses, channels=4) == expected
+    assert texel_tile((20, 24), poses) <= 24

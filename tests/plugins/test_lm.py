@@ -1,0 +1,81 @@
+"""The batched LM fitter on friendly and hard data (noise, grazing, NaN, empty texels)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sbrdf_core.geometry import fibonacci_hemisphere
+from sbrdf_core.nodes.fit import fit_tile
+
+
+@pytest.fixture(scope="module")
+def lambert(registry):
+    return registry.create("brdf-model", "lambert")
+
+
+@pytest.fixture(scope="module")
+def lm(registry):
+    return registry.create("fitter", "lm", {})
+
+
+def directions(T, S, max_theta=80.0, seed=0):
+    rng = np.random.default_rng(seed)
+    d = fibonacci_hemisphere(S * 2, max_theta)
+    wi = np.stack([d[rng.permutation(2 * S)[:S]] for _ in range(T)])
+    wo = np.stack([d[rng.permutation(2 * S)[:S]] for _ in range(T)])
+    return wi, wo
+
+
+def test_01_recovers_lambert_exactly(lambert, lm):
+    wi, wo = directions(50, 30)
+    rho = np.random.default_rng(1).uniform(0.01, 0.3, (50, 3))
+    f = lambert.eval({"rho_d": rho}, wi, wo)
+    res = lm.fit(lambert, f, np.ones(f.shape[:2], bool), wi, wo)
+    np.testing.assert_allclose(res.params["rho_d"], rho, rtol=1e-9)
+    assert (res.rms < 1e-9).all() and (res.samples == 30).all()
+
+
+def test_02_jacobian_matches_finite_differences(lambert):
+    from sbrdf_core.brdf import BRDFModel
+
+    wi, wo = directions(5, 7)
+    params = {"rho_d": np.random.default_rng(2).uniform(0.05, 0.2, (5, 3))}
+    np.testing.assert_allclose(lambert.jacobian(params, wi, wo), BRDFModel.jacobian(lambert, params, wi, wo), atol=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    noise=st.floats(0.0, 0.5),
+    max_theta=st.floats(0.0, 89.99),
+    nan_fraction=st.floats(0.0, 1.0),
+    scale=st.sampled_from([1e-6, 1.0, 1e4]),
+)
+def test_03_hard_cases_stay_finite_and_in_bounds(lambert, lm, noise, max_theta, nan_fraction, scale):
+    T, S = 16, 12
+    wi, wo = directions(T, S, max_theta)
+    rng = np.random.default_rng(0)
+    f = lambert.eval({"rho_d": np.full((T, 3), 0.1 * scale)}, wi, wo) * (1 + noise * rng.standard_normal((T, S, 3)))
+    valid = rng.random((T, S)) >= nan_fraction
+    f[~valid] = np.nan  # invalid samples carry garbage; the fitter must ignore it
+    res = lm.fit(lambert, f, valid, wi, wo)
+    lo, hi = lambert.bounds()
+    x = lambert.pack(res.params)
+    assert np.isfinite(x).all() and np.isfinite(res.rms).all()
+    assert ((x >= lo) & (x <= hi)).all()
+    assert (res.samples == valid.sum(axis=1)).all()
+    if noise == 0 and scale <= 1 and valid.all():
+        np.testing.assert_allclose(res.params["rho_d"], 0.1 * scale, rtol=1e-6)
+
+
+def test_04_tile_without_samples_gets_defaults_not_nan(lambert, lm):
+    f = np.full((2, 3, 5, 3), np.nan, np.float32)
+    valid = np.zeros((2, 3, 5, 1), bool)
+    light = fibonacci_hemisphere(5) * 500
+    info = [{"array-location": [(0, 2), (0, 3), (0, 5), (0, 3)]}]
+    out = fit_tile(f, valid, light, light, (3, 2), (10.0, 10.0), lm, lambert, block_info=info)
+    assert out.shape == (2, 3, 5) and np.isfinite(out).all()
+    np.testing.assert_allclose(out[..., :3], 0.1)  # the model's declared default
+    assert (out[..., 4] == 0).all()  # zero samples flags the texels
