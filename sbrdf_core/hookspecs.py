@@ -14,6 +14,11 @@ of :class:`~sbrdf_core.plugin.PluginSpec` describing contributions of one
 category.  The implementation named by ``PluginSpec.impl`` is imported only
 when a graph uses it, and must follow the protocol documented on the hook.
 
+An implementation that needs other plugins (a capture source rendering with
+a BRDF model, a rig driving devices) may define ``bind(registry)``; the
+runner calls it after construction with the run's
+:class:`~sbrdf_core.registry.Registry`.
+
 Call semantics of every registration hook: *collected* (every plugin's list is
 concatenated), called once per process when the registry loads.  A name
 contributed twice in one category is an error naming both plugins.

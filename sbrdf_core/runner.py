@@ -220,13 +220,16 @@ class Runner:
 
     @staticmethod
     def _write_tasks(url: str, token: str, arrays: dict, layouts: dict, done: dict) -> tuple[list, int]:
-        import dask
+        """One ``(chunk index, write task)`` per chunk not yet done.
+
+        The arrays are deliberately not optimized one by one: outputs that slice
+        one kernel's result (images and valid of one pose read) must share its
+        key, so the kernel runs once when all tasks are computed together.
+        """
         from dask import delayed
 
-        names = list(arrays)
-        optimized = dask.optimize(*[arrays[n] for n in names])
         tasks, n_done = [], 0
-        for name, arr in zip(names, optimized):
+        for name, arr in arrays.items():
             starts = [np.concatenate([[0], np.cumsum(c)]) for c in arr.chunks]
             blocks = arr.to_delayed(optimize_graph=False)
             for index in np.ndindex(*arr.numblocks):
@@ -236,7 +239,7 @@ class Runner:
                     continue
                 region = tuple(slice(int(s[i]), int(s[i + 1])) for s, i in zip(starts, index))
                 write = delayed(write_chunk, pure=True, name=f"write-{name}-{key}-{token}")
-                tasks.append(write(blocks[index], url, name, token, index, region))
+                tasks.append((index, write(blocks[index], url, name, token, index, region)))
         return tasks, n_done
 
     def _execute(self, node: str, tasks: list, total: int, already: int, sequential: bool = False) -> None:
@@ -245,13 +248,17 @@ class Runner:
         bar = self._bar(node, total, already)
         try:
             if sequential:
-                for t in tasks:
-                    t.compute(scheduler="sync")
-                    bar(1)
+                # Hardware: in this process, in order of the first (pose) axis; the
+                # chunks of one pose are computed together so the pose is taken once.
+                by_pose: dict[int, list] = {}
+                for index, task in tasks:
+                    by_pose.setdefault(index[0] if index else 0, []).append(task)
+                for pose in sorted(by_pose):
+                    self._execute_local(by_pose[pose], bar, scheduler="sync")
             elif self._is_distributed():
-                self._execute_distributed(node, tasks, bar)
+                self._execute_distributed(node, [t for _, t in tasks], bar)
             else:
-                self._execute_local(tasks, bar)
+                self._execute_local([t for _, t in tasks], bar, self.scheduler)
         except SbrdfError:
             raise
         except Exception as e:
@@ -259,7 +266,7 @@ class Runner:
         finally:
             bar(None)
 
-    def _execute_local(self, tasks: list, bar) -> None:
+    def _execute_local(self, tasks: list, bar, scheduler) -> None:
         import dask
         from dask.callbacks import Callback
 
@@ -270,7 +277,7 @@ class Runner:
                 bar(1)
 
         with Callback(posttask=posttask):
-            dask.compute(*tasks, scheduler=self.scheduler, num_workers=self.num_workers)
+            dask.compute(*tasks, scheduler=scheduler, num_workers=self.num_workers, optimize_graph=False)
 
     def _is_distributed(self) -> bool:
         s = self.scheduler
@@ -296,8 +303,7 @@ class Runner:
                     raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
                 bar(1)
             if not batch:
-                workers = client.scheduler_info(n_workers=-1).get("workers", {}) if _takes_n_workers(client) else client.scheduler_info().get("workers", {})
-                if workers:
+                if client.scheduler_info().get("workers"):
                     no_workers_since = None
                 else:
                     no_workers_since = no_workers_since or time.monotonic()
@@ -340,12 +346,6 @@ class Runner:
                 wanted.add(n)
                 stack.extend(graph.nodes[n].inputs.values())
         return wanted
-
-
-def _takes_n_workers(client) -> bool:
-    import inspect
-
-    return "n_workers" in inspect.signature(client.scheduler_info).parameters
 
 
 def _regularise(out: Output) -> tuple[dict, dict[str, ArrayLayout]]:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -246,7 +247,10 @@ class ArtifactWriter:
         group.attrs.update({**attrs, "complete": True})
 
 
-_ARRAYS: dict[tuple[str, str, str], zarr.Array] = {}
+#: Open zarr arrays per (url, name, token) in this process (LRU, so long-lived
+#: workers running many graphs do not grow without bound).
+_ARRAYS: OrderedDict[tuple[str, str, str], zarr.Array] = OrderedDict()
+_ARRAYS_MAX = 512
 _ARRAYS_LOCK = threading.Lock()
 
 
@@ -272,4 +276,8 @@ def _open_cached(url: str, name: str, token: str) -> zarr.Array:
         arr = _ARRAYS.get(key)
         if arr is None:
             arr = _ARRAYS[key] = zarr.open_array(store=join(url, name), mode="r+")
+            while len(_ARRAYS) > _ARRAYS_MAX:
+                _ARRAYS.popitem(last=False)
+        else:
+            _ARRAYS.move_to_end(key)
         return arr

@@ -153,3 +153,53 @@ def test_no_worker_left_fails_clearly_and_stays_resumable(write_graph, registry,
     rep = run(write_graph, registry, tmp_path / "s", capture=slow)
     assert rep["capture"].status == "resumed"
     assert read_store(tmp_path / "s")["capture/images"].shape == (30, 20, 24, 3)
+
+
+class SequentialCapture:
+    """A synthetic source that claims to drive hardware: one pose at a time, in order."""
+
+    sequential = True
+
+    def __init__(self, **params):
+        from sbrdf_capture.synthetic import SyntheticCapture
+
+        self.inner = SyntheticCapture(**params)
+        self.reads = []
+
+    def bind(self, registry):
+        self.inner.bind(registry)
+
+    def describe(self):
+        return self.inner.describe()
+
+    def read_pose(self, index):
+        import threading
+
+        self.reads.append((index, threading.current_thread().name))
+        return self.inner.read_pose(index)
+
+
+@pytest.mark.parametrize("sequential", [False, True])
+def test_every_pose_is_read_exactly_once(write_graph, tmp_path, monkeypatch, sequential):
+    """Outputs sharing one kernel (images, valid) must not run it twice: a rig would shoot twice."""
+    from sbrdf_capture import synthetic
+    from sbrdf_core.plugin import PluginSpec, hookimpl
+    from sbrdf_core.registry import Registry
+
+    reads = []
+    original = synthetic.SyntheticCapture.read_pose
+    monkeypatch.setattr(synthetic.SyntheticCapture, "read_pose", lambda self, i: reads.append(i) or original(self, i))
+    params = tuple(Registry().get("capture", "synthetic").params)
+
+    class Plug:
+        @hookimpl
+        def sbrdf_captures(self):
+            return [PluginSpec("sequential-synthetic", f"{__name__}:SequentialCapture", params)]
+
+    reg = Registry(extra=[Plug()])
+    plugin = "sequential-synthetic" if sequential else "synthetic"
+    text = graph_yaml(tmp_path / "s", {"poses": 9}).replace("plugin: synthetic", f"plugin: {plugin}")
+    Runner(reg).run(load_graph(write_graph(text), reg), only=["capture"])
+    assert sorted(reads) == list(range(9))
+    if sequential:
+        assert reads == sorted(reads)  # in pose order
