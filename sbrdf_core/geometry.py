@@ -42,6 +42,19 @@ def directions_to(points: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, 
     return omega, r
 
 
+def tile_directions(texels_uv: tuple[int, int], size_mm: tuple[float, float], rows: tuple[int, int], cols: tuple[int, int],
+                    light_pos: np.ndarray, camera_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ω_i, light distance r and ω_o for every texel of a tile, flattened to ``T = rows × cols``.
+
+    ``rows``/``cols`` are ``(start, stop)`` as in dask's ``block_info[...]["array-location"]``;
+    ``light_pos``, ``camera_pos`` are ``(P, 3)``.  Returns ``(T, P, 3)``, ``(T, P)``, ``(T, P, 3)``.
+    """
+    p = texel_centres(texels_uv, size_mm, rows[0], rows[1], cols[0], cols[1]).reshape(-1, 3)
+    wi, r = directions_to(p, np.asarray(light_pos, float).reshape(-1, 3))
+    wo, _ = directions_to(p, np.asarray(camera_pos, float).reshape(-1, 3))
+    return wi, r, wo
+
+
 def camera_centre(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Camera centre ``-Rᵀ t`` from OpenCV world-to-camera extrinsics (broadcast over poses)."""
     return -np.einsum("...ji,...j->...i", R, t)

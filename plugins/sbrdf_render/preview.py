@@ -10,16 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from sbrdf_core.geometry import directions_to, texel_centres
+from sbrdf_core.geometry import tile_directions
 from sbrdf_core.nodes.render import RenderResult
 
 
 def _shade(stacked, model, texels, size_mm, light, eye, intensity, block_info=None):
     (v0, v1), (u0, u1) = block_info[0]["array-location"][:2]
-    p = texel_centres(texels, size_mm, v0, v1, u0, u1).reshape(-1, 3)
-    wi, r = directions_to(p, light[None])
-    wo, _ = directions_to(p, eye[None])
-    f = model.eval(model.unpack(stacked.reshape(p.shape[0], -1).astype(np.float64)), wi, wo)
+    wi, r, wo = tile_directions(texels, size_mm, (v0, v1), (u0, u1), light, eye)
+    f = model.eval(model.unpack(stacked.reshape(wi.shape[0], -1).astype(np.float64)), wi, wo)
     L = f * (intensity * np.clip(wi[..., 2], 0, None) / r**2)[..., None]
     return L.reshape(v1 - v0, u1 - u0, 3).astype(np.float32)
 

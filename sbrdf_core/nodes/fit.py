@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance
-from ..geometry import directions_to, texel_centres
+from ..geometry import tile_directions
 from .base import BuildContext, NodeKind, Output, Port
 
 
@@ -34,10 +34,8 @@ class FitResult:
 def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, block_info=None):
     """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + 2)`` = packed parameters, rms, samples."""
     (v0, v1), (u0, u1) = block_info[0]["array-location"][:2]
-    p = texel_centres(texels, size_mm, v0, v1, u0, u1).reshape(-1, 3)
-    wi, _ = directions_to(p, light_pos)
-    wo, _ = directions_to(p, camera_pos)
-    T = p.shape[0]
+    wi, _, wo = tile_directions(texels, size_mm, (v0, v1), (u0, u1), light_pos, camera_pos)
+    T = wi.shape[0]
     res: FitResult = fitter.fit(model, f_r.reshape(T, -1, 3).astype(np.float64), valid.reshape(T, -1), wi, wo)
     x = model.pack(res.params)
     empty = res.samples == 0
