@@ -187,7 +187,9 @@ def test_cycle(write_graph, registry, tmp_path):
           b: {{kind: Render, plugin: preview, in: {{material: a}}}}
           c: {{kind: Fit, plugin: lm, in: {{samples: b}}}}
         """)
-    assert any("cycle" in p.message and "a" in p.message and "c" in p.message for p in err.problems), str(err)
+    cycles = [p for p in err.problems if p.message.startswith("cycle:")]
+    assert len(cycles) == 1 and cycles[0].line in (4, 5, 6), str(err)
+    assert all(f"{n} ->" in cycles[0].message or f"-> {n}" in cycles[0].message for n in "abc")
 
 
 def test_duplicate_node_names(write_graph, registry, tmp_path):

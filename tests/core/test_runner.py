@@ -203,3 +203,19 @@ def test_every_pose_is_read_exactly_once(write_graph, tmp_path, monkeypatch, seq
     assert sorted(reads) == list(range(9))
     if sequential:
         assert reads == sorted(reads)  # in pose order
+
+
+def test_store_on_an_fsspec_url(registry):
+    """Stores are URLs: the same graph runs on an in-memory fsspec file system."""
+    import fsspec
+
+    url = "memory://sbrdf-test/run"
+    g = load_graph(graph_yaml(url).replace("texels: [24, 20]", "texels: [8, 6]"), registry)
+    try:
+        Runner(registry, scheduler="sync").run(g)
+        fit = open_artifact(url + "/fit")
+        assert fit.complete and fit.read("params/rho_d").shape == (6, 8, 3)
+        assert fsspec.filesystem("memory").exists("/sbrdf-test/run/render/image.png")
+        assert [r.status for r in Runner(registry, scheduler="sync").run(g).nodes] == ["cached"] * 6
+    finally:
+        fsspec.filesystem("memory").rm("/sbrdf-test", recursive=True)
