@@ -173,7 +173,7 @@ class Runner:
         arrays, layouts = _regularise(out)
         provenance = self._provenance(graph, node, spec, inputs, token)
         done = writer.prepare(layouts, {"provenance": provenance, **out.attrs})
-        tasks, n_done = self._write_tasks(url, token, arrays, layouts, done)
+        tasks, n_done = self._write_tasks(url, token, arrays, done)
         rep.status = "resumed" if n_done else "computed"
         rep.chunks_total = sum(lay.nchunks for lay in layouts.values())
         rep.chunks_resumed = n_done
@@ -219,7 +219,7 @@ class Runner:
     # -- tasks ----------------------------------------------------------------------
 
     @staticmethod
-    def _write_tasks(url: str, token: str, arrays: dict, layouts: dict, done: dict) -> tuple[list, int]:
+    def _write_tasks(url: str, token: str, arrays: dict, done: dict) -> tuple[list, int]:
         """One ``(chunk index, write task)`` per chunk not yet done.
 
         The arrays are deliberately not optimized one by one: outputs that slice

@@ -33,6 +33,13 @@ def graph_yaml(store: Path | str, capture: dict | None = None, fit: dict | None 
         """)
 
 
+def synthetic_truth(registry: Registry, **params) -> dict[str, np.ndarray]:
+    """Ground-truth parameter maps of the material a ``synthetic`` capture with ``params`` shows."""
+    source = registry.create("capture", "synthetic", params)
+    source.bind(registry)
+    return source.ground_truth()
+
+
 @pytest.fixture(scope="session")
 def registry() -> Registry:
     return Registry()

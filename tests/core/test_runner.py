@@ -17,7 +17,7 @@ from sbrdf_core.graph import load_graph
 from sbrdf_core.runner import Runner
 from sbrdf_core.store import open_artifact
 
-from ..conftest import assert_stores_equal, graph_yaml, read_store
+from ..conftest import assert_stores_equal, graph_yaml, read_store, synthetic_truth
 
 
 def run(write_graph, registry, store, name="graph.yaml", **kw):
@@ -37,11 +37,7 @@ def test_pipeline_end_to_end(write_graph, registry, tmp_path):
     assert prov["inputs"]["samples"]["token"] == open_artifact(str(tmp_path / "s" / "reflectance")).token
     assert prov["parameters"]["model"] == "lambert"
     # the Lambertian fit recovers the synthetic material to the noise level
-    from sbrdf_capture.synthetic import SyntheticCapture
-
-    src = SyntheticCapture(**{**registry_defaults(registry), "texels": [24, 20], "poses": 12, "noise": 0.01, "seed": 3})
-    src.bind(registry)
-    truth = src.ground_truth()["rho_d"]
+    truth = synthetic_truth(registry, texels=[24, 20], poses=12, noise=0.01, seed=3)["rho_d"]
     rho = fit.read("params/rho_d")
     assert rho.shape == (20, 24, 3)
     assert np.abs(rho - truth).max() < 0.01 * truth.max() + 1e-4
@@ -49,10 +45,6 @@ def test_pipeline_end_to_end(write_graph, registry, tmp_path):
     image = open_artifact(str(tmp_path / "s" / "render")).read("image")
     assert image.shape == (20, 24, 3) and np.isfinite(image).all() and image.max() > 0
     assert (tmp_path / "s" / "render" / "image.exr").exists() and (tmp_path / "s" / "render" / "image.png").exists()
-
-
-def registry_defaults(registry):
-    return {p.name: p.default for p in registry.get("capture", "synthetic").params}
 
 
 def test_unchanged_nodes_are_not_recomputed(write_graph, registry, tmp_path):

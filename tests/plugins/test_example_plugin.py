@@ -9,7 +9,7 @@ from sbrdf_core.graph import load_graph
 from sbrdf_core.runner import Runner
 from sbrdf_core.store import open_artifact
 
-from ..conftest import graph_yaml
+from ..conftest import graph_yaml, synthetic_truth
 
 pytest.importorskip("sbrdf_example", reason="install docs/examples/sbrdf-example-plugin (CI does)")
 
@@ -36,12 +36,7 @@ def test_graph_with_the_example_model_runs_and_recovers_it(write_graph, registry
     Runner(registry).run(g)
     fit = open_artifact(str(tmp_path / "s" / "fit"))
     assert fit.attrs["model"] == "minnaert"
-    from sbrdf_capture.synthetic import SyntheticCapture
-
-    defaults = {p.name: p.default for p in registry.get("capture", "synthetic").params}
-    src = SyntheticCapture(**{**defaults, "texels": [24, 20], "poses": 24, "model": "minnaert"})
-    src.bind(registry)
-    truth = src.ground_truth()
+    truth = synthetic_truth(registry, texels=[24, 20], poses=24, model="minnaert")
     np.testing.assert_allclose(fit.read("params/k"), truth["k"], atol=1e-3)
     np.testing.assert_allclose(fit.read("params/rho_d"), truth["rho_d"], rtol=1e-3)
     assert np.isfinite(open_artifact(str(tmp_path / "s" / "render")).read("image")).all()
