@@ -1,0 +1,1 @@
+"""Camera devices: the virtual gonioreflectometer camera."""

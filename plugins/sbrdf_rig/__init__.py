@@ -1,0 +1,1 @@
+"""Gonioreflectometer rig: serial motor drivers, their simulators, kinematics and pose planning."""
