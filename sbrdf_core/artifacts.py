@@ -21,6 +21,8 @@ class ArraySpec:
     dtype: str
     doc: str
     required: bool = True
+    #: A wall-clock measurement: identical runs differ in it and nothing else.
+    timing: bool = False
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,9 @@ ParamMaps = ArtifactKind(
         ArraySpec("params/*", "VUC", "float32", "one array per model parameter"),
         ArraySpec("rms", "VU", "float32", "RMS residual of the fit over the texel's valid samples, sr^-1"),
         ArraySpec("samples", "VU", "int32", "number of valid samples the texel was fitted to"),
+        ArraySpec("flags", "VU", "uint8", "why a fit is missing or doubtful: bits listed in attrs flag_bits (0 = fine)"),
+        ArraySpec("fit_time_s", "VU", "float32", "fitting time per texel (its tile's time shared out), s",
+                  timing=True),
     ),
 )
 

@@ -94,9 +94,52 @@ class BRDFModel:
         """GLSL source of ``vec3 brdf(...)`` for the GL renderer."""
         raise NotImplementedError(f"model {self.name!r} supplies no GLSL")
 
+    def fit_form(self) -> "BRDFModel":
+        """An equivalent, better-conditioned parametrisation for fitters (default: ``self``).
+
+        Fitters iterate in the fit form and convert with :meth:`to_model` /
+        :meth:`from_model` of the returned object.  Lafortune lobes, for
+        example, trade ρ_s against |C|^n; their fit form fixes C_z = 1 and
+        fits log n, which removes the degeneracy and evens out the scales.
+        """
+        return self
+
+    def to_model(self, params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Fit-form parameters -> the model's own (identity unless :meth:`fit_form` differs)."""
+        return dict(params)
+
+    def from_model(self, params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The model's parameters -> fit form (inverse of :meth:`to_model` up to equivalences)."""
+        return dict(params)
+
+    def canonical(self, params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """One representative of each class of equivalent parameter sets, for comparing fits."""
+        return dict(params)
+
     def initial_guess(self, f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> dict[str, np.ndarray]:
         """Starting parameters for a fit (default: each parameter's ``default``)."""
         return self.defaults(f_r.shape[0])
+
+    def random_guess(self, rng: np.random.Generator, T: int) -> dict[str, np.ndarray]:
+        """Random parameters within each parameter's ``typical`` range (multi-start fitting)."""
+        return {p.name: rng.uniform(p.typical[0], p.typical[1], (T, p.channels)) for p in self.parameters}
+
+    def least_squares(self, f_r: np.ndarray, weight: np.ndarray, wi: np.ndarray, wo: np.ndarray):
+        """The fitting problem for this parametrisation (see :mod:`sbrdf_core.least_squares`).
+
+        Override to supply a compiled kernel for the normal equations.
+        """
+        from .least_squares import LeastSquaresProblem
+
+        return LeastSquaresProblem(self, f_r, weight, wi, wo)
+
+    def refine_linear(self, params, f_r, valid, wi, wo) -> dict[str, np.ndarray]:
+        """Re-solve the parameters ``f_r`` depends on linearly, others fixed (default: unchanged).
+
+        Multi-start fitting draws the nonlinear shape at random; solving the
+        magnitudes for it puts each start near the data.
+        """
+        return dict(params)
 
     def defaults(self, T: int) -> dict[str, np.ndarray]:
         """Every parameter at its declared default, for ``T`` texels."""
@@ -137,6 +180,41 @@ class BRDFModel:
              "typical": list(p.typical), "default": p.default, "scope": p.scope, "unit": p.unit}
             for p in self.parameters
         ]
+
+
+def positive_power(x: np.ndarray, exponent: np.ndarray) -> np.ndarray:
+    """``max(0, x)^exponent`` that never overflows, NaNs or warns.
+
+    Negative generalized dot products raised to a fractional power are
+    undefined (seed 000 notes §7.1): they give 0.  The result is capped at
+    e^LOG_CAP so |C·ω|^n with |C| > 1 and n = 10⁴ stays finite.
+    """
+    pos = x > 0
+    logx = np.log(np.where(pos, x, 1.0))
+    return np.where(pos, np.exp(np.clip(exponent * logx, -745.0, LOG_CAP)), 0.0)
+
+
+#: Cap on log f in :func:`positive_power` (e^60 ≈ 1e26 sr⁻¹: beyond any measurement).
+LOG_CAP = 60.0
+
+
+def luminance_weights(colour_space: str = "mcallister") -> np.ndarray:
+    """Linear-RGB -> luminance weights of a working colour space.
+
+    ``mcallister`` is seed 000 Eq 2.3 (his camera's RGB primaries; sums to
+    0.9999); ``rec709`` is linear sRGB / Rec. 709.
+    """
+    try:
+        return np.array(LUMINANCE_WEIGHTS[colour_space])
+    except KeyError:
+        raise ValueError(f"unknown colour space {colour_space!r}; known: {', '.join(LUMINANCE_WEIGHTS)}") from None
+
+
+LUMINANCE_WEIGHTS = {
+    "mcallister": (0.2582, 0.6566, 0.0851),
+    "rec709": (0.2126, 0.7152, 0.0722),
+    "rec2020": (0.2627, 0.6780, 0.0593),
+}
 
 
 def above_horizon(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:

@@ -1,14 +1,52 @@
-"""Built-in fitters."""
+"""Built-in fitters: generic batched LM, McAllister's procedure, and his line search."""
 
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+_MODEL = Param("model", "str", "lambert", "BRDF model to fit", extra={"plugin_category": "brdf-model"})
+_MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"})
+_ITERATIONS = Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000))
+_TOLERANCE = Param("tolerance", "float", 1e-8, "stop a texel when its cost improves by less than this fraction",
+                   bounds=(0.0, 1.0))
+_STARTS = Param("starts", "int", 1, "starting points per texel: 1 = the model's initial guess, more adds random starts "
+                "and keeps the best (for 3+ lobes)", bounds=(1, 64))
+
 LM_PARAMS = (
-    Param("model", "str", "lambert", "BRDF model to fit", extra={"plugin_category": "brdf-model"}),
-    Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
-    Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000)),
-    Param("tolerance", "float", 1e-10, "stop a texel when its cost improves by less than this fraction", bounds=(0.0, 1.0)),
+    _MODEL,
+    _MODEL_PARAMS,
+    _ITERATIONS,
+    _TOLERANCE,
     Param("damping", "float", 1e-3, "initial Marquardt damping λ", bounds=(0.0, None)),
+    _STARTS,
+    Param("fixed", "list", [], "fit-form parameter names held at their initial value", item="str"),
+    Param("seed", "int", 0, "random seed of the extra starts"),
+)
+
+_LAFORTUNE = Param("model", "str", "lafortune", "BRDF model (McAllister's procedure fits Lafortune lobes)",
+                   choices=["lafortune"], extra={"plugin_category": "brdf-model"})
+_SHARED = (
+    _LAFORTUNE,
+    _MODEL_PARAMS,
+    Param("diffuse", "str", "percentile", "rho_d estimate per channel", choices=["percentile", "min", "weighted-mean"]),
+    Param("percentile", "float", 10.0, "percentile of the samples taken as rho_d", bounds=(0.0, 100.0)),
+    Param("colour_space", "str", "mcallister", "luminance weights of the working RGB space",
+          choices=["mcallister", "rec709", "rec2020"]),
+    Param("rho_s_guard", "float", 0.05, "Eq 4.10 uses samples whose luminance residual is at least this fraction "
+          "of the texel's largest", bounds=(0.0, 1.0)),
+)
+MCALLISTER_PARAMS = _SHARED + (
+    Param("lobe_fit", "str", "lm", "how the lobe shape is fitted to the luminance residual", choices=["lm", "line-search"]),
+    Param("lobe_2_start", "str", "text", "lobe 2 starts from the text's guess C=(1,1,1), n=5, or from the 1-lobe fit",
+          choices=["text", "one-lobe"]),
+    _ITERATIONS,
+    _TOLERANCE,
+    _STARTS,
+    Param("objective", "str", "root", "line search residual: in n-th-root space (as written) or BRDF space",
+          choices=["root", "brdf"]),
+)
+LINE_SEARCH_PARAMS = _SHARED + (
+    Param("objective", "str", "root", "residual in n-th-root space (as written, Eq 4.9) or BRDF space",
+          choices=["root", "brdf"]),
 )
 
 
@@ -17,4 +55,15 @@ def sbrdf_fitters():
     return [
         PluginSpec("lm", "sbrdf_fitters.lm:LevenbergMarquardtFitter", LM_PARAMS,
                    summary="Batched Levenberg-Marquardt fit of any BRDF model, vectorised over texels"),
+        PluginSpec("mcallister", "sbrdf_fitters.mcallister:McAllisterFitter", MCALLISTER_PARAMS,
+                   summary="McAllister's procedure: percentile rho_d, lobes fitted to luminance, rho_s by Eq 4.10"),
+        PluginSpec("line-search", "sbrdf_fitters:LineSearchFitter", LINE_SEARCH_PARAMS,
+                   summary="McAllister's fast single-lobe fit: Brent search over n, least squares for C"),
     ]
+
+
+def LineSearchFitter(**params):  # noqa: N802 - a plugin factory reads like a class in the spec
+    """McAllister's procedure with the lobe shape from the line search."""
+    from .mcallister import McAllisterFitter
+
+    return McAllisterFitter(lobe_fit="line-search", lobe_2_start="text", iterations=1, tolerance=0.0, starts=1, **params)

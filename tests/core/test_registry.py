@@ -81,7 +81,7 @@ def test_disable_by_name_but_not_essential(monkeypatch):
 
 
 def test_unknown_name_lists_installed():
-    with pytest.raises(PluginError, match="unknown fitter plugin 'nope'; installed: lm"):
+    with pytest.raises(PluginError, match="unknown fitter plugin 'nope'; installed: line-search, lm, mcallister"):
         Registry().get("fitter", "nope")
 
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sbrdf_core.geometry import fibonacci_hemisphere
-from sbrdf_core.nodes.fit import fit_tile
+from sbrdf_core.nodes.fit import NO_SAMPLES, fit_tile
 
 
 @pytest.fixture(scope="module")
@@ -76,6 +76,7 @@ def test_04_tile_without_samples_gets_defaults_not_nan(lambert, lm):
     light = fibonacci_hemisphere(5) * 500
     info = [{"array-location": [(0, 2), (0, 3), (0, 5), (0, 3)]}]
     out = fit_tile(f, valid, light, light, (3, 2), (10.0, 10.0), lm, lambert, block_info=info)
-    assert out.shape == (2, 3, 5) and np.isfinite(out).all()
+    assert out.shape == (2, 3, 7) and np.isfinite(out).all()  # rho_d x3, rms, samples, flags, seconds
     np.testing.assert_allclose(out[..., :3], 0.1)  # the model's declared default
-    assert (out[..., 4] == 0).all()  # zero samples flags the texels
+    assert (out[..., 4] == 0).all()  # zero samples ...
+    assert (out[..., 5].astype(int) & NO_SAMPLES).all()  # ... and flagged with the reason

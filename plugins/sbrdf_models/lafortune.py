@@ -1,0 +1,338 @@
+"""lafortune: generalized cosine lobes, McAllister's SBRDF representation (seed 000 §4.2, §6.5).
+
+    f_r(ω_i, ω_r) = ρ_d + Σ_j ρ_s,j · max(0, C_x,j ω'_i,x ω'_r,x + C_y,j ω'_i,y ω'_r,y + C_z,j ω_i,z ω_r,z)^n_j
+
+with ω' the directions rotated about the normal by the per-texel anisotropy
+angle β (C' = R(−β)·C·R(β), Eq 4.4).  The lobe shape (C, n) is shared by the
+RGB channels; ρ_d and ρ_s are RGB in sr⁻¹.  ``max(0, x)^n`` everywhere: a
+negative generalized dot product has no real fractional power.
+
+==============  ========  ======================================================
+parameter       channels  meaning
+==============  ========  ======================================================
+rho_d           3         diffuse term, sr⁻¹
+rho_s_<j>       3         lobe j magnitude, sr⁻¹
+c_xy_<j>        1         lobe j C_x = C_y (isotropic configuration)
+c_x_<j>, c_y_<j> 1        lobe j C_x, C_y (``anisotropic: true``)
+c_z_<j>         1         lobe j C_z
+exponent_<j>    1         lobe j exponent n
+beta            1         anisotropy angle, radians (``beta: true``), shared by lobes
+rho_m           3         mirror term ρ_m·δ (``mirror: true``): rendered, never fitted
+==============  ========  ======================================================
+
+Equivalences (a fit is judged modulo these; :meth:`LafortuneModel.canonical`
+picks one representative): (e·ρ_s, C·e^(−1/n)) is the same lobe for any e > 0;
+β ≡ β + π; β + π/2 with C_x ↔ C_y swapped is the same BRDF.
+
+The fit form fixes C_z = 1 (so ρ_s is the lobe's peak value at normal
+incidence) and fits log n: the raw form is singular along the rescale
+direction and badly scaled in n.
+
+YAML::
+
+    fit: {kind: Fit, plugin: lm, in: {samples: reflectance},
+          params: {model: lafortune, model_params: {lobes: 2, anisotropic: true, beta: true}}}
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon, positive_power
+from sbrdf_core.params import Param
+
+PARAMS = (
+    Param("lobes", "int", 1, "number of cosine lobes", bounds=(0, 8)),
+    Param("anisotropic", "bool", False, "separate C_x and C_y per lobe (otherwise C_x = C_y)"),
+    Param("beta", "bool", False, "per-texel anisotropy angle β shared by the lobes (needs anisotropic)"),
+    Param("mirror", "bool", False, "add the mirror term ρ_m (rendered by renderers, not fitted)"),
+)
+
+#: McAllister's initial guesses (§4.3.1): lobe 1 forward (mirror), lobe 2 back-scatter.
+INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
+EXPONENT_BOUNDS = (0.1, 20000.0)
+#: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
+START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
+C_BOUNDS = (-10.0, 10.0)
+
+
+class LafortuneModel(BRDFModel):
+    name = "lafortune"
+
+    def __init__(self, lobes: int = 1, anisotropic: bool = False, beta: bool = False, mirror: bool = False,
+                 channels: int = 3):
+        """``channels=1`` gives the same lobes on scalar (luminance) data, for McAllister's lobe fit."""
+        self.channels = channels
+        if beta and not anisotropic:
+            raise ValueError("lafortune: beta: true needs anisotropic: true (an isotropic lobe has no direction)")
+        self.lobes, self.anisotropic, self.has_beta, self.mirror = lobes, anisotropic, beta, mirror
+        self.parameters = self._declare(fit_form=False)
+
+    # -- declarations ------------------------------------------------------------------
+
+    def _declare(self, fit_form: bool) -> tuple[ModelParameter, ...]:
+        nc = self.channels
+        ps = [ModelParameter("rho_d", nc, (0.0, 100.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term")]
+        for j in range(1, self.lobes + 1):
+            cx0, _, cz0, n0 = INITIAL_LOBES[min(j, 2) - 1]
+            back = j == 2
+            ps.append(ModelParameter(f"rho_s_{j}", nc, (0.0, 1e6), (0.05, 0.3) if back else (0.2, 2.0), 0.3,
+                                     unit="sr^-1", doc=f"lobe {j} magnitude"))
+            cx_typ = (0.8, 1.0) if back else (-1.0, -0.95)
+            names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
+            for nm in names:
+                ps.append(ModelParameter(f"{nm}_{j}", 1, C_BOUNDS, cx_typ, cx0, doc=f"lobe {j} {nm.replace('_', ' ').upper()}"))
+            if fit_form:
+                ps.append(ModelParameter(f"log_exponent_{j}", 1, tuple(np.log(EXPONENT_BOUNDS)),
+                                         (np.log(2.0), np.log(20.0)) if back else (np.log(5.0), np.log(200.0)),
+                                         float(np.log(n0)), doc=f"lobe {j} log n"))
+            else:
+                ps.append(ModelParameter(f"c_z_{j}", 1, C_BOUNDS, (0.9, 1.0), cz0, doc=f"lobe {j} C_z"))
+                ps.append(ModelParameter(f"exponent_{j}", 1, EXPONENT_BOUNDS, (2.0, 20.0) if back else (5.0, 200.0), n0,
+                                         doc=f"lobe {j} exponent n"))
+        if self.has_beta:
+            lim = 2 * np.pi if fit_form else np.pi / 2
+            ps.append(ModelParameter("beta", 1, (-lim, lim), (-np.pi / 4, np.pi / 4), 0.0, unit="rad",
+                                     doc="anisotropy direction, rotation about the normal"))
+        if self.mirror and not fit_form:
+            ps.append(ModelParameter("rho_m", 3, (0.0, 1.0), (0.0, 0.0), 0.0, doc="mirror term (not fitted)"))
+        return tuple(ps)
+
+    # -- lobes in one shape, whatever the configuration --------------------------------------
+
+    def lobe_list(self, params) -> list[dict[str, np.ndarray]]:
+        """Per lobe ``{rho_s (T,3), c_x, c_y, c_z, exponent (T,1)}`` for any configuration."""
+        out = []
+        for j in range(1, self.lobes + 1):
+            cx = params[f"c_x_{j}"] if self.anisotropic else params[f"c_xy_{j}"]
+            cy = params[f"c_y_{j}"] if self.anisotropic else cx
+            out.append({"rho_s": params[f"rho_s_{j}"], "c_x": cx, "c_y": cy,
+                        "c_z": params[f"c_z_{j}"], "exponent": params[f"exponent_{j}"]})
+        return out
+
+    def _lobe_dots(self, params, wi, wo):
+        """``(pxx, pyy, pzz)``: ω_i, ω_r component products in the anisotropy frame, (T, S) each."""
+        if self.has_beta:
+            b = np.asarray(params["beta"])[:, 0][:, None]
+            c, s = np.cos(b), np.sin(b)
+            ix, iy = c * wi[..., 0] + s * wi[..., 1], -s * wi[..., 0] + c * wi[..., 1]
+            ox, oy = c * wo[..., 0] + s * wo[..., 1], -s * wo[..., 0] + c * wo[..., 1]
+        else:
+            ix, iy, ox, oy = wi[..., 0], wi[..., 1], wo[..., 0], wo[..., 1]
+        return ix * ox, iy * oy, wi[..., 2] * wo[..., 2], (ix, iy, ox, oy)
+
+    # -- evaluation --------------------------------------------------------------------------
+
+    def eval(self, params, wi, wo):
+        pxx, pyy, pzz, _ = self._lobe_dots(params, wi, wo)
+        f = np.broadcast_to(np.asarray(params["rho_d"])[:, None, :], wi.shape[:2] + (self.channels,)).copy()
+        for lobe in self.lobe_list(params):
+            x = lobe["c_x"][:, :1] * pxx + lobe["c_y"][:, :1] * pyy + lobe["c_z"][:, :1] * pzz
+            f += lobe["rho_s"][:, None, :] * positive_power(x, lobe["exponent"][:, :1])[..., None]
+        return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+
+    def jacobian(self, params, wi, wo):
+        return self._jacobian(params, wi, wo, fit_form=False)
+
+    def _jacobian(self, params, wi, wo, fit_form):
+        """Analytic ∂f/∂x in the natural form or the fit form (log n, no C_z column)."""
+        up = above_horizon(wi, wo).astype(float)
+        pxx, pyy, pzz, (ix, iy, ox, oy) = self._lobe_dots(params, wi, wo)
+        cols: list[np.ndarray] = []
+        C = self.channels
+        eye = np.eye(C)
+        cols += [up[..., None] * eye[c] for c in range(C)]  # rho_d
+        dbeta = 0.0
+        for lobe in self.lobe_list(params):
+            n = lobe["exponent"][:, :1]
+            x = lobe["c_x"][:, :1] * pxx + lobe["c_y"][:, :1] * pyy + lobe["c_z"][:, :1] * pzz
+            s = positive_power(x, n) * up
+            ds_dx = n * positive_power(x, n - 1.0) * up  # n x^(n-1), 0 where x <= 0
+            rho = lobe["rho_s"][:, None, :]  # (T,1,3)
+            cols += [s[..., None] * eye[c] for c in range(C)]
+            if self.anisotropic:
+                cols += [rho * (ds_dx * pxx)[..., None], rho * (ds_dx * pyy)[..., None]]
+            else:
+                cols.append(rho * (ds_dx * (pxx + pyy))[..., None])
+            if not fit_form:
+                cols.append(rho * (ds_dx * pzz)[..., None])
+            logx = np.log(np.where(x > 0, x, 1.0))
+            ds_dn = s * logx * (n if fit_form else 1.0)  # ∂/∂log n = n ∂/∂n
+            cols.append(rho * ds_dn[..., None])
+            if self.has_beta:
+                # d(ω'_x)/dβ = ω'_y, d(ω'_y)/dβ = −ω'_x  =>  dx/dβ = (C_x − C_y)(i'_y o'_x + i'_x o'_y)
+                dx_db = (lobe["c_x"][:, :1] - lobe["c_y"][:, :1]) * (iy * ox + ix * oy)
+                dbeta = dbeta + rho * (ds_dx * dx_db)[..., None]
+        if self.has_beta:
+            cols.append(np.broadcast_to(dbeta, wi.shape[:2] + (C,)))
+        if self.mirror and not fit_form:
+            cols += [np.zeros(wi.shape[:2] + (C,))] * 3
+        return np.stack(cols, axis=-1)
+
+    def glsl(self) -> str:
+        """``vec3 brdf_lafortune(wi, wo, rho_d, rho_s[j], c[j], exponent[j], beta)`` in the surface frame."""
+        L = self.lobes
+        rot = ("    float cb = cos(beta), sb = sin(beta);\n"
+               "    wi.xy = vec2(cb * wi.x + sb * wi.y, -sb * wi.x + cb * wi.y);\n"
+               "    wo.xy = vec2(cb * wo.x + sb * wo.y, -sb * wo.x + cb * wo.y);\n")
+        arrays = f"vec3 rho_s[{max(L, 1)}], vec3 c[{max(L, 1)}], float exponent[{max(L, 1)}], float beta"
+        return (
+            f"vec3 brdf_lafortune(vec3 wi, vec3 wo, vec3 rho_d, {arrays}) {{\n"
+            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);\n"
+            + (rot if self.has_beta else "")
+            + "    vec3 f = rho_d;\n"
+            f"    for (int j = 0; j < {L}; ++j) {{\n"
+            "        float x = dot(c[j] * wi, wo);\n"
+            "        if (x > 0.0) f += rho_s[j] * exp(min(exponent[j] * log(x), 60.0));\n"
+            "    }\n"
+            "    return f;\n"
+            "}\n"
+        )
+
+    # -- fitting support ----------------------------------------------------------------------------
+
+    def fit_form(self) -> "LafortuneFitForm":
+        return LafortuneFitForm(self)
+
+    def initial_guess(self, f_r, valid, wi, wo):
+        """McAllister's start: ρ_d = 10th percentile, lobes at the text's C and n, ρ_s by linear least squares."""
+        return self.fit_form().to_model(self.fit_form().initial_guess(f_r, valid, wi, wo))
+
+    def canonical(self, params):
+        """Rescale to C_z = 1 (ρ_s = peak at normal incidence); β to [−π/4, π/4) with C_x ↔ C_y swapped as needed."""
+        out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in params.items()}
+        for j in range(1, self.lobes + 1):
+            cz, n = out[f"c_z_{j}"], out[f"exponent_{j}"]
+            scale = np.where(cz > 1e-6, cz, 1.0)
+            out[f"rho_s_{j}"] = out[f"rho_s_{j}"] * np.exp(np.clip(n * np.log(scale), -745, 700))
+            for nm in (("c_x", "c_y") if self.anisotropic else ("c_xy",)):
+                out[f"{nm}_{j}"] = out[f"{nm}_{j}"] / scale
+            out[f"c_z_{j}"] = cz / scale
+        if self.has_beta:
+            b = np.mod(out["beta"] + np.pi / 4, np.pi) - np.pi / 4  # β ≡ β + π, now in [−π/4, 3π/4)
+            swap = b >= np.pi / 4
+            out["beta"] = np.where(swap, b - np.pi / 2, b)
+            for j in range(1, self.lobes + 1):
+                cx, cy = out[f"c_x_{j}"].copy(), out[f"c_y_{j}"].copy()
+                out[f"c_x_{j}"], out[f"c_y_{j}"] = np.where(swap, cy, cx), np.where(swap, cx, cy)
+        return out
+
+
+class LafortuneFitForm(LafortuneModel):
+    """The same lobes with C_z = 1 fixed and log n: what fitters iterate on."""
+
+    name = "lafortune-fit-form"
+
+    def __init__(self, model: LafortuneModel):
+        self.lobes, self.anisotropic, self.has_beta, self.mirror = model.lobes, model.anisotropic, model.has_beta, model.mirror
+        self.channels = model.channels
+        self.model = model
+        self.parameters = self._declare(fit_form=True)
+
+    def lobe_list(self, params):
+        out = []
+        for j in range(1, self.lobes + 1):
+            cx = params[f"c_x_{j}"] if self.anisotropic else params[f"c_xy_{j}"]
+            cy = params[f"c_y_{j}"] if self.anisotropic else cx
+            out.append({"rho_s": params[f"rho_s_{j}"], "c_x": cx, "c_y": cy, "c_z": np.ones_like(cx),
+                        "exponent": np.exp(np.asarray(params[f"log_exponent_{j}"]))})
+        return out
+
+    def jacobian(self, params, wi, wo):
+        return self._jacobian(params, wi, wo, fit_form=True)
+
+    def fit_form(self):
+        return self
+
+    def to_model(self, params):
+        out = {k: np.asarray(v) for k, v in params.items() if not k.startswith("log_exponent_")}
+        for j in range(1, self.lobes + 1):
+            out[f"c_z_{j}"] = np.ones_like(np.asarray(params[f"log_exponent_{j}"]))
+            out[f"exponent_{j}"] = np.exp(np.asarray(params[f"log_exponent_{j}"]))
+        if self.has_beta:
+            out["beta"] = np.mod(np.asarray(params["beta"]) + np.pi / 2, np.pi) - np.pi / 2
+        if self.mirror:
+            out["rho_m"] = np.zeros_like(np.asarray(params["rho_d"]))
+        return out
+
+    def from_model(self, params):
+        canon = self.model.canonical(params)
+        out = {k: v for k, v in canon.items() if not (k.startswith("c_z_") or k.startswith("exponent_") or k == "rho_m")}
+        for j in range(1, self.lobes + 1):
+            out[f"log_exponent_{j}"] = np.log(np.clip(canon[f"exponent_{j}"], *EXPONENT_BOUNDS))
+        return out
+
+    def initial_guess(self, f_r, valid, wi, wo):
+        T = f_r.shape[0]
+        params = self.defaults(T)
+        params["rho_d"] = diffuse_percentile(f_r, valid, 10.0)
+        if not self.lobes:
+            return params
+        # The text starts lobe 1 at n = 10; a coarse scan over n (magnitudes solved
+        # for each) starts every texel near its own sharpness and saves LM iterations.
+        best, best_cost = None, None
+        for log_n in np.log(START_EXPONENTS):
+            trial = {**params, "log_exponent_1": np.full((f_r.shape[0], 1), log_n)}
+            trial.update(solve_magnitudes(self, trial, f_r, valid, wi, wo))
+            cost = np.einsum("tsc,tsc->t", *(2 * [np.where(valid[..., None], self.eval(trial, wi, wo) - f_r, 0.0)]))
+            if best is None:
+                best, best_cost = trial, cost
+            else:
+                take = cost < best_cost
+                best = {k: np.where(take[:, None], trial[k], best[k]) for k in best}
+                best_cost = np.minimum(cost, best_cost)
+        return best
+
+    def least_squares(self, f_r, weight, wi, wo):
+        """The compiled problem (``lafortune_kernels``): same numbers as the NumPy default, far faster."""
+        from .lafortune_kernels import CompiledLafortuneProblem
+
+        return CompiledLafortuneProblem(self, f_r, weight, wi, wo)
+
+    def refine_linear(self, params, f_r, valid, wi, wo):
+        return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)
+
+    def random_guess(self, rng, T):
+        params = super().random_guess(rng, T)
+        if self.has_beta:
+            params["beta"] = rng.uniform(-np.pi / 2, np.pi / 2, (T, 1))
+        return params
+
+
+def diffuse_percentile(f_r: np.ndarray, valid: np.ndarray, percentile: float) -> np.ndarray:
+    """Per-channel percentile of each texel's valid samples, ``(T, 3)``; 0 for a texel with none.
+
+    McAllister's ρ_d estimate (§4.3): the minimum is biased low by noise and
+    registration error, so a low percentile (10th by default) is used.
+    Vectorised (``np.nanpercentile`` loops over texels in Python): invalid
+    samples sort to the end, and each texel interpolates linearly between
+    its own order statistics, as numpy's default method does.
+    """
+    data = np.sort(np.where(valid[..., None], f_r, np.inf), axis=1)  # (T, S, C)
+    n = valid.sum(axis=1)  # (T,)
+    pos = np.clip(percentile / 100.0 * (n - 1), 0, None)
+    lo = np.floor(pos).astype(int)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    frac = (pos - lo)[:, None]
+    take = lambda i: np.take_along_axis(data, i[:, None, None].repeat(data.shape[2], axis=2), axis=1)[:, 0]  # noqa: E731
+    a, b = take(lo), take(hi)
+    with np.errstate(invalid="ignore"):  # inf − inf in texels without samples, masked below
+        out = np.where(frac > 0, a + frac * (b - a), a)
+    return np.clip(np.where((n > 0)[:, None] & np.isfinite(out), out, 0.0), 0.0, None)
+
+
+def solve_magnitudes(model: LafortuneModel, params, f_r, valid, wi, wo) -> dict[str, np.ndarray]:
+    """ρ_s per lobe by non-negative-clipped linear least squares on ``f_r − ρ_d`` with lobe shapes fixed."""
+    pxx, pyy, pzz, _ = model._lobe_dots(params, wi, wo)
+    w = (valid & above_horizon(wi, wo)).astype(float)
+    basis = []
+    for lobe in model.lobe_list(params):
+        x = lobe["c_x"][:, :1] * pxx + lobe["c_y"][:, :1] * pyy + lobe["c_z"][:, :1] * pzz
+        basis.append(positive_power(x, lobe["exponent"][:, :1]) * w)
+    B = np.stack(basis, axis=-1)  # (T, S, L)
+    resid = np.where(w[..., None] > 0, f_r - params["rho_d"][:, None, :], 0.0)
+    A = B.transpose(0, 2, 1) @ B + 1e-12 * np.eye(B.shape[-1])
+    rhs = B.transpose(0, 2, 1) @ resid  # (T, L, 3)
+    rho = np.clip(np.linalg.solve(A, rhs), 0.0, 1e6)
+    rho = np.nan_to_num(rho, nan=0.0, posinf=0.0)
+    return {f"rho_s_{j + 1}": rho[:, j, :] for j in range(B.shape[-1])}
