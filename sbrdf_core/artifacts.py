@@ -82,6 +82,8 @@ SampledReflectance = ArtifactKind(
         ArraySpec("valid", "VUP", "bool", "sample usable (lit, seen, not saturated, above the horizon)"),
         ArraySpec("light_pos", "P3", "float64", "light position, sample frame, mm"),
         ArraySpec("camera_pos", "P3", "float64", "camera centre, sample frame, mm"),
+        ArraySpec("truth/*", "VUC", "float32", "ground-truth parameters of a synthetic material (SampleModel)",
+                  required=False),
     ),
 )
 

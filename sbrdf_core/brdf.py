@@ -13,7 +13,7 @@ zero, never NaN.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -180,6 +180,63 @@ class BRDFModel:
              "typical": list(p.typical), "default": p.default, "scope": p.scope, "unit": p.unit}
             for p in self.parameters
         ]
+
+
+class LogFitForm(BRDFModel):
+    """``model`` with the named positive parameters fitted as their logarithms (``log_<name>``).
+
+    Shared by the models whose shape parameter spans decades (Phong n, Ward
+    and Cook–Torrance α): the Jacobian column of log p is p times that of p,
+    which evens out the scales a damped least-squares step sees.
+    """
+
+    def __init__(self, model: BRDFModel, log_names: Iterable[str]):
+        self.model, self.log_names = model, tuple(log_names)
+        self.name = f"{model.name}-fit-form"
+        self.parameters = tuple(self._log_param(p) if p.name in self.log_names else p for p in model.parameters)
+
+    @staticmethod
+    def _log_param(p: ModelParameter) -> ModelParameter:
+        log = lambda v: float(np.log(v))  # noqa: E731
+        return ModelParameter(f"log_{p.name}", p.channels, (log(p.bounds[0]), log(p.bounds[1])),
+                              (log(p.typical[0]), log(p.typical[1])), log(p.default), p.scope,
+                              unit=f"log {p.unit}".strip(), doc=f"log of {p.name}")
+
+    def to_model(self, params):
+        out = {k: np.asarray(v) for k, v in params.items()}
+        for name in self.log_names:
+            out[name] = np.exp(out.pop(f"log_{name}"))
+        return out
+
+    def from_model(self, params):
+        out = {k: np.asarray(v) for k, v in params.items()}
+        bounds = {p.name: p.bounds for p in self.model.parameters}
+        for name in self.log_names:
+            out[f"log_{name}"] = np.log(np.clip(out.pop(name), *bounds[name]))
+        return out
+
+    def eval(self, params, wi, wo):
+        return self.model.eval(self.to_model(params), wi, wo)
+
+    def jacobian(self, params, wi, wo):
+        model_params = self.to_model(params)
+        J = self.model.jacobian(model_params, wi, wo)
+        slices = self.model.slices()
+        for name in self.log_names:
+            J[..., slices[name]] *= np.asarray(model_params[name])[:, None, None, :]
+        return J
+
+    def glsl(self) -> str:
+        return self.model.glsl()
+
+    def canonical(self, params):
+        return self.from_model(self.model.canonical(self.to_model(params)))
+
+    def initial_guess(self, f_r, valid, wi, wo):
+        return self.from_model(self.model.initial_guess(f_r, valid, wi, wo))
+
+    def fit_form(self):
+        return self
 
 
 def positive_power(x: np.ndarray, exponent: np.ndarray) -> np.ndarray:

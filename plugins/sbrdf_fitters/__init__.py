@@ -1,4 +1,4 @@
-"""Built-in fitters: generic batched LM, McAllister's procedure, and his line search."""
+"""Built-in fitters (generic batched LM, McAllister's procedure, his line search) and the SampleModel node."""
 
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -48,6 +48,13 @@ LINE_SEARCH_PARAMS = _SHARED + (
     Param("objective", "str", "root", "residual in n-th-root space (as written, Eq 4.9) or BRDF space",
           choices=["root", "brdf"]),
 )
+
+
+@hookimpl
+def sbrdf_node_kinds():
+    from .sample_model import SampleModel
+
+    return [SampleModel]
 
 
 @hookimpl

@@ -54,6 +54,11 @@ EXPONENT_BOUNDS = (0.1, 20000.0)
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
 C_BOUNDS = (-10.0, 10.0)
+#: C_z > 0: the fit form's C_z = 1 gauge needs it, and a lobe with C_z ≤ 0 is
+#: dark at normal incidence (no measured material in the seed needs one).
+CZ_BOUNDS = (0.05, 10.0)
+#: C_x, C_y in the C_z = 1 gauge: C / C_z stays within 10 / 0.05.
+FIT_C_BOUNDS = (-200.0, 200.0)
 
 
 class LafortuneModel(BRDFModel):
@@ -81,13 +86,13 @@ class LafortuneModel(BRDFModel):
             cx_typ = (0.8, 1.0) if back else (-1.0, -0.95)
             names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
             for nm in names:
-                ps.append(ModelParameter(f"{nm}_{j}", 1, C_BOUNDS, cx_typ, cx0, doc=f"lobe {j} {nm.replace('_', ' ').upper()}"))
+                ps.append(ModelParameter(f"{nm}_{j}", 1, FIT_C_BOUNDS if fit_form else C_BOUNDS, cx_typ, cx0, doc=f"lobe {j} {nm.replace('_', ' ').upper()}"))
             if fit_form:
                 ps.append(ModelParameter(f"log_exponent_{j}", 1, tuple(np.log(EXPONENT_BOUNDS)),
                                          (np.log(2.0), np.log(20.0)) if back else (np.log(5.0), np.log(200.0)),
                                          float(np.log(n0)), doc=f"lobe {j} log n"))
             else:
-                ps.append(ModelParameter(f"c_z_{j}", 1, C_BOUNDS, (0.9, 1.0), cz0, doc=f"lobe {j} C_z"))
+                ps.append(ModelParameter(f"c_z_{j}", 1, CZ_BOUNDS, (0.9, 1.0), cz0, doc=f"lobe {j} C_z"))
                 ps.append(ModelParameter(f"exponent_{j}", 1, EXPONENT_BOUNDS, (2.0, 20.0) if back else (5.0, 200.0), n0,
                                          doc=f"lobe {j} exponent n"))
         if self.has_beta:
@@ -203,7 +208,7 @@ class LafortuneModel(BRDFModel):
         out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in params.items()}
         for j in range(1, self.lobes + 1):
             cz, n = out[f"c_z_{j}"], out[f"exponent_{j}"]
-            scale = np.where(cz > 1e-6, cz, 1.0)
+            scale = np.clip(cz, CZ_BOUNDS[0], None)  # C_z ≥ 0.05 by declaration
             out[f"rho_s_{j}"] = out[f"rho_s_{j}"] * np.exp(np.clip(n * np.log(scale), -745, 700))
             for nm in (("c_x", "c_y") if self.anisotropic else ("c_xy",)):
                 out[f"{nm}_{j}"] = out[f"{nm}_{j}"] / scale

@@ -1,0 +1,170 @@
+"""cook-torrance: the microfacet model with Beckmann or GGX facets and Schlick Fresnel.
+
+The physically based reference the compact models are judged against: it
+sharpens and brightens toward grazing, which Lafortune lobes cannot (seed 000
+§7.1), and it is what modern renderers and material libraries exchange.
+
+    f_r(ω_i, ω_o) = ρ_d + F(ω_i·h) D(h) G(ω_i, ω_o) / (4 cos θ_i cos θ_o),    h = (ω_i + ω_o)/|ω_i + ω_o|
+
+- D, ``distribution: beckmann``:  exp(−tan²θ_h/α²) / (π α² cos⁴θ_h)
+- D, ``distribution: ggx``:  α² / (π (cos²θ_h (α² − 1) + 1)²)
+- F, Schlick:  F0 + (1 − F0)(1 − ω_i·h)⁵, per RGB channel
+- G, Smith height-correlated (Heitz 2014):  1 / (1 + Λ(ω_i) + Λ(ω_o)) with the Λ of the chosen
+  distribution (exact: Beckmann Λ(a) = (e^(−a²)/(a√π) − erfc a)/2, a = 1/(α tan θ);
+  GGX Λ = (√(1 + α² tan²θ) − 1)/2).  It is reciprocal, accounts for the masking/shadowing
+  correlation the separable form ignores, and is no harder to differentiate.
+
+==========  ========  ======  =================================================
+parameter   channels  unit    meaning
+==========  ========  ======  =================================================
+rho_d       3         sr^-1   diffuse BRDF value (diffuse albedo / π), not Fresnel-weighted
+f0          3         1       Fresnel reflectance at normal incidence per RGB channel
+                              (3 channels: metals have coloured specular; a dielectric has f0 ≈ 0.04 grey)
+alpha       1         1       roughness (Beckmann RMS slope / GGX width)
+==========  ========  ======  =================================================
+
+There is no separate specular scale: F0 is the specular colour and magnitude
+(for small α the lobe's albedo at normal incidence is ≈ F0).  Grazing: the
+cosines are floored at :data:`COS_FLOOR` (0.0001° from the horizon), where G
+already goes to 0 like cos θ, so f stays finite.  The fit form fits log α.
+
+YAML::
+
+    fit: {kind: Fit, plugin: lm, in: {samples: reflectance},
+          params: {model: cook-torrance, model_params: {distribution: ggx}}}
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
+from sbrdf_core.params import Param
+
+
+PARAMS = (
+    Param("distribution", "str", "ggx", "microfacet normal distribution D and its Smith Λ", choices=("beckmann", "ggx")),
+)
+
+COS_FLOOR = 1e-6
+ALPHA_BOUNDS = (1e-3, 2.0)
+SQRT_PI = float(np.sqrt(np.pi))
+
+
+class CookTorranceModel(BRDFModel):
+    name = "cook-torrance"
+    parameters = (
+        ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term"),
+        ModelParameter("f0", 3, (0.0, 1.0), (0.02, 0.9), 0.04, unit="1", doc="Fresnel reflectance at normal incidence"),
+        ModelParameter("alpha", 1, ALPHA_BOUNDS, (0.05, 0.5), 0.2, doc="roughness"),
+    )
+
+    def __init__(self, distribution: str = "ggx"):
+        if distribution not in ("beckmann", "ggx"):
+            raise ValueError(f"cook-torrance: distribution must be 'beckmann' or 'ggx', got {distribution!r}")
+        self.distribution = distribution
+
+    # -- the three factors, each with its α derivative ------------------------------------
+
+    def _distribution(self, cos2_h, alpha):
+        """D and ∂D/∂α, (T, S) each."""
+        a2 = alpha * alpha
+        if self.distribution == "beckmann":
+            tan2 = (1.0 - cos2_h) / cos2_h
+            D = np.exp(-tan2 / a2) / (np.pi * a2 * cos2_h * cos2_h)
+            return D, D * (2 * tan2 / (a2 * alpha) - 2 / alpha)
+        k = cos2_h * a2 + (1.0 - cos2_h)
+        D = a2 / (np.pi * k * k)
+        return D, D * (2 / alpha - 4 * cos2_h * alpha / k)
+
+    def _smith_lambda(self, cos_t, alpha):
+        """Smith Λ(ω) and ∂Λ/∂α for cos θ = ``cos_t`` (already floored), (T, S) each."""
+        tan2 = np.maximum(1.0 - cos_t * cos_t, 0.0) / (cos_t * cos_t)
+        if self.distribution == "beckmann":
+            from scipy.special import erfc  # imported on first use: listing plugins stays light
+
+            a = 1.0 / (alpha * np.sqrt(np.maximum(tan2, 1e-30)))
+            g = np.exp(-a * a) / (a * SQRT_PI)
+            return 0.5 * (g - erfc(a)), 0.5 * g / alpha
+        x = alpha * alpha * tan2
+        root = np.sqrt(1.0 + x)
+        return 0.5 * x / (1.0 + root), 0.5 * alpha * tan2 / root
+
+    def _terms(self, params, wi, wo):
+        alpha = np.asarray(params["alpha"])[:, :1]
+        up = above_horizon(wi, wo)
+        ci = np.maximum(wi[..., 2], COS_FLOOR)
+        co = np.maximum(wo[..., 2], COS_FLOOR)
+        h = wi + wo
+        hh = np.maximum(np.einsum("tsk,tsk->ts", h, h), 1e-300)
+        cos2_h = np.clip(np.maximum(h[..., 2], 0.0) ** 2 / hh, COS_FLOOR**2, 1.0)
+        cos_d = np.clip(np.einsum("tsk,tsk->ts", wi, h) / np.sqrt(hh), 0.0, 1.0)
+        D, dD = self._distribution(cos2_h, alpha)
+        li, dli = self._smith_lambda(ci, alpha)
+        lo, dlo = self._smith_lambda(co, alpha)
+        G = 1.0 / (1.0 + li + lo)
+        dG = -G * G * (dli + dlo)
+        denom = 4.0 * ci * co
+        spec = np.where(up, D * G / denom, 0.0)
+        dspec = np.where(up, (dD * G + D * dG) / denom, 0.0)
+        schlick = (1.0 - cos_d) ** 5
+        return spec, dspec, schlick
+
+    def eval(self, params, wi, wo):
+        spec, _, schlick = self._terms(params, wi, wo)
+        f0 = np.asarray(params["f0"])[:, None, :]
+        F = f0 + (1.0 - f0) * schlick[..., None]
+        f = np.asarray(params["rho_d"])[:, None, :] + F * spec[..., None]
+        return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+
+    def jacobian(self, params, wi, wo):
+        up = above_horizon(wi, wo).astype(float)
+        spec, dspec, schlick = self._terms(params, wi, wo)
+        f0 = np.asarray(params["f0"])[:, None, :]
+        F = f0 + (1.0 - f0) * schlick[..., None]
+        eye = np.eye(3)
+        cols = [up[..., None] * eye[c] for c in range(3)]
+        cols += [(spec * (1.0 - schlick))[..., None] * eye[c] for c in range(3)]
+        cols.append(F * dspec[..., None])
+        return np.stack(cols, axis=-1)
+
+    # -- renderer and fitter support -------------------------------------------------------------
+
+    def glsl(self) -> str:
+        """``vec3 brdf_cook_torrance(wi, wo, rho_d, f0, alpha)`` in the surface frame (plus a Λ helper)."""
+        if self.distribution == "beckmann":
+            d = ("    float tan2h = (1.0 - c2h) / c2h;\n"
+                 "    float D = exp(-tan2h / a2) / (3.14159265359 * a2 * c2h * c2h);\n")
+            lam = ("float cook_torrance_lambda(float c, float alpha) {\n"
+                   "    float t = sqrt(max(1.0 - c * c, 0.0)) / c;\n"
+                   "    float a = 1.0 / (alpha * max(t, 1e-15));\n"
+                   "    if (a > 9.0) return 0.0;\n"
+                   "    // erfc(a) = u p(u) exp(-a^2), Abramowitz & Stegun 7.1.26 (|error| < 1.5e-7)\n"
+                   "    float u = 1.0 / (1.0 + 0.3275911 * a);\n"
+                   "    float p = u * (0.254829592 + u * (-0.284496736 + u * (1.421413741 + u * (-1.453152027 + u * 1.061405429))));\n"
+                   "    return 0.5 * exp(-a * a) * (1.0 / (a * 1.7724538509) - p);\n"
+                   "}\n")
+        else:
+            d = ("    float k = c2h * a2 + (1.0 - c2h);\n"
+                 "    float D = a2 / (3.14159265359 * k * k);\n")
+            lam = ("float cook_torrance_lambda(float c, float alpha) {\n"
+                   "    float x = alpha * alpha * max(1.0 - c * c, 0.0) / (c * c);\n"
+                   "    return 0.5 * x / (1.0 + sqrt(1.0 + x));\n"
+                   "}\n")
+        return (
+            lam
+            + "vec3 brdf_cook_torrance(vec3 wi, vec3 wo, vec3 rho_d, vec3 f0, float alpha) {\n"
+            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);\n"
+            "    float ci = max(wi.z, 1e-6), co = max(wo.z, 1e-6), a2 = alpha * alpha;\n"
+            "    vec3 h = wi + wo;\n"
+            "    float hh = max(dot(h, h), 1e-30);\n"
+            "    float c2h = clamp(h.z * h.z / hh, 1e-12, 1.0);\n"
+            "    float cd = clamp(dot(wi, h) * inversesqrt(hh), 0.0, 1.0);\n"
+            + d +
+            "    float G = 1.0 / (1.0 + cook_torrance_lambda(ci, alpha) + cook_torrance_lambda(co, alpha));\n"
+            "    vec3 F = f0 + (1.0 - f0) * pow(1.0 - cd, 5.0);\n"
+            "    return rho_d + F * (D * G / (4.0 * ci * co));\n"
+            "}\n"
+        )
+
+    def fit_form(self) -> LogFitForm:
+        return LogFitForm(self, ("alpha",))

@@ -1,0 +1,88 @@
+"""phong: the modified (energy-normalised) Phong model of Lafortune & Willems 1994.
+
+Seed 002 renders every mesostructure material with it (its ref [17]); it is
+also the simplest specular model to fit and a check on the Lafortune lobes:
+it is one lobe with C = (−1, −1, 1) and a magnitude tied to the exponent.
+
+    f_r(ω_i, ω_o) = ρ_d + ρ_s · (n + 2)/(2π) · max(0, cos α)^n,    cos α = ω_o · reflect(ω_i)
+
+with reflect(ω) = (−ω_x, −ω_y, ω_z) the mirror direction about the normal.
+
+=========  ========  ======  ===================================================
+parameter  channels  unit    meaning
+=========  ========  ======  ===================================================
+rho_d      3         sr^-1   diffuse BRDF value (as everywhere in sbrdf)
+rho_s      3         1       specular albedo at normal incidence
+exponent   1         1       Phong exponent n
+=========  ========  ======  ===================================================
+
+Units and energy: the diffuse albedo is π ρ_d (Lafortune & Willems' k_d is
+π ρ_d); the (n + 2)/(2π) factor makes the lobe's directional albedo exactly
+ρ_s at normal incidence and less elsewhere (the horizon cuts the lobe), so
+π ρ_d + ρ_s ≤ 1 is energy conserving.  As a Lafortune lobe this is
+ρ_s,Lafortune = ρ_s (n + 2)/(2π).
+
+The fit form fits log n (as the Lafortune fit form does): n spans four
+decades and the lobe depends on it logarithmically.
+
+YAML::
+
+    fit: {kind: Fit, plugin: lm, in: {samples: reflectance}, params: {model: phong}}
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
+
+EXPONENT_BOUNDS = (0.1, 20000.0)
+
+
+class PhongModel(BRDFModel):
+    name = "phong"
+    parameters = (
+        ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term"),
+        ModelParameter("rho_s", 3, (0.0, 10.0), (0.05, 0.8), 0.3, unit="1", doc="specular albedo at normal incidence"),
+        ModelParameter("exponent", 1, EXPONENT_BOUNDS, (5.0, 200.0), 10.0, doc="Phong exponent n"),
+    )
+
+    @staticmethod
+    def cos_alpha(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """``ω_o · reflect(ω_i)``, (T, S)."""
+        return wi[..., 2] * wo[..., 2] - wi[..., 0] * wo[..., 0] - wi[..., 1] * wo[..., 1]
+
+    def eval(self, params, wi, wo):
+        n = np.asarray(params["exponent"])[:, :1]
+        lobe = (n + 2.0) / (2 * np.pi) * positive_power(self.cos_alpha(wi, wo), n)
+        f = np.asarray(params["rho_d"])[:, None, :] + np.asarray(params["rho_s"])[:, None, :] * lobe[..., None]
+        return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+
+    def jacobian(self, params, wi, wo):
+        up = above_horizon(wi, wo).astype(float)
+        n = np.asarray(params["exponent"])[:, :1]
+        x = self.cos_alpha(wi, wo)
+        p = positive_power(x, n) * up
+        lobe = (n + 2.0) / (2 * np.pi) * p
+        logx = np.log(np.where(x > 0, x, 1.0))
+        dlobe_dn = p / (2 * np.pi) + lobe * logx
+        eye = np.eye(3)
+        cols = [up[..., None] * eye[c] for c in range(3)] + [lobe[..., None] * eye[c] for c in range(3)]
+        cols.append(np.asarray(params["rho_s"])[:, None, :] * dlobe_dn[..., None])
+        return np.stack(cols, axis=-1)
+
+    def glsl(self) -> str:
+        """``vec3 brdf_phong(wi, wo, rho_d, rho_s, exponent)`` in the surface frame."""
+        return (
+            "vec3 brdf_phong(vec3 wi, vec3 wo, vec3 rho_d, vec3 rho_s, float exponent) {\n"
+            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);\n"
+            "    float x = dot(vec3(-wi.xy, wi.z), wo);\n"
+            "    float lobe = x > 0.0 ? (exponent + 2.0) * 0.15915494309 * exp(min(exponent * log(x), 60.0)) : 0.0;\n"
+            "    return rho_d + rho_s * lobe;\n"
+            "}\n"
+        )
+
+    def fit_form(self) -> LogFitForm:
+        return LogFitForm(self, ("exponent",))
+
+
