@@ -92,6 +92,7 @@ def cmd_info(args) -> int:
                       for p in fs.ls(root, detail=False) if fs.exists(p.rstrip("/") + "/zarr.json"))
         if not urls:
             raise SbrdfError(f"{args.store}: no sbrdf artifacts here")
+    fits = []
     for url in urls:
         art = open_artifact(url, require_complete=False)
         prov = art.provenance
@@ -110,7 +111,32 @@ def cmd_info(args) -> int:
         for k, v in art.attrs.items():
             if k not in skip:
                 print(f"  @{k}: {json.dumps(v)[:200]}")
+        if art.kind == "ParamMaps" and art.complete:
+            fits.append((url, art))
+    if fits:
+        print(fit_table(fits))
     return 0
+
+
+def fit_table(fits) -> str:
+    """Seed 000 Table 3.4's fitting columns (time, average and maximum RMS) for ParamMaps artifacts.
+
+    Time is the fitter's compute time summed over tiles (CPU seconds across
+    workers), not the node's wall time.
+    """
+    head = f"{'artifact':<28} {'fitter':<12} {'model':<22} {'texels':>9} {'fit_s':>9} {'avg_rms':>10} {'max_rms':>10} {'flagged':>8}"
+    rows = [head, "-" * len(head)]
+    for url, art in fits:
+        summary = art.attrs.get("summary", {})
+        cfg = art.attrs.get("model_config", {})
+        model = art.attrs.get("model", "?") + (f" {cfg['lobes']} lobe" + ("s" if cfg["lobes"] != 1 else "") if "lobes" in cfg else "")
+        u, v = art.attrs.get("texels", [0, 0])
+        flagged = sum(summary.get("texels_flagged", {}).values())
+        fmt = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
+        rows.append(f"{url.rstrip('/').rsplit('/', 1)[-1]:<28} {art.attrs.get('fitter') or '?':<12} {model:<22} {u * v:>9} "
+                    f"{fmt(summary.get('fit_time_s')):>9} {fmt(summary.get('rms_mean')):>10} {fmt(summary.get('rms_max')):>10} "
+                    f"{flagged:>8}")
+    return "\n".join(rows)
 
 
 def main(argv: list[str] | None = None) -> int:

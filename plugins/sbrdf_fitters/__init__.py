@@ -6,7 +6,7 @@ from sbrdf_core.plugin import PluginSpec, hookimpl
 _MODEL = Param("model", "str", "lambert", "BRDF model to fit", extra={"plugin_category": "brdf-model"})
 _MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"})
 _ITERATIONS = Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000))
-_TOLERANCE = Param("tolerance", "float", 1e-8, "stop a texel when its cost improves by less than this fraction",
+_TOLERANCE = Param("tolerance", "float", 1e-5, "stop a texel when its cost improves by less than this fraction",
                    bounds=(0.0, 1.0))
 _STARTS = Param("starts", "int", 1, "starting points per texel: 1 = the model's initial guess, more adds random starts "
                 "and keeps the best (for 3+ lobes)", bounds=(1, 64))
@@ -22,6 +22,9 @@ LM_PARAMS = (
     Param("seed", "int", 0, "random seed of the extra starts"),
 )
 
+_ROOT_FLOOR = Param("root_floor", "float", 0.01, "line search: drop samples whose luminance residual is below this "
+                    "fraction of the texel's peak (0 = as written, which fails at any noise: the n-th root of a "
+                    "near-zero noisy residual is near 1)", bounds=(0.0, 1.0))
 _LAFORTUNE = Param("model", "str", "lafortune", "BRDF model (McAllister's procedure fits Lafortune lobes)",
                    choices=["lafortune"], extra={"plugin_category": "brdf-model"})
 _SHARED = (
@@ -43,10 +46,12 @@ MCALLISTER_PARAMS = _SHARED + (
     _STARTS,
     Param("objective", "str", "root", "line search residual: in n-th-root space (as written) or BRDF space",
           choices=["root", "brdf"]),
+    _ROOT_FLOOR,
 )
 LINE_SEARCH_PARAMS = _SHARED + (
     Param("objective", "str", "root", "residual in n-th-root space (as written, Eq 4.9) or BRDF space",
           choices=["root", "brdf"]),
+    _ROOT_FLOOR,
 )
 
 

@@ -9,6 +9,12 @@ each trial costs one batched matrix-vector product.
 Decisions the text leaves open (notes §8.4), recorded here:
 - samples with f̄_s ≤ 0 (about 10% with a 10th-percentile ρ_d) have no real
   n-th root: they are dropped;
+- so are, by default, samples below 1% of the texel's peak residual
+  (``root_floor``): under any noise their n-th root is near 1 whatever the
+  lobe, and fitting them as written drives n to the bracket's low end (the
+  "lobes much too broad" failure the text reports).  Measured on 1-lobe data
+  with n 5..200: as written, n/n_true ≈ 0.02 already at σ = 10⁻⁸ sr⁻¹; with
+  the floor n is right at σ = 10⁻⁴ and too broad at 10⁻², as the text says;
 - the isotropic tie C_x = C_y uses the column ω_i,x ω_r,x + ω_i,y ω_r,y;
 - the bracket is log n ∈ [log 0.5, log 2000];
 - ``objective: root`` measures the residual in root space as written (the

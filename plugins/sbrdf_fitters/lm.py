@@ -74,7 +74,7 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
     return x, cost, ~active
 
 
-def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-8, damping=1e-3,
+def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-5, damping=1e-3,
               fixed=(), starts=1, seed=0):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged)``.
 

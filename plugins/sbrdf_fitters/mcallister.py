@@ -45,11 +45,12 @@ class McAllisterFitter:
     model_name = "lafortune"
 
     def __init__(self, model, model_params, diffuse, percentile, colour_space, lobe_fit, lobe_2_start, rho_s_guard,
-                 iterations, tolerance, starts, objective="root"):
+                 iterations, tolerance, starts, objective="root", root_floor=0.01):
         self.model_config = dict(model_params)
         self.diffuse, self.percentile, self.colour_space = diffuse, percentile, colour_space
         self.lobe_fit, self.lobe_2_start, self.rho_s_guard = lobe_fit, lobe_2_start, rho_s_guard
         self.iterations, self.tolerance, self.starts, self.objective = iterations, tolerance, starts, objective
+        self.root_floor = root_floor
         self.weights = luminance_weights(colour_space)
         lobes = int(self.model_config.get("lobes", 1))
         if lobe_fit == "line-search" and (lobes != 1 or self.model_config.get("beta")):
@@ -68,7 +69,9 @@ class McAllisterFitter:
             lobes = []
         elif self.lobe_fit == "line-search":
             pxx, pyy, pzz, _ = model._lobe_dots({}, wi, wo)
-            c, n, _ = line_search_lobe(lum, use & (lum > 0), pxx, pyy, pzz, anisotropic=model.anisotropic,
+            peak = np.max(np.where(use, lum, 0.0), axis=1, keepdims=True)
+            keep = use & (lum > np.maximum(self.root_floor * peak, 0.0))
+            c, n, _ = line_search_lobe(lum, keep, pxx, pyy, pzz, anisotropic=model.anisotropic,
                                        objective=self.objective)
             lobes = [{"a": np.ones(T), "c": c, "exponent": n}]
         else:
@@ -87,6 +90,8 @@ class McAllisterFitter:
             params["beta"] = lobes[0]["beta"][:, None] if lobes and "beta" in lobes[0] else np.zeros((T, 1))
         if model.mirror:
             params["rho_m"] = np.zeros((T, 3))
+        lo, hi = model.bounds()  # a degenerate line-search lobe (C ≈ 0) must still land inside the declaration
+        params = model.unpack(np.clip(model.pack({**model.defaults(T), **params}), lo, hi))
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         return FitResult(params, rms_error(model, params, f_r, valid, wi, wo), valid.sum(axis=1), flags)
 

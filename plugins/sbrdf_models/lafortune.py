@@ -22,7 +22,8 @@ rho_m           3         mirror term ρ_m·δ (``mirror: true``): rendered, nev
 
 Equivalences (a fit is judged modulo these; :meth:`LafortuneModel.canonical`
 picks one representative): (e·ρ_s, C·e^(−1/n)) is the same lobe for any e > 0;
-β ≡ β + π; β + π/2 with C_x ↔ C_y swapped is the same BRDF.
+β ≡ β + π; β + π/2 with C_x ↔ C_y swapped is the same BRDF; lobes may be
+listed in any order (canonical: ascending C_x + C_y, forward lobes first).
 
 The fit form fixes C_z = 1 (so ρ_s is the lobe's peak value at normal
 incidence) and fits log n: the raw form is singular along the rescale
@@ -57,8 +58,9 @@ C_BOUNDS = (-10.0, 10.0)
 #: C_z > 0: the fit form's C_z = 1 gauge needs it, and a lobe with C_z ≤ 0 is
 #: dark at normal incidence (no measured material in the seed needs one).
 CZ_BOUNDS = (0.05, 10.0)
-#: C_x, C_y in the C_z = 1 gauge: C / C_z stays within 10 / 0.05.
-FIT_C_BOUNDS = (-200.0, 200.0)
+#: C_x, C_y in the C_z = 1 gauge, so the fit form converts back inside C_BOUNDS
+#: (a lobe with |C_x| > 10·C_z is clipped to that ratio when converted).
+FIT_C_BOUNDS = C_BOUNDS
 
 
 class LafortuneModel(BRDFModel):
@@ -204,15 +206,26 @@ class LafortuneModel(BRDFModel):
         return self.fit_form().to_model(self.fit_form().initial_guess(f_r, valid, wi, wo))
 
     def canonical(self, params):
-        """Rescale to C_z = 1 (ρ_s = peak at normal incidence); β to [−π/4, π/4) with C_x ↔ C_y swapped as needed."""
+        """Rescale to C_z = 1 (ρ_s = peak at normal incidence); lobes in C_x + C_y order; β to [−π/4, π/4)
+        with C_x ↔ C_y swapped as needed."""
         out = {k: np.array(v, dtype=np.float64, copy=True) for k, v in params.items()}
         for j in range(1, self.lobes + 1):
             cz, n = out[f"c_z_{j}"], out[f"exponent_{j}"]
-            scale = np.clip(cz, CZ_BOUNDS[0], None)  # C_z ≥ 0.05 by declaration
+            scale = np.where(cz > 1e-12, cz, 1.0)  # C_z ≥ 0.05 within the declared bounds
             out[f"rho_s_{j}"] = out[f"rho_s_{j}"] * np.exp(np.clip(n * np.log(scale), -745, 700))
             for nm in (("c_x", "c_y") if self.anisotropic else ("c_xy",)):
                 out[f"{nm}_{j}"] = out[f"{nm}_{j}"] / scale
             out[f"c_z_{j}"] = cz / scale
+        if self.lobes > 1:  # lobes are interchangeable: order by C_x + C_y (forward-scattering first)
+            names = [n for n in out if n.endswith("_1") and not n.startswith("rho_d")]
+            key = np.stack([out[f"c_x_{j}"][:, 0] + out[f"c_y_{j}"][:, 0] if self.anisotropic else out[f"c_xy_{j}"][:, 0]
+                            for j in range(1, self.lobes + 1)], axis=1)
+            order = np.argsort(key, axis=1, kind="stable")  # (T, L)
+            for base in (n[:-2] for n in names):
+                stack = np.stack([out[f"{base}_{j}"] for j in range(1, self.lobes + 1)], axis=1)  # (T, L, C)
+                ordered = np.take_along_axis(stack, order[..., None], axis=1)
+                for j in range(1, self.lobes + 1):
+                    out[f"{base}_{j}"] = ordered[:, j - 1]
         if self.has_beta:
             b = np.mod(out["beta"] + np.pi / 4, np.pi) - np.pi / 4  # β ≡ β + π, now in [−π/4, 3π/4)
             swap = b >= np.pi / 4
@@ -265,6 +278,8 @@ class LafortuneFitForm(LafortuneModel):
         out = {k: v for k, v in canon.items() if not (k.startswith("c_z_") or k.startswith("exponent_") or k == "rho_m")}
         for j in range(1, self.lobes + 1):
             out[f"log_exponent_{j}"] = np.log(np.clip(canon[f"exponent_{j}"], *EXPONENT_BOUNDS))
+            for nm in (("c_x", "c_y") if self.anisotropic else ("c_xy",)):
+                out[f"{nm}_{j}"] = np.clip(out[f"{nm}_{j}"], *FIT_C_BOUNDS)
         return out
 
     def initial_guess(self, f_r, valid, wi, wo):
