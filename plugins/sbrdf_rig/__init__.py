@@ -1,1 +1,55 @@
-"""Gonioreflectometer rig: serial motor drivers, their simulators, kinematics and pose planning."""
+"""Gonioreflectometer rig: serial motor drivers, their simulators, kinematics and pose planning.
+
+Registers two ``device`` plugins (capture sources create them through
+``Registry.create("device", name, params)``):
+
+``ptu``
+    :class:`sbrdf_rig.ptu.PanTiltUnit`, Directed Perception PTU command set.
+``indexer``
+    :class:`sbrdf_rig.indexer.Indexer`, Compumotor 6000-series command language.
+
+Everything else (simulators in :mod:`sbrdf_rig.sim`, :mod:`sbrdf_rig.kinematics`,
+:mod:`sbrdf_rig.planning`) is a library for capture sources and tools; see
+``docs/acquisition-rig.md``.  This module imports nothing heavy.
+"""
+
+from sbrdf_core.params import Param
+from sbrdf_core.plugin import PluginSpec, hookimpl
+
+_LINK_PARAMS = (
+    Param("port", "str", doc="serial device path, e.g. /dev/ttyUSB0 or a simulator's pty"),
+    Param("baudrate", "int", 9600, "line speed", choices=(1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)),
+    Param("timeout_s", "float", 1.0, "how long to wait for a complete reply", bounds=(0.001, 60.0), unit="s"),
+    Param("retries", "int", 3, "extra attempts after a dropped/garbled reply or a missed position", bounds=(0, 20)),
+    Param("tolerance_deg", "float", 0.05, "largest accepted difference between target and read-back position",
+          bounds=(0.0, 10.0), unit="deg"),
+    Param("move_timeout_s", "float", 60.0, "longest a single move may take", bounds=(0.01, 3600.0), unit="s"),
+)
+
+PTU_PARAMS = _LINK_PARAMS + (
+    Param("pan_limits_deg", "list", [-159.0, 159.0], "pan soft limits [low, high], intersected with the unit's",
+          length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
+    Param("tilt_limits_deg", "list", [-47.0, 31.0], "tilt soft limits [low, high], intersected with the unit's",
+          length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
+    Param("speed_deg_s", "float", 20.0, "pan and tilt speed", bounds=(0.01, 1000.0), unit="deg/s"),
+)
+
+INDEXER_PARAMS = _LINK_PARAMS + (
+    Param("axis", "int", 1, "controller axis number", bounds=(1, 4)),
+    Param("gear_ratio", "float", 90.0, "motor revolutions per output revolution", bounds=(1e-3, None)),
+    Param("limits_deg", "list", [10.0, 175.0], "soft limits [low, high] of the output shaft (light arm: 10-175 deg)",
+          length=2, item="float", bounds=(-3600.0, 3600.0), unit="deg"),
+    Param("speed_deg_s", "float", 20.0, "output-shaft speed", bounds=(0.01, 1000.0), unit="deg/s"),
+    Param("acceleration_deg_s2", "float", 40.0, "output-shaft acceleration", bounds=(0.01, 10000.0), unit="deg/s^2"),
+    Param("poll_s", "float", 0.01, "status polling interval while a move runs", bounds=(0.0, 1.0), unit="s"),
+)
+
+
+@hookimpl
+def sbrdf_devices():
+    return [
+        PluginSpec("ptu", "sbrdf_rig.ptu:PanTiltUnit", PTU_PARAMS,
+                   summary="Pan-tilt unit over serial, Directed Perception PTU command set (PP/TP, A, H)"),
+        PluginSpec("indexer", "sbrdf_rig.indexer:Indexer", INDEXER_PARAMS,
+                   summary="Rotary indexer over serial, Compumotor 6000-series language (D, GO, TPE, LS)"),
+    ]

@@ -1,0 +1,169 @@
+"""What every motor-controller driver does the same way: limits, verified moves, clean stops.
+
+A capture source drives several controllers (a pan-tilt unit for pan, another
+for tilt and roll, an indexer for the light arm) through one small API:
+
+``move_to(**targets)``
+    Blocking, absolute, in degrees; keyword names are the driver's
+    :attr:`MotorController.axes` (``pan_deg``, ``tilt_deg``; ``angle_deg``).
+    Targets outside the soft limits raise :class:`SoftLimitError` before a
+    byte is sent.  After the motion the position is read back; a miss larger
+    than ``tolerance_deg`` re-commands the move, up to ``retries`` times, then
+    raises :class:`PositionError`.
+``position()``
+    The read-back position, with the same keys (``move_to(**position())`` is a no-op).
+``stop()`` / ``close()`` / ``with``
+    Halt motion; halt and release the port.
+
+A failure that ends the session (a reply that never comes after every retry,
+an error reply, a persistent position miss) halts the motors, closes the port
+and re-raises: a driver in an unknown state must not keep moving hardware.
+The protocol drivers implement only the ``_send_move``, ``_wait_for_move``,
+``_read_position`` and ``_halt`` hooks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from .errors import DeviceClosed, DeviceError, PositionError, SoftLimitError
+from .link import SerialLink
+
+
+class MotorController:
+    """Base class of the serial motor-controller drivers (see the module docstring)."""
+
+    #: Keyword names accepted by :meth:`move_to` and returned by :meth:`position`.
+    axes: tuple[str, ...] = ()
+
+    def __init__(self, link: SerialLink, *, tolerance_deg: float, retries: int):
+        self.link = link
+        self.tolerance_deg = float(tolerance_deg)
+        self.retries = int(retries)
+        #: Soft limits in degrees per axis, filled in by the protocol driver when it connects.
+        self.limits: dict[str, tuple[float, float]] = {}
+        #: Moves that needed re-commanding after a position miss, as ``(axis, target, read)``.
+        self.position_misses: list[tuple[str, float, float]] = []
+
+    # -- public API -------------------------------------------------------------------
+
+    @property
+    def port(self) -> str:
+        return self.link.port
+
+    @property
+    def is_open(self) -> bool:
+        return self.link.is_open
+
+    def move_to(self, **targets: float) -> dict[str, float]:
+        """Move to absolute ``targets`` (degrees), wait, verify; return the read-back position."""
+        self._require_open("move")
+        targets = self._check_targets(targets)
+        reply = None
+        for attempt in range(1 + self.retries):
+            try:
+                self._send_move(targets)
+                self._wait_for_move(targets)
+                read, reply = self._read_position(tuple(targets))
+            except DeviceError as e:
+                self._fail(e)
+            off = {k: read[k] - v for k, v in targets.items() if abs(read[k] - v) > self.tolerance_deg}
+            if not off:
+                return self._full_position(read)
+            for k in off:
+                self.position_misses.append((k, targets[k], read[k]))
+        worst = max(off, key=lambda k: abs(off[k]))
+        self._fail(PositionError(
+            f"{worst} read back {read[worst]:.4f} deg after moving to {targets[worst]:.4f} deg "
+            f"(off by {off[worst]:+.4f}, tolerance {self.tolerance_deg:g} deg) on {1 + self.retries} attempts; "
+            "motion halted and port closed",
+            device=self.link.device, port=self.port, command=self._position_command(worst), received=reply))
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def position(self) -> dict[str, float]:
+        """Current position of every axis in degrees, keyed like :meth:`move_to`."""
+        self._require_open("position")
+        try:
+            read, _ = self._read_position(self.axes)
+        except DeviceError as e:
+            self._fail(e)
+        return read
+
+    def stop(self) -> None:
+        """Halt all motion now (raises if the controller does not acknowledge)."""
+        self._require_open("stop")
+        try:
+            self._halt(best_effort=False)
+        except DeviceError as e:
+            self._fail(e)
+
+    def close(self) -> None:
+        """Halt motion (best effort) and release the port; safe to call twice."""
+        if not self.link.is_open:
+            return
+        try:
+            self._halt(best_effort=True)
+        except DeviceError:
+            pass
+        finally:
+            self.link.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "open" if self.is_open else "closed"
+        return f"{type(self).__name__}(port={self.port!r}, {state})"
+
+    # -- helpers for subclasses -------------------------------------------------------
+
+    def _check_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
+        unknown = sorted(set(targets) - set(self.axes))
+        if unknown or not targets:
+            raise SoftLimitError(f"move_to needs keyword targets among {list(self.axes)}, got {sorted(targets)}",
+                                 device=self.link.device, port=self.port)
+        checked = {}
+        for name, value in targets.items():
+            value = float(value)
+            lo, hi = self.limits[name]
+            if not (lo <= value <= hi):  # also rejects NaN
+                raise SoftLimitError(f"{name}={value:g} deg is outside the soft limits [{lo:g}, {hi:g}] deg; "
+                                     "nothing was sent", device=self.link.device, port=self.port)
+            checked[name] = value
+        return checked
+
+    def _full_position(self, read: dict[str, float]) -> dict[str, float]:
+        if set(read) == set(self.axes):
+            return read
+        rest, _ = self._read_position(tuple(a for a in self.axes if a not in read))
+        return {a: {**read, **rest}[a] for a in self.axes}
+
+    def _require_open(self, what: str) -> None:
+        if not self.link.is_open:
+            raise DeviceClosed(f"cannot {what}: the driver is closed", device=self.link.device, port=self.port)
+
+    def _fail(self, error: DeviceError):
+        """Halt (best effort), close the port, raise ``error``."""
+        self.close()
+        raise error
+
+    # -- protocol hooks -----------------------------------------------------------------
+
+    def _send_move(self, targets: dict[str, float]) -> None:
+        raise NotImplementedError
+
+    def _wait_for_move(self, targets: dict[str, float]) -> None:
+        raise NotImplementedError
+
+    def _read_position(self, axes: tuple[str, ...]) -> tuple[dict[str, float], str]:
+        """Positions of ``axes`` in degrees, and the raw reply (for error messages)."""
+        raise NotImplementedError
+
+    def _position_command(self, axis: str) -> str:
+        raise NotImplementedError
+
+    def _halt(self, best_effort: bool) -> None:
+        raise NotImplementedError

@@ -1,0 +1,198 @@
+"""A line-oriented serial link with timeouts, bounded retries and resynchronisation.
+
+Both controllers on the rig speak checksumless ASCII: a command goes out, one
+or more CR/LF-terminated lines come back.  Nothing in the bytes protects them,
+so the link relies on three things instead:
+
+* every exchange has a deadline (a dropped reply or a stalled controller is a
+  :class:`~sbrdf_rig.errors.ReplyTimeout`, never a hang);
+* every reply is parsed strictly by the protocol module, which raises
+  :class:`~sbrdf_rig.errors.GarbledReply` for anything it does not expect, so
+  line noise is detected rather than believed;
+* all commands the drivers send are idempotent (absolute moves, queries,
+  halts), so a failed exchange is retried by sending the command again, after
+  draining whatever late bytes are still on the line.
+
+An explicit error reply from the controller (:class:`DeviceRefused`) is not
+retried: the controller heard the command and said no.
+
+The protocol modules supply two callables per exchange: ``is_last(line)``
+(does this line end the reply?) and ``parse(lines)``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from typing import TypeVar
+
+import serial
+
+from .errors import DeviceClosed, DeviceError, DeviceRefused, GarbledReply, ReplyTimeout
+
+T = TypeVar("T")
+
+
+class SerialLink:
+    """One serial port, one command at a time.
+
+    Parameters
+    ----------
+    port
+        Device path (``/dev/ttyUSB0``, or a simulator's pty slave).
+    device
+        Name used in error messages (``ptu``, ``indexer``).
+    baudrate, timeout_s
+        Line speed, and how long to wait for a complete reply.
+    retries
+        Extra attempts after a timeout or garbled reply (0 = try once).
+    terminator
+        Appended to every command.
+    """
+
+    def __init__(self, port: str, *, device: str, baudrate: int = 9600, timeout_s: float = 1.0,
+                 retries: int = 3, terminator: str = "\r\n"):
+        self.port = port
+        self.device = device
+        self.timeout_s = float(timeout_s)
+        self.retries = int(retries)
+        self.terminator = terminator
+        #: Exchanges that needed more than one attempt, as ``(command, error)`` (diagnostics).
+        self.recovered: list[tuple[str, str]] = []
+        try:
+            self._serial: serial.Serial | None = serial.Serial(port, baudrate=baudrate, timeout=self.timeout_s,
+                                                               write_timeout=self.timeout_s)
+        except (serial.SerialException, OSError) as e:
+            raise DeviceError(f"cannot open serial port: {e}", device=device, port=port) from e
+
+    # -- plumbing -----------------------------------------------------------------
+
+    @property
+    def is_open(self) -> bool:
+        return self._serial is not None and self._serial.is_open
+
+    def close(self) -> None:
+        if self._serial is not None:
+            try:
+                self._serial.close()
+            finally:
+                self._serial = None
+
+    def _port(self, command: str | None = None) -> serial.Serial:
+        if self._serial is None:
+            raise DeviceClosed("the serial link is closed", device=self.device, port=self.port, command=command)
+        return self._serial
+
+    def write(self, command: str) -> None:
+        """Send ``command`` + terminator, discarding any stale input first."""
+        port = self._port(command)
+        try:
+            port.reset_input_buffer()
+            port.write((command + self.terminator).encode("ascii"))
+            port.flush()
+        except (serial.SerialException, OSError) as e:
+            raise DeviceError(f"write failed: {e}", device=self.device, port=self.port, command=command) from e
+
+    def read_line(self, command: str, deadline: float) -> str:
+        """One line without its terminator, or :class:`ReplyTimeout` at ``deadline`` (``time.monotonic``)."""
+        port = self._port(command)
+        buf = bytearray()
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise ReplyTimeout(f"no complete reply within {self.timeout_s:g} s", device=self.device,
+                                   port=self.port, command=command, received=bytes(buf) or None)
+            port.timeout = remaining
+            try:
+                chunk = port.read_until(b"\n")
+            except (serial.SerialException, OSError) as e:
+                raise DeviceError(f"read failed: {e}", device=self.device, port=self.port, command=command,
+                                  received=bytes(buf) or None) from e
+            buf += chunk
+            if buf.endswith(b"\n"):
+                break
+        raw = bytes(buf)
+        try:
+            text = raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise GarbledReply("reply is not ASCII", device=self.device, port=self.port, command=command,
+                               received=raw) from None
+        text = text.rstrip("\r\n")
+        if any(not (c.isprintable() or c == "\t") for c in text):
+            raise GarbledReply("reply has control characters", device=self.device, port=self.port,
+                               command=command, received=raw)
+        return text
+
+    def drain(self) -> None:
+        """Discard input until the line has been quiet for one timeout (bounded by three).
+
+        A reply that was merely late (a stalled controller) then lands here
+        instead of being taken for the answer to the next attempt.
+        """
+        port = self._port()
+        quiet = max(self.timeout_s, 0.01)
+        stop = time.monotonic() + 3 * self.timeout_s
+        last = time.monotonic()
+        while time.monotonic() < stop and time.monotonic() - last < quiet:
+            port.timeout = min(quiet, max(stop - time.monotonic(), 0.0))
+            if port.read(max(port.in_waiting, 1)):
+                last = time.monotonic()
+        port.reset_input_buffer()
+
+    # -- exchanges --------------------------------------------------------------------
+
+    def read_reply(self, command: str, is_last: Callable[[str], bool], timeout_s: float | None = None,
+                   skip_echo: bool = True) -> list[str]:
+        """Lines up to and including the one ``is_last`` accepts; the echo of ``command`` is skipped."""
+        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+        lines: list[str] = []
+        while True:
+            line = self.read_line(command, deadline)
+            if skip_echo and not lines and line.strip().upper() == command.strip().upper():
+                continue
+            lines.append(line)
+            if is_last(line):
+                return lines
+            if len(lines) > 32:
+                raise GarbledReply("reply does not end", device=self.device, port=self.port, command=command,
+                                   received="\n".join(lines))
+
+    def exchange(self, command: str, is_last: Callable[[str], bool], parse: Callable[[Sequence[str]], T],
+                 timeout_s: float | None = None, retries: int | None = None) -> T:
+        """Send ``command`` and parse its reply, retrying timeouts and garbled replies.
+
+        Raises the last :class:`ReplyTimeout` / :class:`GarbledReply` (its
+        message says how many attempts were made) when every attempt failed,
+        and :class:`DeviceRefused` at once when the controller answers with an error.
+        """
+        attempts = 1 + (self.retries if retries is None else retries)
+        last: DeviceError | None = None
+        for attempt in range(attempts):
+            try:
+                self.write(command)
+                value = parse(self.read_reply(command, is_last, timeout_s))
+            except DeviceRefused:
+                raise
+            except (ReplyTimeout, GarbledReply) as e:
+                last = e
+                if self._serial is None:
+                    break
+                self.drain()
+                continue
+            if last is not None:
+                self.recovered.append((command, str(last)))
+            return value
+        assert last is not None
+        n = f"{attempts} attempt{'s' if attempts != 1 else ''}"
+        raise type(last)(f"{_head(last)}; gave up after {n}", device=self.device, port=self.port,
+                         command=command, received=last.received) from last
+
+
+def _head(error: DeviceError) -> str:
+    """The message of ``error`` without its ``device on port:`` prefix and detail suffix."""
+    text = str(error)
+    prefix = f"{error.device} on {error.port}: "
+    if text.startswith(prefix):
+        text = text[len(prefix):]
+    cut = text.rfind(" (command ")
+    return text[:cut] if cut >= 0 else text

@@ -1,0 +1,163 @@
+"""Driver for a pan-tilt unit speaking the Directed Perception PTU command language.
+
+McAllister's rig used two Directed Perception PTU-46-70 units: one pans the
+sample, the other tilts and rolls it (seed 000, §3.3, Table 3.1).  The
+controller speaks a terse ASCII language (DP "PTU command set", also used by
+the later FLIR PTU-D46/E-series); the subset this driver uses:
+
+============  =======================================  ===========================================
+command       meaning                                  reply (verbose feedback, ``FV``)
+============  =======================================  ===========================================
+``PP<n>``     pan to absolute position ``n``           ``*`` or ``! Maximum allowable Pan position is 3090``
+``TP<n>``     tilt to absolute position ``n``          ``*`` or ``! ...``
+``PP``/``TP`` query position                           ``* Current Pan position is 1234``
+``PS<n>``     pan speed, positions/s (``TS`` tilt)     ``*``
+``PN``/``PX`` pan min / max position (``TN``/``TX``)   ``* Minimum Pan position is -12360``
+``PR``/``TR`` resolution                               ``* 46.2857 seconds arc per position``
+``A``         await: reply only when motion is done    ``*``
+``H``         halt both axes                           ``*``
+``ED``        echo disable (factory default: enabled)  ``*``
+``FV``        verbose feedback                         ``*``
+``I``         immediate (not slaved) execution         ``*``
+============  =======================================  ===========================================
+
+Commands are delimited by whitespace (this driver ends each with CR LF);
+every reply is one line, ``*`` for success and ``!`` for an error.  Positions
+are integer steps; the resolution query converts them to degrees (a
+PTU-46-70 in eighth-step mode has 46.2857 arc-seconds per position, the
+0.0129° of Table 3.1).
+
+The driver keeps the controller in verbose mode so that a position reply
+names its axis: a stale ``Tilt`` reply arriving for a ``PP`` query is
+detected as garbled instead of being read as the pan position.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+
+from .controller import MotorController
+from .errors import DeviceRefused, GarbledReply
+from .link import SerialLink
+
+_AXIS = {"pan_deg": ("P", "Pan"), "tilt_deg": ("T", "Tilt")}
+_ACK = re.compile(r"^\*\s*$")
+_NUMBER_REPLY = r"^\*\s*(?:{phrase}\s+)?(?P<value>[-+]?\d+)\s*$"
+_RESOLUTION = re.compile(r"^\*\s*(?P<value>\d*\.?\d+)\s+seconds arc per position\s*$")
+
+
+class PanTiltUnit(MotorController):
+    """A Directed Perception-style pan-tilt unit on a serial port.
+
+    Opens the port and configures the unit on construction (echo off, verbose
+    feedback, immediate mode, speeds), reads its resolution and factory limits;
+    the soft limits are the intersection of those and ``pan_limits_deg`` /
+    ``tilt_limits_deg``.
+
+    >>> with PanTiltUnit(port=sim.port) as ptu:          # doctest: +SKIP
+    ...     ptu.move_to(pan_deg=30.0, tilt_deg=-10.0)
+    ...     ptu.position()
+    {'pan_deg': 30.0, 'tilt_deg': -10.0}
+    """
+
+    axes = ("pan_deg", "tilt_deg")
+
+    def __init__(self, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
+                 tolerance_deg: float = 0.05, pan_limits_deg: Sequence[float] = (-159.0, 159.0),
+                 tilt_limits_deg: Sequence[float] = (-47.0, 31.0), speed_deg_s: float = 20.0,
+                 move_timeout_s: float = 60.0):
+        link = SerialLink(port, device="ptu", baudrate=baudrate, timeout_s=timeout_s, retries=retries)
+        super().__init__(link, tolerance_deg=tolerance_deg, retries=retries)
+        self.speed_deg_s = float(speed_deg_s)
+        self.move_timeout_s = float(move_timeout_s)
+        self.arcsec_per_step: dict[str, float] = {}
+        self._last: dict[str, float] = {}
+        try:
+            for setup in ("ED", "FV", "I"):
+                self._ack(setup)
+            user = {"pan_deg": pan_limits_deg, "tilt_deg": tilt_limits_deg}
+            for axis, (letter, word) in _AXIS.items():
+                self.arcsec_per_step[axis] = self._query(f"{letter}R", _RESOLUTION, float)
+                lo = self._steps_to_deg(axis, self._query(f"{letter}N", _number(f"Minimum {word} position is"), int))
+                hi = self._steps_to_deg(axis, self._query(f"{letter}X", _number(f"Maximum {word} position is"), int))
+                ulo, uhi = (float(v) for v in user[axis])
+                if ulo > uhi:
+                    raise ValueError(f"ptu on {port}: {axis[:-4]}_limits_deg {list(user[axis])} is not [low, high]")
+                self.limits[axis] = (max(lo, ulo), min(hi, uhi))
+                speed = max(1, round(self.speed_deg_s * 3600.0 / self.arcsec_per_step[axis]))
+                self._ack(f"{letter}S{speed}")
+            self._last, _ = self._read_position(self.axes)
+        except Exception:
+            self.close()
+            raise
+
+    # -- protocol --------------------------------------------------------------------
+
+    def _steps_to_deg(self, axis: str, steps: int) -> float:
+        return steps * self.arcsec_per_step[axis] / 3600.0
+
+    def _deg_to_steps(self, axis: str, degrees: float) -> int:
+        return round(degrees * 3600.0 / self.arcsec_per_step[axis])
+
+    def _ack(self, command: str, timeout_s: float | None = None, retries: int | None = None) -> None:
+        def parse(lines: Sequence[str]) -> None:
+            _refused(self, command, lines[-1])
+            if not _ACK.match(lines[-1]):
+                raise GarbledReply("expected '*'", device="ptu", port=self.port, command=command, received=lines[-1])
+
+        self.link.exchange(command, _one_line, parse, timeout_s=timeout_s, retries=retries)
+
+    def _query(self, command: str, pattern: re.Pattern, convert):
+        def parse(lines: Sequence[str]):
+            _refused(self, command, lines[-1])
+            m = pattern.match(lines[-1])
+            if not m:
+                raise GarbledReply(f"reply does not match {pattern.pattern!r}", device="ptu", port=self.port,
+                                   command=command, received=lines[-1])
+            return convert(m.group("value")), lines[-1]
+
+        value, self._raw = self.link.exchange(command, _one_line, parse)
+        return value
+
+    def _send_move(self, targets: dict[str, float]) -> None:
+        for axis, degrees in targets.items():
+            self._ack(f"{_AXIS[axis][0]}P{self._deg_to_steps(axis, degrees)}")
+
+    def _wait_for_move(self, targets: dict[str, float]) -> None:
+        travel = max(abs(v - self._last.get(k, v)) for k, v in targets.items())
+        expected = travel / max(self.speed_deg_s, 1e-9)
+        self._ack("A", timeout_s=min(self.move_timeout_s, self.link.timeout_s + 2.0 * expected))
+
+    def _position_command(self, axis: str) -> str:
+        return f"{_AXIS[axis][0]}P"
+
+    def _read_position(self, axes: tuple[str, ...]) -> tuple[dict[str, float], str]:
+        out, raws = {}, []
+        for axis in axes:
+            letter, word = _AXIS[axis]
+            steps = self._query(f"{letter}P", _number(f"Current {word} position is"), int)
+            out[axis] = self._steps_to_deg(axis, steps)
+            raws.append(self._raw)
+        self._last.update(out)
+        return out, " | ".join(raws)
+
+    def _halt(self, best_effort: bool) -> None:
+        if best_effort:
+            self._ack("H", timeout_s=min(self.link.timeout_s, 0.5), retries=0)
+        else:
+            self._ack("H")
+
+
+def _one_line(line: str) -> bool:
+    return True
+
+
+def _number(phrase: str) -> re.Pattern:
+    return re.compile(_NUMBER_REPLY.format(phrase=re.escape(phrase)))
+
+
+def _refused(driver: PanTiltUnit, command: str, line: str) -> None:
+    if line.startswith("!"):
+        raise DeviceRefused(f"controller refused: {line[1:].strip() or 'error'}", device="ptu", port=driver.port,
+                            command=command, received=line)

@@ -1,0 +1,278 @@
+"""The serial drivers against their protocol simulators, through a real pty and pyserial.
+
+Every fault the simulators can inject is exercised on both controllers, once
+transient (the driver must recover and land where it was told) and once
+persistent (the driver must stop the motors, close the port and raise an
+error naming the port, the command and what came back).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import pytest
+
+from sbrdf_core.errors import SbrdfError
+from sbrdf_rig.errors import (DeviceClosed, DeviceError, DeviceRefused, GarbledReply, PositionError, ReplyTimeout,
+                              SoftLimitError)
+from sbrdf_rig.indexer import Indexer
+from sbrdf_rig.ptu import PanTiltUnit
+from sbrdf_rig.sim import Fault, SimulatedIndexer, SimulatedPTU
+
+TIMEOUT_S = 0.15
+STALL_S = 0.25  # longer than the timeout: the reply arrives after the driver has given up on it
+
+
+@pytest.fixture
+def start_simulator():
+    """Start simulators for a test: ``sim = start_simulator(SimulatedPTU, faults=[...])``; all stop at teardown."""
+    started = []
+
+    def start(cls, **kwargs):
+        sim = cls(**kwargs).start()
+        started.append(sim)
+        return sim
+
+    yield start
+    for sim in started:
+        sim.stop()
+        assert sim.error is None, f"simulator thread failed: {sim.error!r}"
+
+
+@dataclass(frozen=True)
+class Rig:
+    """How to drive one controller kind in these tests."""
+
+    name: str
+    simulator: type
+    driver: type
+    move: dict            # a reachable target
+    out_of_range: dict    # a target outside the soft limits
+    move_command: str     # regex of the command whose reply acknowledges a move
+    query_command: str    # regex of the position query
+    miss_command: str     # regex of the command a "miss" fault attaches to
+    halt_command: str
+
+    def true_position(self, sim) -> float:
+        return sim.position_deg("pan") if self.simulator is SimulatedPTU else sim.position_deg(1)
+
+    def connect(self, sim, **kwargs):
+        return self.driver(port=sim.port, timeout_s=TIMEOUT_S, **{"retries": 2, **kwargs})
+
+
+PTU = Rig("ptu", SimulatedPTU, PanTiltUnit, {"pan_deg": 20.0}, {"pan_deg": 170.0},
+          r"PP-?\d+", "PP", r"PP-?\d+", "H")
+INDEXER = Rig("indexer", SimulatedIndexer, Indexer, {"angle_deg": 45.0}, {"angle_deg": 5.0},
+              "GO1", r"!1TPE", "GO.*", "!S")
+RIGS = [PTU, INDEXER]
+
+
+def value(position: dict) -> float:
+    return next(iter(position.values()))
+
+
+# -- normal operation ---------------------------------------------------------------------------------------------
+
+
+def test_ptu_connects_moves_and_reads_back(start_simulator):
+    sim = start_simulator(SimulatedPTU)
+    with PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S) as ptu:
+        assert ptu.arcsec_per_step == {"pan_deg": 46.2857, "tilt_deg": 46.2857}
+        assert ptu.limits["pan_deg"] == pytest.approx((-159.0, 159.0), abs=0.02)
+        assert ptu.limits["tilt_deg"] == pytest.approx((-47.0, 31.0), abs=0.02)
+        got = ptu.move_to(pan_deg=30.0, tilt_deg=-10.0)
+        assert got == pytest.approx({"pan_deg": 30.0, "tilt_deg": -10.0}, abs=0.0065)  # half a step
+        assert ptu.position() == got
+        assert ptu.move_to(**got) == got  # position() round-trips through move_to
+        ptu.move_to(tilt_deg=5.0)
+        assert ptu.position()["pan_deg"] == pytest.approx(30.0, abs=0.0065)
+    assert sim.position_deg("tilt") == pytest.approx(5.0, abs=0.0065)
+    assert sim.received[:3] == ["ED", "FV", "I"]  # echo off first: the factory default echoes
+    assert "PP2333" in sim.received and "A" in sim.received
+    assert sim.received[-1] == "H"  # the context manager halts before closing
+    assert not ptu.is_open
+
+
+def test_indexer_connects_moves_and_programs_its_own_limits(start_simulator):
+    sim = start_simulator(SimulatedIndexer)
+    with Indexer(port=sim.port, timeout_s=TIMEOUT_S) as arm:
+        assert arm.steps_per_deg == 6250.0  # 25000 steps/rev x 90:1 -> 1.6e-4 deg, Table 3.1
+        assert arm.position() == {"angle_deg": 90.0}
+        assert arm.move_to(angle_deg=45.5) == {"angle_deg": 45.5}
+        assert sim.position_deg() == pytest.approx(45.5)
+    assert {"ECHO0", "ERRLVL4", "COMEXC0", "1MA1", "1LS3"} <= set(sim.received)
+    assert sim.settings["LSPOS"][0] > 175 * 6250 and sim.settings["LSNEG"][0] < 10 * 6250
+    assert "1D+284375" in sim.received and "GO1" in sim.received
+    assert sim.received[-1] == "!S"
+
+
+def test_devices_are_registered_plugins(start_simulator, registry):
+    assert {"ptu", "indexer"} <= set(registry.names("device"))
+    sim = start_simulator(SimulatedPTU)
+    ptu = registry.create("device", "ptu", {"port": sim.port, "timeout_s": TIMEOUT_S, "tilt_limits_deg": [-20, 20]})
+    with ptu:
+        assert isinstance(ptu, PanTiltUnit)
+        assert ptu.limits["tilt_deg"] == (-20.0, 20.0)
+    with pytest.raises(SbrdfError, match="unknown parameter 'speed'.*accepted"):
+        registry.create("device", "indexer", {"port": sim.port, "speed": 3})
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+def test_reconnecting_finds_the_motor_where_it_was_left(start_simulator, rig):
+    """What a resumed capture relies on: a new driver on the same port reads the current position."""
+    sim = start_simulator(rig.simulator)
+    with rig.connect(sim) as first:
+        moved = first.move_to(**rig.move)
+    with rig.connect(sim) as second:
+        assert second.position().items() >= moved.items()
+
+
+# -- soft limits ----------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+@pytest.mark.parametrize("bad", ["range", "nan", "unknown-axis"])
+def test_soft_limits_refuse_before_anything_is_sent(start_simulator, rig, bad):
+    sim = start_simulator(rig.simulator)
+    with rig.connect(sim) as driver:
+        sent = list(sim.received)
+        target = {"range": rig.out_of_range, "nan": {k: math.nan for k in rig.move}, "unknown-axis": {"roll_deg": 1.0}}[bad]
+        with pytest.raises(SoftLimitError) as info:
+            driver.move_to(**target)
+        assert sim.received == sent, "a refused move must send nothing"
+        assert sim.port in str(info.value)
+        assert (next(iter(target)) in str(info.value)) or bad == "unknown-axis"
+        assert driver.is_open  # a refused target is the caller's mistake, not a device failure
+        driver.move_to(**rig.move)
+
+
+def test_ptu_user_limits_narrow_the_units_own(start_simulator):
+    sim = start_simulator(SimulatedPTU, tilt_limits_deg=(-30.0, 30.0))
+    with PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S, tilt_limits_deg=(-80.0, 10.0)) as ptu:
+        assert ptu.limits["tilt_deg"] == pytest.approx((-30.0, 10.0), abs=0.02)
+        with pytest.raises(SoftLimitError, match=r"tilt_deg=20 deg is outside the soft limits \[-29.99"):
+            ptu.move_to(tilt_deg=20.0)
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+def test_a_controller_refusal_is_not_retried_and_stops_cleanly(start_simulator, rig):
+    """If the driver's limits are wrong, the controller's own limit refuses the move: stop, do not retry."""
+    sim = start_simulator(rig.simulator)
+    driver = rig.connect(sim)
+    axis = next(iter(rig.move))
+    driver.limits[axis] = (-400.0, 400.0)  # pretend the soft limits were misconfigured
+    target = {axis: 300.0}
+    with pytest.raises(DeviceRefused) as info:
+        driver.move_to(**target)
+    message = str(info.value)
+    assert sim.port in message and "refused" in message
+    if rig is PTU:
+        assert "Maximum allowable Pan position" in message
+        assert sum(c.startswith("PP") and c != "PP" for c in sim.received) == 1
+    else:
+        assert "SOFTWARE LIMIT" in message
+        assert sim.received.count("GO1") == 1
+    assert sim.received[-1] == rig.halt_command
+    assert not driver.is_open
+
+
+# -- faults: transient ones are retried ------------------------------------------------------------------------------
+
+
+TRANSIENT = [("drop", "move"), ("drop", "query"), ("garble", "move"), ("garble", "query"),
+             ("stall", "move"), ("stall", "query")]
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+@pytest.mark.parametrize("kind,where", TRANSIENT, ids=[f"{k}-{w}" for k, w in TRANSIENT])
+def test_transient_reply_faults_are_retried(start_simulator, rig, kind, where):
+    sim = start_simulator(rig.simulator)
+    with rig.connect(sim) as driver:
+        match = rig.move_command if where == "move" else rig.query_command
+        fault = sim.add_fault(Fault(kind, match=match, times=1, stall_s=STALL_S))
+        got = driver.move_to(**rig.move)
+        assert fault.fired == 1
+        assert driver.link.recovered, "the exchange should have needed a second attempt"
+        assert value(got) == pytest.approx(value(rig.move), abs=driver.tolerance_deg)
+        assert rig.true_position(sim) == pytest.approx(value(rig.move), abs=driver.tolerance_deg)
+        # the link is clean afterwards: late replies did not shift later answers
+        assert driver.position() == got
+        assert driver.move_to(**got) == got
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+def test_a_transient_position_miss_is_recommanded(start_simulator, rig):
+    sim = start_simulator(rig.simulator)
+    with rig.connect(sim) as driver:
+        sim.add_fault(Fault("miss", match=rig.miss_command, times=1, miss_deg=0.8))
+        got = driver.move_to(**rig.move)
+        assert value(got) == pytest.approx(value(rig.move), abs=driver.tolerance_deg)
+        (axis, target, read), = driver.position_misses
+        assert read - target == pytest.approx(0.8, abs=0.01)
+
+
+# -- faults: persistent ones stop the rig with a clear error ---------------------------------------------------------------
+
+PERSISTENT = [("drop", ReplyTimeout, "no complete reply"), ("garble", GarbledReply, "reply is not ASCII"),
+              ("stall", ReplyTimeout, "no complete reply")]
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+@pytest.mark.parametrize("kind,error,says", PERSISTENT, ids=[p[0] for p in PERSISTENT])
+def test_persistent_reply_faults_stop_with_a_clear_error(start_simulator, rig, kind, error, says):
+    sim = start_simulator(rig.simulator)
+    driver = rig.connect(sim)
+    sim.add_fault(Fault(kind, match=rig.query_command, times=None, stall_s=STALL_S))
+    with pytest.raises(error) as info:
+        driver.move_to(**rig.move)
+    message = str(info.value)
+    command = rig.query_command.replace("\\", "")
+    assert sim.port in message and says in message and "gave up after 3 attempts" in message
+    assert f"command {command!r}" in message
+    assert isinstance(info.value, DeviceError) and isinstance(info.value, SbrdfError)
+    assert info.value.command == command
+    assert rig.halt_command in sim.received[-3:], "the driver must halt the motors on a fatal error"
+    assert not driver.is_open
+    with pytest.raises(DeviceClosed, match="closed"):
+        driver.position()
+    driver.close()  # closing twice is harmless
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+def test_a_persistent_position_miss_raises_position_error(start_simulator, rig):
+    sim = start_simulator(rig.simulator)
+    driver = rig.connect(sim)
+    sim.add_fault(Fault("miss", match=rig.miss_command, times=None, miss_deg=-1.5))
+    with pytest.raises(PositionError) as info:
+        driver.move_to(**rig.move)
+    message = str(info.value)
+    axis = next(iter(rig.move))
+    assert f"{axis} read back" in message and "tolerance 0.05 deg" in message and "on 3 attempts" in message
+    assert sim.port in message and "received '*" in message
+    assert len(driver.position_misses) == 3
+    assert sim.received[-1] == rig.halt_command
+    assert not driver.is_open
+
+
+def test_a_stalled_await_times_out_from_the_move_not_the_rig(start_simulator):
+    """The await timeout scales with the expected travel, so a stalled ``A`` is caught quickly."""
+    sim = start_simulator(SimulatedPTU)
+    ptu = PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S, retries=0, move_timeout_s=120.0, speed_deg_s=200.0)
+    sim.add_fault(Fault("stall", match="A", times=None, stall_s=5.0))
+    with pytest.raises(ReplyTimeout, match=r"command 'A'"):
+        ptu.move_to(pan_deg=1.0)
+    assert not ptu.is_open
+
+
+def test_echoed_commands_are_skipped_and_stop_works_mid_session(start_simulator):
+    sim = start_simulator(SimulatedIndexer, echo=True)
+    with Indexer(port=sim.port, timeout_s=TIMEOUT_S) as arm:
+        arm.stop()
+        assert sim.received[-1] == "!S"
+        assert arm.move_to(angle_deg=170.0) == {"angle_deg": 170.0}
+
+
+def test_opening_a_missing_port_names_it():
+    with pytest.raises(DeviceError, match=r"ptu on /dev/does-not-exist: cannot open serial port"):
+        PanTiltUnit(port="/dev/does-not-exist")
