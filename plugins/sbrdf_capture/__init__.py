@@ -1,4 +1,9 @@
-"""Built-in capture sources."""
+"""Built-in capture sources: ``synthetic`` (texel-aligned simulation) and ``folder`` (sbrdf-capture/1 folders).
+
+The capture-folder format, HDR merge, response and colour calibration live
+beside them (``capture_folder``, ``hdr``, ``response``, ``colour``) so rigs
+and simulators can write what ``folder`` reads.
+"""
 
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -21,9 +26,34 @@ SYNTHETIC_PARAMS = (
 )
 
 
+FOLDER_PARAMS = (
+    Param("path", "str", doc="the capture folder (holding capture.json and images/)"),
+    Param("response", "str", "auto", "auto: the manifest's curve, else recover it from brackets; manifest: require it; "
+          "recover: always recover; linear: treat pixel values as linear", choices=("auto", "manifest", "recover", "linear")),
+    Param("response_method", "str", "cubic", "recovery method: McAllister's cubic in log-log space or OpenCV's Debevec (8-bit)",
+          choices=("cubic", "debevec")),
+    Param("response_poses", "int", 8, "bracketed poses sampled for response recovery", bounds=(1, 10000)),
+    Param("saturation", "float", 0.98, "normalised level at or above which a pixel is saturated (invalid)", bounds=(0.0, 1.0)),
+    Param("underexposure", "float", 0.02, "normalised level at or below which a pixel is under-exposed (invalid)",
+          bounds=(0.0, 1.0)),
+    Param("dark_frame", "str", None, "image inside the folder taken with no light, subtracted after linearising", nullable=True),
+    Param("dark_time_s", "float", None, "exposure time of the dark frame (scaled to each exposure)", nullable=True,
+          bounds=(1e-9, None), unit="s"),
+    Param("colour_matrix", "list", None, "3x3 camera RGB -> working RGB matrix (row-major, 9 numbers)", nullable=True,
+          length=9, item="float"),
+    Param("allow_incomplete", "bool", False, "read the poses recorded so far of an interrupted capture"),
+)
+
+
 @hookimpl
 def sbrdf_captures():
     return [
+        PluginSpec(
+            "folder",
+            "sbrdf_capture.folder:FolderCapture",
+            FOLDER_PARAMS,
+            summary="Read an sbrdf-capture/1 folder (EXR, 8/16-bit PNG/TIFF): validated, HDR-merged, one pose at a time",
+        ),
         PluginSpec(
             "synthetic",
             "sbrdf_capture.synthetic:SyntheticCapture",

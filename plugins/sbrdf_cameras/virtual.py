@@ -1,0 +1,506 @@
+"""virtual-camera: a simulated camera photographing a known SBRDF on a fiducial carrier.
+
+There is no physical gonioreflectometer in this project, so end-to-end tests
+need a camera whose truth is known (seed 000 notes §19, "a synthetic
+acquisition simulator").  This device photographs a flat sample whose
+material is any installed BRDF model with per-texel parameter maps (the
+procedural pattern of the ``synthetic`` capture, or a ``ParamMaps`` artifact),
+mounted on a white carrier printed with a border of ArUco markers, through a
+pinhole camera with OpenCV lens distortion, lit by a local point light:
+
+    L = f_r(ω_i, ω_o) · I · cos θ_i / r²          (DESIGN.md)
+
+Every pixel's ray is cast to the sample plane z = 0 (rays are precomputed
+once: the intrinsics never change), the texel it hits gives the parameters,
+and the model is evaluated for all pixels of a band of rows at once.
+
+**Effects are requested, not assumed.**  ``effects`` lists the imperfections
+to simulate; a code path that is not requested is not executed at all (and
+:attr:`VirtualCamera.effects_ran` records the ones that were):
+
+==============  ==================================================================
+effect          what it does
+==============  ==================================================================
+``falloff``     per-pixel inverse-square distance and cos θ_i; without it every
+                point gets the irradiance of the sample centre
+``vignetting``  natural vignetting, ``cos^p`` of the ray's angle to the optical axis
+``blur``        Gaussian lens blur (σ ``blur_px`` pixels) of the radiance image
+``motor_error`` the true pose differs from the nominal one (sample rotation of
+                σ ``motor_rotation_deg``, light offset of σ ``motor_light_mm``);
+                the capture records the nominal pose, :meth:`true_pose` the real one
+``dark_current`` a fixed per-sensel dark signal rate (signal/s) added to every frame
+``noise``       shot noise (``full_well`` electrons at saturation) and read noise
+``saturation``  the linear signal clips at 1 (the sensor's full well)
+``response``    an 8/16-bit camera response curve (gamma, sRGB or McAllister's cubic)
+                and quantisation; without it images are linear float32 (EXR)
+==============  ==================================================================
+
+Signal model: exposure ``S = L · t · sensitivity``; ``S = 1`` is saturation.
+Random effects are seeded per pose (motor error) and per pose and exposure
+(noise), so a resumed capture reproduces the same images bit for bit.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from sbrdf_core.errors import ParameterError
+
+EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response")
+WHITE_ALBEDO = 0.80
+BLACK_ALBEDO = 0.04
+
+
+def _rotation(axis_angle: np.ndarray) -> np.ndarray:
+    import cv2
+
+    R, _ = cv2.Rodrigues(np.asarray(axis_angle, np.float64).reshape(3, 1))
+    return R
+
+
+class VirtualCamera:
+    """A simulated camera + sample + point light; see the module docstring.
+
+    Device protocol (what capture code relies on): :meth:`camera_info`,
+    :meth:`sample_info`, :meth:`light_info`, :meth:`photograph`; the
+    simulator adds :meth:`true_pose`, :meth:`sensor_radiance`, :meth:`dark_frame`.
+    """
+
+    def __init__(self, width, height, focal_px, principal_point, dist, sample_size_mm, texels, model, model_params,
+                 param_maps, carrier_margin_mm, marker_size_mm, markers_per_side, dictionary, intensity, sensitivity,
+                 effects, response_curve, response_gamma, response_coefficients, bit_depth, record_response,
+                 full_well, read_noise, dark_current, vignetting_power, motor_rotation_deg, motor_light_mm, blur_px,
+                 seed, row_chunk):
+        unknown = [e for e in effects if e not in EFFECTS]
+        if unknown:
+            raise ParameterError(f"virtual-camera: unknown effect(s) {unknown}; known effects: {list(EFFECTS)}")
+        self.width, self.height = int(width), int(height)
+        cx, cy = principal_point if principal_point is not None else ((self.width - 1) / 2, (self.height - 1) / 2)
+        self.K = np.array([[focal_px, 0.0, cx], [0.0, focal_px, cy], [0.0, 0.0, 1.0]])
+        self.dist = np.asarray(dist, np.float64)
+        self.size_mm = tuple(float(s) for s in sample_size_mm)
+        self.texels = tuple(int(t) for t in texels)
+        self.model_name, self.model_params, self.param_maps_path = model, dict(model_params), param_maps
+        self.margin, self.marker_mm, self.markers_per_side = carrier_margin_mm, marker_size_mm, markers_per_side
+        self.dictionary = dictionary
+        self.intensity, self.sensitivity = intensity, sensitivity
+        self.effects = tuple(e for e in EFFECTS if e in effects)  # canonical order
+        self.response_curve, self.response_gamma = response_curve, response_gamma
+        self.response_coefficients, self.bit_depth, self.record_response = list(response_coefficients), bit_depth, record_response
+        self.full_well, self.read_noise, self.dark_current = full_well, read_noise, dark_current
+        self.vignetting_power = vignetting_power
+        self.motor_rotation_deg, self.motor_light_mm, self.blur_px = motor_rotation_deg, motor_light_mm, blur_px
+        self.seed, self.row_chunk = seed, row_chunk
+        if markers_per_side * 4 > self._dictionary_size():
+            raise ParameterError(f"virtual-camera: {markers_per_side * 4} markers do not fit {dictionary}")
+        if marker_size_mm >= carrier_margin_mm:
+            raise ParameterError(f"virtual-camera: marker_size_mm ({marker_size_mm}) must be smaller than carrier_margin_mm "
+                                 f"({carrier_margin_mm}) so markers keep a white quiet zone")
+        self.model = None
+        self.effects_ran: set[str] = set()
+        self.true_poses: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._maps: dict[str, np.ndarray] | None = None
+        self._rays: np.ndarray | None = None
+        self._carrier: tuple[np.ndarray, float] | None = None
+        self._curve = None
+        self._cache: tuple[Any, np.ndarray] | None = None
+
+    # -- plugins ---------------------------------------------------------------------
+
+    def bind(self, registry) -> None:
+        """Resolve the BRDF model (and parameter maps) through a registry."""
+        if self.param_maps_path:
+            from sbrdf_core.store import open_artifact
+
+            art = open_artifact(self.param_maps_path, kind="ParamMaps")
+            self.model = registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
+            self._maps = {p.name: np.asarray(art.read(f"params/{p.name}"), np.float64) for p in self.model.parameters}
+            V, U = next(iter(self._maps.values())).shape[:2]
+            self.texels = (U, V)
+        else:
+            self.model = registry.create("brdf-model", self.model_name, self.model_params)
+
+    def _ensure_model(self) -> None:
+        if self.model is None:
+            from sbrdf_core.registry import default_registry
+
+            self.bind(default_registry())
+
+    def ground_truth(self) -> dict[str, np.ndarray]:
+        """The material's parameter maps, ``name -> (V, U, C)``."""
+        self._ensure_model()
+        if self._maps is None:
+            from sbrdf_capture.synthetic import pattern
+
+            n_u, n_v = self.texels
+            self._maps = {}
+            for k, p in enumerate(self.model.parameters):
+                lo, hi = p.typical
+                self._maps[p.name] = np.stack([lo + (hi - lo) * pattern(n_u, n_v, k, c) for c in range(p.channels)], axis=-1)
+        return self._maps
+
+    # -- manifest sections --------------------------------------------------------------
+
+    def camera_info(self) -> dict:
+        """The capture.json ``camera`` section."""
+        info: dict[str, Any] = {"width": self.width, "height": self.height, "K": self.K.tolist(), "dist": self.dist.tolist()}
+        if "response" not in self.effects:
+            info["response"] = "linear"
+            if "saturation" in self.effects:
+                info["white_level"] = 1.0
+        elif self.record_response:
+            info["response"] = self.curve().to_manifest()
+        return info
+
+    def sample_info(self) -> dict:
+        """The capture.json ``sample`` section, with every marker's corners in mm (OpenCV order)."""
+        markers = [{"id": i, "corners_mm": c.tolist()} for i, c in enumerate(self.marker_corners_mm())]
+        carrier = [s + 2 * self.margin for s in self.size_mm]
+        return {"size_mm": list(self.size_mm), "fiducials": {"dictionary": self.dictionary, "markers": markers},
+                "carrier_mm": carrier}
+
+    def light_info(self) -> dict:
+        return {"type": "point", "intensity": float(self.intensity)}
+
+    def simulation_info(self) -> dict:
+        """What was simulated (recorded in the manifest under ``simulation``)."""
+        settings: dict[str, Any] = {"sensitivity": self.sensitivity}
+        if "response" in self.effects:
+            settings.update(response_curve=self.response_curve, bit_depth=self.bit_depth)
+        if "noise" in self.effects:
+            settings.update(full_well=self.full_well, read_noise=self.read_noise)
+        if "dark_current" in self.effects:
+            settings["dark_current"] = self.dark_current
+        if "vignetting" in self.effects:
+            settings["vignetting_power"] = self.vignetting_power
+        if "motor_error" in self.effects:
+            settings.update(motor_rotation_deg=self.motor_rotation_deg, motor_light_mm=self.motor_light_mm)
+        if "blur" in self.effects:
+            settings["blur_px"] = self.blur_px
+        return {"device": "virtual-camera", "model": self._model_label(), "texels": list(self.texels),
+                "effects": list(self.effects), "settings": settings, "seed": self.seed}
+
+    def _model_label(self) -> str:
+        return self.param_maps_path and f"ParamMaps:{self.param_maps_path}" or self.model_name
+
+    # -- carrier ----------------------------------------------------------------------
+
+    def _dictionary_size(self) -> int:
+        import cv2
+
+        if not self.dictionary.startswith("DICT_") or not hasattr(cv2.aruco, self.dictionary):
+            raise ParameterError(f"virtual-camera: unknown ArUco dictionary {self.dictionary!r}")
+        return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)).bytesList.shape[0]
+
+    def marker_centres_mm(self) -> np.ndarray:
+        """Centres of the markers, going round the border band (4 × markers_per_side)."""
+        hx, hy = self.size_mm[0] / 2 + self.margin / 2, self.size_mm[1] / 2 + self.margin / 2
+        s = np.linspace(0.0, 1.0, self.markers_per_side + 1)[:-1]
+        sides = [((-hx, -hy), (hx, -hy)), ((hx, -hy), (hx, hy)), ((hx, hy), (-hx, hy)), ((-hx, hy), (-hx, -hy))]
+        return np.array([np.add(a, np.multiply(f, np.subtract(b, a))) for a, b in sides for f in s])
+
+    def marker_corners_mm(self) -> np.ndarray:
+        """``(N, 4, 2)`` corners in the marker image's order TL, TR, BR, BL as seen by a camera above."""
+        h = self.marker_mm / 2
+        # The carrier's print rows run along -y (viewed from +z with x to the right, +y is up).
+        offsets = np.array([[-h, h], [h, h], [h, -h], [-h, -h]])
+        return self.marker_centres_mm()[:, None, :] + offsets[None]
+
+    def carrier_albedo(self) -> tuple[np.ndarray, float]:
+        """The printed carrier as an albedo bitmap (rows along -y) and its pixels per mm."""
+        if self._carrier is None:
+            import cv2
+
+            ppm = 6.0 / self.marker_mm * 8  # 8 bitmap pixels per marker module
+            cw, ch = self.size_mm[0] + 2 * self.margin, self.size_mm[1] + 2 * self.margin
+            img = np.full((int(round(ch * ppm)), int(round(cw * ppm))), WHITE_ALBEDO, np.float32)
+            d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+            side = int(round(self.marker_mm * ppm))
+            for i, corners in enumerate(self.marker_corners_mm()):
+                x0, y_top = corners[0]
+                col = int(round((x0 + cw / 2) * ppm))
+                row = int(round((ch / 2 - y_top) * ppm))
+                marker = cv2.aruco.generateImageMarker(d, i, side)
+                img[row:row + side, col:col + side] = np.where(marker > 127, WHITE_ALBEDO, BLACK_ALBEDO)
+            self._carrier = (img, ppm)
+        return self._carrier
+
+    # -- optics -----------------------------------------------------------------------
+
+    def rays(self) -> np.ndarray:
+        """Per-pixel ray directions ``(H, W, 3)`` in camera coordinates, ``(x', y', 1)`` (undistorted)."""
+        if self._rays is None:
+            import cv2
+
+            v, u = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
+            pts = np.stack([u.ravel(), v.ravel()], axis=-1).reshape(-1, 1, 2)
+            if np.any(self.dist):
+                crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+                norm = cv2.undistortPoints(pts, self.K, self.dist, None, None, None, crit).reshape(self.height, self.width, 2)
+            else:
+                norm = np.stack([(u - self.K[0, 2]) / self.K[0, 0], (v - self.K[1, 2]) / self.K[1, 1]], axis=-1)
+            self._rays = np.concatenate([norm, np.ones((self.height, self.width, 1))], axis=-1)
+        return self._rays
+
+    def vignetting(self) -> np.ndarray:
+        """``(H, W)`` natural-vignetting factor ``cos^p`` of each ray's angle to the axis."""
+        r = self.rays()
+        return (1.0 / np.linalg.norm(r, axis=-1)) ** self.vignetting_power
+
+    def curve(self):
+        if self._curve is None:
+            from sbrdf_capture.response import ResponseCurve, response_table
+
+            self._curve = ResponseCurve(response_table(self.response_curve, self.bit_depth, self.response_gamma,
+                                                       self.response_coefficients))
+        return self._curve
+
+    # -- poses ------------------------------------------------------------------------
+
+    def _pose_key(self, light_pos, R, t) -> int:
+        h = hashlib.blake2b(np.concatenate([np.ravel(light_pos), np.ravel(R), np.ravel(t)]).astype(np.float64).tobytes(),
+                            digest_size=8)
+        return int.from_bytes(h.digest(), "little") >> 1
+
+    def true_pose(self, light_pos_mm, R, t, pose_id: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pose the rig really reached for a nominal one (identity without ``motor_error``).
+
+        The sample is rotated by a small random rotation ΔR about its centre
+        (sample pan/tilt/roll repeatability), so the camera sees ``R ΔR`` and the
+        light sits at ``ΔRᵀ light`` plus a random offset (light-arm repeatability).
+        Seeded by the pose, so every exposure of a bracket shares it.
+        """
+        light = np.asarray(light_pos_mm, np.float64).reshape(3)
+        R = np.asarray(R, np.float64).reshape(3, 3)
+        t = np.asarray(t, np.float64).reshape(3)
+        if "motor_error" not in self.effects:
+            return light, R, t
+        self.effects_ran.add("motor_error")
+        key = pose_id if pose_id is not None else self._pose_key(light, R, t)
+        rng = np.random.default_rng([self.seed, 1, key])
+        axis = rng.standard_normal(3)
+        axis /= np.linalg.norm(axis)
+        dR = _rotation(axis * np.radians(self.motor_rotation_deg) * rng.standard_normal())
+        true = (dR.T @ light + self.motor_light_mm * rng.standard_normal(3), R @ dR, t.copy())
+        if pose_id is not None:
+            self.true_poses[pose_id] = true
+        return true
+
+    # -- rendering --------------------------------------------------------------------
+
+    def sensor_radiance(self, light_pos_mm, R, t, pose_id: int | None = None) -> np.ndarray:
+        """Radiance reaching each pixel, ``(H, W, 3) float32``, after the optics (vignetting, blur).
+
+        The folder reader's HDR radiance of a noise-free capture equals this.
+        Cached for the last pose, so the exposures of a bracket render once.
+        """
+        key = (pose_id, np.asarray(light_pos_mm, float).tobytes(), np.asarray(R, float).tobytes(), np.asarray(t, float).tobytes())
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        light, Rt, tt = self.true_pose(light_pos_mm, R, t, pose_id)
+        out = np.empty((self.height, self.width, 3), np.float32)
+        for r0 in range(0, self.height, self.row_chunk):
+            r1 = min(r0 + self.row_chunk, self.height)
+            out[r0:r1] = self._render_rows(r0, r1, light, Rt, tt)
+        if "blur" in self.effects and self.blur_px > 0:
+            import cv2
+
+            self.effects_ran.add("blur")
+            out = cv2.GaussianBlur(out, (0, 0), sigmaX=self.blur_px, sigmaY=self.blur_px, borderType=cv2.BORDER_REFLECT)
+        self._cache = (key, out)
+        return out
+
+    def _render_rows(self, r0: int, r1: int, light: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+        self._ensure_model()
+        centre = -R.T @ t
+        d = self.rays()[r0:r1] @ R  # world directions (Rᵀ d for every pixel)
+        dz = d[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(dz != 0, -centre[2] / dz, -1.0)
+        hit = s > 0
+        X = centre + s[..., None] * d
+        x, y = X[..., 0], X[..., 1]
+        sx, sy = self.size_mm
+        cw, ch = sx + 2 * self.margin, sy + 2 * self.margin
+        on_sample = hit & (np.abs(x) < sx / 2) & (np.abs(y) < sy / 2)
+        on_carrier = hit & ~on_sample & (np.abs(x) < cw / 2) & (np.abs(y) < ch / 2)
+        wo = centre - X
+        wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+        lv = light - X
+        r = np.linalg.norm(lv, axis=-1)
+        wi = lv / r[..., None]
+        L = np.zeros(x.shape + (3,), np.float64)
+
+        # Material: gather each hit texel's parameters, evaluate the model for all of them at once.
+        if on_sample.any():
+            maps = self.ground_truth()
+            n_u, n_v = self.texels
+            u = np.clip(((x[on_sample] + sx / 2) / sx * n_u).astype(np.int64), 0, n_u - 1)
+            v = np.clip(((y[on_sample] + sy / 2) / sy * n_v).astype(np.int64), 0, n_v - 1)
+            params = {name: m[v, u] for name, m in maps.items()}
+            f = self.model.eval(params, wi[on_sample][:, None], wo[on_sample][:, None])[:, 0]
+            L[on_sample] = f
+        if on_carrier.any():
+            img, ppm = self.carrier_albedo()
+            col = np.clip(((x[on_carrier] + cw / 2) * ppm).astype(np.int64), 0, img.shape[1] - 1)
+            row = np.clip(((ch / 2 - y[on_carrier]) * ppm).astype(np.int64), 0, img.shape[0] - 1)
+            up = (wi[on_carrier][:, 2] > 0) & (wo[on_carrier][:, 2] > 0)
+            L[on_carrier] = (img[row, col] / np.pi * up)[:, None]
+
+        if "falloff" in self.effects:
+            self.effects_ran.add("falloff")
+            E = self.intensity * np.clip(wi[..., 2], 0.0, None) / r**2
+        else:  # the sample centre's irradiance everywhere
+            rc = np.linalg.norm(light)
+            E = np.full(x.shape, self.intensity * max(light[2] / rc, 0.0) / rc**2)
+        L *= E[..., None]
+        if "vignetting" in self.effects:
+            self.effects_ran.add("vignetting")
+            L *= (1.0 / np.linalg.norm(self.rays()[r0:r1], axis=-1) ** self.vignetting_power)[..., None]
+        return L.astype(np.float32)
+
+    # -- the sensor ---------------------------------------------------------------------
+
+    def _dark_rate(self) -> np.ndarray:
+        """Fixed-pattern dark-current rate per sensel and channel (signal/s), from the camera seed."""
+        if getattr(self, "_dark_rate_map", None) is None:
+            rng = np.random.default_rng([self.seed, 3])
+            self._dark_rate_map = (self.dark_current * rng.gamma(4.0, 0.25, (self.height, self.width, 3))).astype(np.float32)
+        return self._dark_rate_map
+
+    def _sensor(self, L: np.ndarray, exposure_s: float, noise_key: Sequence[int], stream: int = 2) -> np.ndarray:
+        S = L * np.float32(exposure_s * self.sensitivity)
+        if "dark_current" in self.effects:
+            self.effects_ran.add("dark_current")
+            S = S + self._dark_rate() * np.float32(exposure_s)
+        if "noise" in self.effects:
+            self.effects_ran.add("noise")
+            rng = np.random.default_rng([self.seed, stream, *noise_key])
+            sigma = np.sqrt(np.maximum(S, 0.0) / np.float32(self.full_well) + np.float32(self.read_noise) ** 2)
+            S = S + sigma * rng.standard_normal(S.shape, dtype=np.float32)
+        if "saturation" in self.effects or "response" in self.effects:
+            self.effects_ran.add("saturation")
+            S = np.minimum(S, np.float32(1.0))
+        if "response" in self.effects:
+            self.effects_ran.add("response")
+            return self.curve().expose(np.clip(S, 0.0, 1.0))
+        return S.astype(np.float32)
+
+    def photograph(self, light_pos_mm, R, t, exposure_s: float, *, pose_id: int | None = None,
+                   exposure_index: int = 0) -> np.ndarray:
+        """One photograph at the nominal pose: ``(H, W, 3)``, uint8/uint16 with a response, else float32.
+
+        ``pose_id`` and ``exposure_index`` seed the random effects (a hash of the
+        pose is used without an id), so re-taking a pose gives the same image.
+        """
+        if not exposure_s > 0:
+            raise ParameterError(f"virtual-camera: exposure time must be positive, got {exposure_s!r}")
+        if pose_id is not None and pose_id < 0:
+            raise ParameterError(f"virtual-camera: pose_id must be non-negative, got {pose_id}")
+        L = self.sensor_radiance(light_pos_mm, R, t, pose_id)
+        key = pose_id if pose_id is not None else self._pose_key(light_pos_mm, R, t)
+        return self._sensor(L, exposure_s, (key, exposure_index))
+
+    def dark_frame(self, exposure_s: float, frame_id: int = 0) -> np.ndarray:
+        """A lens-capped frame (no light): dark current and noise only, through the same sensor."""
+        L = np.zeros((self.height, self.width, 3), np.float32)
+        return self._sensor(L, exposure_s, (frame_id, 0), stream=4)
+
+
+# ---------------------------------------------------------------------------
+# driving a camera into a capture folder
+# ---------------------------------------------------------------------------
+
+
+def _exposure_lists(exposures, n: int) -> list[list[float]]:
+    if np.isscalar(exposures):
+        return [[float(exposures)]] * n
+    out = [[float(e)] if np.isscalar(e) else [float(x) for x in e] for e in exposures]
+    if len(out) != n:
+        raise ParameterError(f"capture_to_folder: {len(out)} exposure lists for {n} poses")
+    for i, e in enumerate(out):
+        if not 1 <= len(e) <= 3:
+            raise ParameterError(f"capture_to_folder: pose {i} has {len(e)} exposures; a bracket has 1 to 3")
+    return out
+
+
+def capture_to_folder(camera, folder, light_pos, R, t, exposures, *, pose_ids: Sequence[int] | None = None,
+                      light: Mapping | None = None, image_format: str = "png", durable: bool = True,
+                      progress=None, stop_after: int | None = None):
+    """Photograph every pose with ``camera`` into an ``sbrdf-capture/1`` folder; resumable.
+
+    Parameters
+    ----------
+    camera
+        Any device with ``camera_info()``, ``sample_info()`` and
+        ``photograph(light_pos_mm, R, t, exposure_s, pose_id=, exposure_index=)``;
+        optional ``light_info()``, ``simulation_info()`` and ``true_poses``.
+    folder
+        Target folder; an interrupted capture there is resumed (poses already
+        recorded are skipped, the rest are taken and written).
+    light_pos, R, t
+        ``(P, 3)``, ``(P, 3, 3)``, ``(P, 3)``: nominal light position and
+        world-to-camera extrinsics per pose, sample frame, mm.
+    exposures
+        One time for all, or per pose a time or a list of 1–3 times (a bracket).
+    pose_ids
+        Pose ids to record (default ``0 .. P-1``).
+    light
+        The manifest's ``light`` section (default ``camera.light_info()``).
+    stop_after
+        Take at most this many new poses and return without finishing
+        (simulates an interruption in tests).
+
+    Returns the final :class:`~sbrdf_capture.capture_folder.Manifest`, or
+    ``None`` when stopped early.
+    """
+    from sbrdf_capture.capture_folder import CaptureFolderWriter
+
+    light_pos = np.asarray(light_pos, np.float64).reshape(-1, 3)
+    P = light_pos.shape[0]
+    R = np.asarray(R, np.float64).reshape(P, 3, 3)
+    t = np.asarray(t, np.float64).reshape(P, 3)
+    times = _exposure_lists(exposures, P)
+    ids = list(range(P)) if pose_ids is None else [int(i) for i in pose_ids]
+    light = dict(light) if light is not None else camera.light_info()
+    extra = {"simulation": camera.simulation_info()} if hasattr(camera, "simulation_info") else None
+    writer = CaptureFolderWriter(folder, camera.sample_info(), camera.camera_info(), light,
+                                 image_format=image_format, durable=durable, extra=extra)
+    taken = 0
+    for i, pid in enumerate(ids):
+        if pid in writer.done_ids:
+            continue
+        if stop_after is not None and taken >= stop_after:
+            return None
+        images = [(camera.photograph(light_pos[i], R[i], t[i], ts, pose_id=pid, exposure_index=k), ts)
+                  for k, ts in enumerate(times[i])]
+        pose_extra = None
+        true = getattr(camera, "true_poses", {}).get(pid)
+        if true is not None:
+            pose_extra = {"simulation": {"true_light_pos_mm": true[0].tolist(), "true_R": true[1].tolist(),
+                                         "true_t": true[2].tolist()}}
+        writer.write_pose(pid, light_pos[i], R[i], t[i], images, extra=pose_extra)
+        taken += 1
+        if progress is not None:
+            progress(len(writer.done_ids), len(ids))
+    return writer.finish()
+
+
+def orbit_poses(n: int, camera_distance_mm: float = 350.0, light_distance_mm: float = 450.0,
+                max_camera_theta_deg: float = 50.0, max_light_theta_deg: float = 65.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A simple pose list for simulations: ``(light_pos (n, 3), R (n, 3, 3), t (n, 3))``.
+
+    Camera and light on two decorrelated Fibonacci spirals over the hemisphere,
+    the camera looking at the sample centre (not a planned gonioreflectometer
+    path; the rig's pose planner provides those).
+    """
+    from sbrdf_core.geometry import fibonacci_hemisphere, look_at
+
+    cams = fibonacci_hemisphere(n, max_camera_theta_deg, offset=2.0) * camera_distance_mm
+    lights = fibonacci_hemisphere(n, max_light_theta_deg)[::-1] * light_distance_mm
+    Rt = [look_at(c) for c in cams]
+    return lights, np.stack([R for R, _ in Rt]), np.stack([t for _, t in Rt])

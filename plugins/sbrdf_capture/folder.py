@@ -1,0 +1,239 @@
+"""folder: read an ``sbrdf-capture/1`` capture folder into the pipeline.
+
+This is how real scans (and other simulators) enter: whatever wrote the
+folder, the Capture node sees linear HDR radiance per pose.  The whole
+manifest and every image header are validated in :meth:`FolderCapture.describe`,
+before the node writes anything, so a broken folder fails with a message
+naming the file, the pose and the field, and leaves no partial artifact.
+
+Per pose (:meth:`FolderCapture.read_pose`, one pose in memory at a time):
+decode each exposure (EXR through :mod:`sbrdf_core.io.images`, 8/16-bit PNG
+and TIFF through cv2), linearise it with the response curve, subtract the
+dark frame, and merge the bracket (:func:`sbrdf_capture.hdr.merge_exposures`);
+saturated and under-exposed pixels are marked invalid.  An optional 3×3
+colour matrix takes camera RGB to the working space.
+
+Response curve: the manifest's, else ``"linear"`` for float images, else it
+is recovered from the brackets (McAllister's cubic by default, or Debevec's)
+once, at describe time, from a sample of pixels of up to ``response_poses``
+bracketed poses.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from sbrdf_core.nodes.capture import CaptureDescription
+
+from .capture_folder import MANIFEST, CaptureFolderError, Manifest, resolve_image, validate_folder
+from .hdr import merge_exposures, subtract_dark
+from .response import (ResponseCurve, ResponseError, bracket_samples, cubic_curve, recover_cubic_loglog,
+                       recover_debevec)
+
+
+#: Codes below this (normalised) are left out of the response fit: dark pixels are
+#: noise-dominated and bias the log-log fit.  Merging still uses them down to ``underexposure``.
+RECOVERY_LOW = 0.1
+
+
+def read_image(path: Path, where: str) -> np.ndarray:
+    """Decode one image as stored: float32 (EXR) or uint8/uint16 (PNG, TIFF), ``(H, W, 3)`` RGB."""
+    try:
+        if path.suffix.lower() == ".exr":
+            from sbrdf_core.io.images import read_exr
+
+            img = read_exr(str(path))
+        else:
+            import cv2
+
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise ValueError("cv2 cannot decode it")
+            if img.ndim == 2:
+                img = np.repeat(img[..., None], 3, axis=-1)
+            img = img[..., [2, 1, 0]] if img.shape[-1] >= 3 else img
+            if img.dtype not in (np.uint8, np.uint16):
+                raise ValueError(f"unsupported sample type {img.dtype}; PNG/TIFF images must be 8- or 16-bit")
+    except FileNotFoundError:
+        raise CaptureFolderError(f"{path}: image is missing ({where})") from None
+    except CaptureFolderError:
+        raise
+    except Exception as e:
+        raise CaptureFolderError(f"{path}: unreadable image ({where}): {e}") from None
+    return img
+
+
+class FolderCapture:
+    """Capture source reading an ``sbrdf-capture/1`` folder (see module docstring)."""
+
+    def __init__(self, path, response, response_method, response_poses, saturation, underexposure, dark_frame,
+                 dark_time_s, colour_matrix, allow_incomplete):
+        self.path = Path(os.path.expanduser(str(path)))
+        self.response_mode, self.response_method, self.response_poses = response, response_method, response_poses
+        self.saturation, self.underexposure = saturation, underexposure
+        self.dark_frame_name, self.dark_time_s = dark_frame, dark_time_s
+        self.colour_matrix = None if colour_matrix is None else np.asarray(colour_matrix, np.float64).reshape(3, 3)
+        self.allow_incomplete = allow_incomplete
+        self.manifest: Manifest | None = None
+        self.curve: ResponseCurve | None = None
+        self.linear = False
+        self._dark: np.ndarray | None = None
+
+    # -- protocol ------------------------------------------------------------------
+
+    def fingerprint(self) -> str:
+        """Changes when capture.json or any image file changes (size, mtime)."""
+        h = hashlib.sha256()
+        manifest = self.path / MANIFEST
+        try:
+            h.update(manifest.read_bytes())
+        except OSError:
+            return "missing"
+        images = self.path / "images"
+        if images.is_dir():
+            for entry in sorted(os.scandir(images), key=lambda e: e.name):
+                st = entry.stat()
+                h.update(f"{entry.name}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+        if self.dark_frame_name:
+            dark = self.path / self.dark_frame_name
+            if dark.exists():
+                st = dark.stat()
+                h.update(f"dark:{st.st_size}:{st.st_mtime_ns}".encode())
+        return h.hexdigest()
+
+    def describe(self) -> CaptureDescription:
+        m = self._open()
+        poses = m.poses
+        K = [list(r) for r in m.camera.K]
+        camera = {"width": m.camera.width, "height": m.camera.height, "K": K, "dist": list(m.camera.dist),
+                  "model": "pinhole", "response": "linear" if self.linear else "table", **m.camera.extra}
+        sample = {"size_mm": list(m.sample.size_mm),
+                  "fiducials": None if m.sample.fiducials is None else {
+                      "dictionary": m.sample.fiducials.dictionary,
+                      "markers": [{"id": k.id, "corners_mm": k.corners_mm} for k in m.sample.fiducials.markers]},
+                  **m.sample.extra}
+        return CaptureDescription(
+            height=m.camera.height, width=m.camera.width,
+            light_pos=np.array([p.light_pos_mm for p in poses], np.float64),
+            camera_R=np.array([p.R for p in poses], np.float64),
+            camera_t=np.array([p.t for p in poses], np.float64),
+            exposure_s=np.array([min(e.time_s for e in p.exposures) for p in poses], np.float64),
+            sample=sample, camera=camera,
+            light={"type": m.light.type, "intensity": m.light.intensity, **m.light.extra},
+        )
+
+    def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        m = self._open()
+        pose = m.poses[index]
+        signals, levels, times = [], [], []
+        for k, e in enumerate(pose.exposures):
+            where = f"poses[{index}] (id {pose.id}).exposures[{k}]"
+            img = read_image(resolve_image(self.path, e, where + ".file"), where)
+            if img.shape[:2] != (m.camera.height, m.camera.width):
+                raise CaptureFolderError(f"{self.path / e.file}: image is {img.shape[1]}x{img.shape[0]} but the camera is "
+                                         f"{m.camera.width}x{m.camera.height} ({where})")
+            signal, level = self._linearize(img, where)
+            signals.append(subtract_dark(signal, self._dark, self.dark_time_s or 1.0, e.time_s))
+            levels.append(level)
+            times.append(e.time_s)
+        radiance, valid = merge_exposures(signals, levels, times, self.saturation, self.underexposure)
+        if self.colour_matrix is not None:
+            from .colour import apply_matrix
+
+            radiance = apply_matrix(radiance, self.colour_matrix)
+        return radiance, valid
+
+    # -- internals -------------------------------------------------------------------------
+
+    def _open(self) -> Manifest:
+        if self.manifest is None:
+            m = validate_folder(self.path, allow_incomplete=self.allow_incomplete)
+            self._choose_response(m)
+            if self.dark_frame_name:
+                self._load_dark(m)
+            self.manifest = m
+        return self.manifest
+
+    def _linearize(self, img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels -> (linear signal, normalised level judged for saturation)."""
+        if img.dtype.kind == "f":
+            signal = img.astype(np.float32)
+            white = self.manifest.camera.white_level if self.manifest else None
+            level = np.full(signal.shape, 0.5, np.float32) if white is None else signal / np.float32(white)
+            return signal, level
+        if self.linear:
+            top = float(np.iinfo(img.dtype).max)
+            return img.astype(np.float32) / np.float32(top), img.astype(np.float32) / np.float32(top)
+        curve = self.curve
+        if img.dtype.itemsize * 8 != curve.bits:
+            raise CaptureFolderError(f"{self.path / MANIFEST}: {where}: a {img.dtype.itemsize * 8}-bit image but the "
+                                     f"response curve has {curve.table.shape[0]} entries ({curve.bits}-bit)")
+        return curve.linearize(img), img.astype(np.float32) / np.float32(curve.max_code)
+
+    def _choose_response(self, m: Manifest) -> None:
+        mode = self.response_mode
+        given = m.camera.response
+        if mode == "linear" or (mode == "auto" and given == "linear"):
+            self.linear = True
+            return
+        if mode in ("auto", "manifest") and isinstance(given, dict):
+            self.curve = ResponseCurve.from_manifest(given)
+            return
+        if mode == "manifest":
+            raise CaptureFolderError(f"{self.path / MANIFEST}: camera.response: absent, but the folder plugin was told "
+                                     "response: manifest")
+        # Recover from brackets ("auto" without a curve, or "recover").
+        first = read_image(resolve_image(self.path, m.poses[0].exposures[0], "poses[0].exposures[0].file"),
+                           "poses[0].exposures[0]")
+        if first.dtype.kind == "f":
+            self.linear = True  # float images are linear by definition
+            return
+        bracketed = [p for p in m.poses if len(p.exposures) >= 2]
+        if not bracketed:
+            raise CaptureFolderError(f"{self.path / MANIFEST}: camera.response: absent and no pose has an exposure "
+                                     "bracket to recover it from; add the response table or pass response: linear")
+        K = len(bracketed[0].exposures)
+        same = [p for p in bracketed if len(p.exposures) == K]
+        step = max(1, len(same) // self.response_poses)
+        chosen = same[::step][: self.response_poses]
+        max_code = int(np.iinfo(first.dtype).max)
+        brackets, times = [], []
+        for p in chosen:
+            imgs = [read_image(resolve_image(self.path, e, f"pose {p.id}"), f"pose {p.id}") for e in p.exposures]
+            order = np.argsort([e.time_s for e in p.exposures])
+            brackets.append([imgs[i] for i in order])
+            times.append([p.exposures[i].time_s for i in order])
+        try:
+            samples, sample_times = bracket_samples(brackets, times, max_code=max_code,
+                                                    low=self.underexposure, high=self.saturation)
+            if self.response_method == "debevec":
+                uniform = self._uniform_times(times)
+                if uniform is None:
+                    raise ResponseError("debevec recovery needs the same exposure times in every bracket")
+                self.curve = recover_debevec(samples, uniform)
+            else:
+                low = max(self.underexposure, RECOVERY_LOW)
+                coef = recover_cubic_loglog(samples, sample_times, max_code, low, self.saturation)
+                self.curve = cubic_curve(coef, 8 if max_code == 255 else 16, low)
+        except ResponseError as e:
+            raise CaptureFolderError(f"{self.path / MANIFEST}: camera.response absent and recovery failed: {e}") from None
+
+    @staticmethod
+    def _uniform_times(times: list[list[float]]) -> list[float] | None:
+        first = times[0]
+        return first if all(np.allclose(t, first) for t in times) else None
+
+    def _load_dark(self, m: Manifest) -> None:
+        from .capture_folder import Exposure
+
+        e = Exposure(self.dark_frame_name, self.dark_time_s or 1.0)
+        path = resolve_image(self.path, e, "dark_frame")
+        img = read_image(path, "dark_frame")
+        if img.shape[:2] != (m.camera.height, m.camera.width):
+            raise CaptureFolderError(f"{path}: dark frame is {img.shape[1]}x{img.shape[0]}, camera is {m.camera.width}x{m.camera.height}")
+        self.manifest = m
+        self._dark = self._linearize(img, "dark_frame")[0]

@@ -1,0 +1,294 @@
+"""Camera response curves: model them, recover them from exposure brackets, invert them.
+
+Cameras do not store linear sensor values: a response curve maps the
+exposure (radiance × time) to a pixel code (seed 000 §3.4.1).  Reflectance
+needs linear radiance, so every LDR image goes through the *inverse* response
+``g: code -> relative exposure`` before anything else.
+
+Here a curve is a table ``g`` with one entry per code (256 or 65536),
+normalised so that ``g(max code) = 1``: relative exposure 1 is the
+saturation point.  That is also the ``{"type": "table"}`` form of the
+capture-folder manifest.
+
+Two recovery methods, as in the thesis:
+
+- :func:`recover_cubic_loglog`: McAllister's cubic in log-log space,
+  ``log X = a3 (log z)^3 + a2 (log z)^2 + a1 log z`` per channel (``z`` the
+  code normalised to (0, 1]; no constant term so that ``z = 1 <=> X = 1``).
+  He fitted it to measurements with known relative exposures (ND filters,
+  :func:`fit_cubic_loglog`); from brackets of unknown scenes the unknown
+  per-pixel radiances enter linearly in log space, so the joint fit is still
+  one small linear least-squares problem (the radiances are eliminated by
+  centring each pixel's equations).
+- :func:`recover_debevec`: OpenCV's ``cv2.createCalibrateDebevec``
+  (Debevec & Malik 1997), 8-bit only, defined up to a scale factor (fixed
+  here by ``g(reference code) = 1``; compare curves with ``fit_scale=True``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from sbrdf_core.errors import SbrdfError
+
+
+class ResponseError(SbrdfError):
+    """A response curve cannot be built or recovered from the given data."""
+
+
+# ---------------------------------------------------------------------------
+# curve models (inverse response tables, code -> relative exposure)
+# ---------------------------------------------------------------------------
+
+
+def codes(bits: int) -> np.ndarray:
+    """Normalised codes ``z = code / max`` for every code of a ``bits``-bit camera."""
+    n = 2**bits
+    return np.arange(n, dtype=np.float64) / (n - 1)
+
+
+def gamma_table(bits: int, gamma: float = 2.2) -> np.ndarray:
+    """``g(z) = z^gamma``: a pure power law (a line in log-log space)."""
+    return codes(bits) ** gamma
+
+
+def srgb_table(bits: int) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) decoded: a linear toe, then a 2.4 power."""
+    z = codes(bits)
+    return np.where(z <= 0.04045, z / 12.92, ((z + 0.055) / 1.055) ** 2.4)
+
+
+def cubic_table(bits: int, coefficients: Sequence[float]) -> np.ndarray:
+    """McAllister's curve ``log X = Σ a_m (log z)^m``, m = 1..3 (natural logs); ``g(0) = 0``."""
+    a1, a2, a3 = (list(coefficients) + [0.0, 0.0, 0.0])[:3]
+    z = codes(bits)
+    with np.errstate(divide="ignore"):
+        y = np.log(z)
+    with np.errstate(invalid="ignore", over="ignore"):
+        out = np.exp(a1 * y + a2 * y**2 + a3 * y**3)
+    out[0] = 0.0
+    if np.any(np.diff(out) < 0):
+        raise ResponseError(f"cubic response {coefficients} is not monotonic over the code range")
+    return out
+
+
+def response_table(kind: str, bits: int, gamma: float = 2.2, coefficients: Sequence[float] = (2.2, 0.0, 0.0)) -> np.ndarray:
+    """A named curve: ``gamma``, ``srgb`` or ``cubic``."""
+    if kind == "gamma":
+        return gamma_table(bits, gamma)
+    if kind == "srgb":
+        return srgb_table(bits)
+    if kind == "cubic":
+        return cubic_table(bits, coefficients)
+    raise ResponseError(f"unknown response curve {kind!r}; use gamma, srgb or cubic")
+
+
+class ResponseCurve:
+    """An inverse response per channel: ``table[code, channel]`` -> relative exposure.
+
+    ``table`` may be ``(N,)`` (one curve for all channels) or ``(N, 3)``.
+    """
+
+    def __init__(self, table: np.ndarray):
+        t = np.asarray(table, dtype=np.float64)
+        if t.ndim == 1:
+            t = np.repeat(t[:, None], 3, axis=1)
+        if t.shape[0] not in (256, 65536) or t.shape[1:] != (3,):
+            raise ResponseError(f"a response table needs 256 or 65536 rows and 1 or 3 channels, got {t.shape}")
+        self.table = t
+        self.bits = 8 if t.shape[0] == 256 else 16
+
+    @property
+    def max_code(self) -> int:
+        return self.table.shape[0] - 1
+
+    def linearize(self, image: np.ndarray) -> np.ndarray:
+        """Integer codes ``(H, W, 3)`` -> relative exposure ``(H, W, 3) float32``."""
+        z = np.asarray(image)
+        if z.dtype.kind not in "ui" or z.max(initial=0) > self.max_code:
+            raise ResponseError(f"image codes ({z.dtype}, max {z.max(initial=0)}) do not fit a {self.bits}-bit response table")
+        out = np.empty(z.shape, np.float32)
+        for c in range(3):
+            out[..., c] = self.table[:, c].astype(np.float32)[z[..., c]]
+        return out
+
+    def expose(self, exposure: np.ndarray) -> np.ndarray:
+        """The forward curve: relative exposure -> integer codes (what a camera stores)."""
+        x = np.asarray(exposure, np.float64)
+        dtype = np.uint8 if self.bits == 8 else np.uint16
+        out = np.empty(x.shape, dtype)
+        grid = np.arange(self.table.shape[0], dtype=np.float64)
+        for c in range(3):
+            # Continuous code for x, rounded to the nearest stored code.
+            out[..., c] = np.rint(np.interp(x[..., c], self.table[:, c], grid)).astype(dtype)
+        return out
+
+    def to_manifest(self) -> dict:
+        """The manifest's ``{"type": "table"}`` form (channel 0; the format holds one curve)."""
+        return {"type": "table", "values": [float(v) for v in self.table[:, 0]]}
+
+    @classmethod
+    def from_manifest(cls, value: dict) -> "ResponseCurve":
+        return cls(np.asarray(value["values"], np.float64))
+
+
+def relative_error(recovered: np.ndarray, truth: np.ndarray, lo: float = 0.1, hi: float = 0.9,
+                   fit_scale: bool = False) -> float:
+    """Max relative error of ``recovered`` against ``truth`` over codes ``lo·max .. hi·max``.
+
+    With ``fit_scale`` the recovered curve is first scaled by the least-squares
+    factor in log space (Debevec's curves are defined up to scale).
+    """
+    rec = np.asarray(recovered, np.float64).reshape(len(truth), -1)
+    tru = np.asarray(truth, np.float64).reshape(len(truth), -1)
+    z = codes(8 if len(truth) == 256 else 16)
+    mid = (z >= lo) & (z <= hi)
+    if fit_scale:
+        rec = rec * np.exp(np.mean(np.log(tru[mid]) - np.log(np.maximum(rec[mid], 1e-300)), axis=0))
+    return float(np.max(np.abs(rec[mid] / tru[mid] - 1.0)))
+
+
+# ---------------------------------------------------------------------------
+# recovery
+# ---------------------------------------------------------------------------
+
+
+def fit_cubic_loglog(pixel_codes: np.ndarray, relative_exposure: np.ndarray, max_code: int) -> np.ndarray:
+    """McAllister's calibration: known relative exposures (ND filters × time) -> cubic coefficients.
+
+    ``pixel_codes`` and ``relative_exposure`` are 1-D (one channel), exposure
+    normalised so the saturation point is 1.  Returns ``[a1, a2, a3]``.
+    """
+    z = np.asarray(pixel_codes, np.float64) / max_code
+    x = np.asarray(relative_exposure, np.float64)
+    keep = (z > 0) & (z < 1) & (x > 0)
+    if keep.sum() < 3:
+        raise ResponseError(f"a cubic fit needs at least 3 unsaturated, non-black measurements, got {int(keep.sum())}")
+    y = np.log(z[keep])
+    A = np.stack([y, y**2, y**3], axis=1)
+    coef, *_ = np.linalg.lstsq(A, np.log(x[keep]), rcond=None)
+    return coef
+
+
+def recover_cubic_loglog(samples: np.ndarray, times: np.ndarray, max_code: int,
+                         low: float = 0.02, high: float = 0.98) -> np.ndarray:
+    """Cubic log-log response per channel from bracketed pixel samples of unknown radiance.
+
+    Parameters
+    ----------
+    samples
+        ``(J, K, 3)`` integer codes: J scene points each photographed at K exposures.
+    times
+        ``(J, K)`` or ``(K,)`` exposure times, s.
+    low, high
+        Codes outside ``(low, high) · max_code`` (noise floor, saturation) are ignored.
+
+    Returns
+    -------
+    ``(3, 3)`` coefficients ``[channel, (a1, a2, a3)]``.
+
+    Each usable sample gives ``Σ a_m y^m - log E_j = log t`` with ``y = log z``;
+    subtracting each point's mean equation eliminates ``log E_j``.
+    """
+    s = np.asarray(samples, np.float64) / max_code
+    J, K, _ = s.shape
+    t = np.broadcast_to(np.asarray(times, np.float64), (J, K))
+    coef = np.zeros((3, 3))
+    for c in range(3):
+        z = s[..., c]
+        ok = (z > low) & (z < high)
+        ok &= ok.sum(axis=1, keepdims=True) >= 2  # a point needs two usable exposures
+        if ok.sum() < 8:
+            raise ResponseError(f"channel {'RGB'[c]}: only {int(ok.sum())} usable bracket samples; "
+                                "need points well exposed in at least two exposures of a bracket")
+        # Debevec's hat weight: dark codes are noise-dominated, bright ones near the clip.
+        w = np.where(ok, np.minimum(z, 1.0 - z), 0.0)
+        y = np.log(np.where(ok, z, 1.0))
+        wsum = w.sum(axis=1, keepdims=True)
+        wsum = np.where(wsum > 0, wsum, 1.0)
+        cols = [(y**m - (w * y**m).sum(axis=1, keepdims=True) / wsum) for m in (1, 2, 3)]
+        lt = np.log(t)
+        rhs = lt - (w * lt).sum(axis=1, keepdims=True) / wsum
+        sw = np.sqrt(w)[ok]
+        A = np.stack([col[ok] for col in cols], axis=1) * sw[:, None]
+        coef[c], *_ = np.linalg.lstsq(A, rhs[ok] * sw, rcond=None)
+    return coef
+
+
+def cubic_curve(coefficients: np.ndarray, bits: int, low: float = 0.0) -> ResponseCurve:
+    """A :class:`ResponseCurve` from per-channel cubic coefficients ``(3, 3)``.
+
+    Below the lowest code the fit saw (``low``, normalised) a cubic extrapolates
+    wildly; there the curve continues as the tangent line in log-log space.
+    """
+    coefficients = np.asarray(coefficients, np.float64).reshape(3, 3)
+    z = codes(bits)
+    with np.errstate(divide="ignore"):
+        y = np.log(z)
+    y0 = np.log(low) if low > 0 else -np.inf
+    cols = []
+    for a1, a2, a3 in coefficients:
+        poly = lambda v: a1 * v + a2 * v**2 + a3 * v**3  # noqa: E731
+        with np.errstate(invalid="ignore", over="ignore"):
+            logg = poly(y)
+            if np.isfinite(y0):
+                slope = a1 + 2 * a2 * y0 + 3 * a3 * y0**2
+                logg = np.where(y < y0, poly(y0) + slope * (y - y0), logg)
+            g = np.exp(logg)
+        g[0] = 0.0
+        cols.append(np.maximum.accumulate(np.nan_to_num(g, nan=0.0, posinf=0.0)))  # guard a non-monotone fit
+    return ResponseCurve(np.stack(cols, axis=1))
+
+
+def recover_debevec(samples: np.ndarray, times: Sequence[float], lambda_smooth: float = 10.0,
+                    n_samples: int = 200, reference_code: int = 128) -> ResponseCurve:
+    """OpenCV's Debevec-Malik recovery from 8-bit brackets.
+
+    ``samples`` is ``(J, K, 3)`` uint8 (J points, K exposures with ``times``).
+    The curve is defined up to scale; it is scaled so that
+    ``g(reference_code) = 1`` (compare it with :func:`relative_error`
+    ``fit_scale=True``).
+    """
+    import cv2
+
+    s = np.asarray(samples)
+    if s.dtype != np.uint8:
+        raise ResponseError(f"cv2.createCalibrateDebevec needs 8-bit images, got {s.dtype}")
+    J, K, _ = s.shape
+    side = int(np.ceil(np.sqrt(J)))
+    pad = np.zeros((side * side, K, 3), np.uint8)
+    pad[:J] = s
+    pad[J:] = s[:1]
+    images = [np.ascontiguousarray(pad[:, k].reshape(side, side, 3)) for k in range(K)]
+    cal = cv2.createCalibrateDebevec(samples=min(n_samples, side * side), lambda_=lambda_smooth, random=False)
+    g = cal.process(images, np.asarray(times, np.float32)).reshape(256, 3).astype(np.float64)
+    g = np.maximum.accumulate(np.maximum(g, 0.0), axis=0)
+    g /= np.where(g[reference_code] > 0, g[reference_code], 1.0)
+    return ResponseCurve(g)
+
+
+def bracket_samples(brackets: Sequence[Sequence[np.ndarray]], times: Sequence[Sequence[float]], max_points: int = 4000,
+                    seed: int = 0, low: float = 0.02, high: float = 0.98, max_code: int = 255) -> tuple[np.ndarray, np.ndarray]:
+    """Pick scene points for response recovery from several brackets of K exposures each.
+
+    Returns ``(J, K, 3)`` codes of points that are well exposed (all channels
+    inside ``(low, high)``) in at least two exposures, drawn evenly from the
+    brackets, and their ``(J, K)`` exposure times.
+    """
+    rng = np.random.default_rng(seed)
+    per = max(1, max_points // max(len(brackets), 1))
+    out, out_times = [], []
+    for images, bracket_times in zip(brackets, times):
+        stack = np.stack([np.asarray(im).reshape(-1, 3) for im in images], axis=1)  # (N, K, 3)
+        z = stack / max_code
+        good = ((z > low) & (z < high)).all(axis=2).sum(axis=1) >= 2
+        idx = np.flatnonzero(good)
+        if idx.size:
+            pick = np.sort(rng.choice(idx, size=min(per, idx.size), replace=False))
+            out.append(stack[pick])
+            out_times.append(np.broadcast_to(np.asarray(bracket_times, np.float64), (pick.size, len(images))))
+    if not out:
+        raise ResponseError("no pixel is well exposed in two exposures of any bracket; cannot recover a response curve")
+    return np.concatenate(out), np.concatenate(out_times)

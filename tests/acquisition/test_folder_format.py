@@ -1,0 +1,246 @@
+"""sbrdf-capture/1 folders: writer/reader round trip, validation errors, crash-safe resume."""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sbrdf_capture.capture_folder import (JOURNAL, MANIFEST, CaptureFolderError, CaptureFolderWriter, load_manifest,
+                                          read_journal, validate_folder)
+from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+
+SMALL = {"width": 96, "height": 72, "focal_px": 130.0, "texels": [16, 16]}
+
+
+def make_camera(registry, **params):
+    cam = registry.create("device", "virtual-camera", {**SMALL, **params})
+    cam.bind(registry)
+    return cam
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory, registry):
+    """A small complete 8-bit capture with 2-exposure brackets."""
+    path = tmp_path_factory.mktemp("cf") / "scan"
+    cam = make_camera(registry, effects=["response", "falloff"])
+    light, R, t = orbit_poses(4)
+    capture_to_folder(cam, path, light, R, t, [[0.5, 2.0]] * 4, durable=False)
+    return path
+
+
+def test_round_trip(folder, registry):
+    m = validate_folder(folder)
+    assert m.complete and [p.id for p in m.poses] == [0, 1, 2, 3]
+    assert not (folder / JOURNAL).exists()
+    assert all(len(p.exposures) == 2 and (folder / p.exposures[0].file).is_file() for p in m.poses)
+    data = json.loads((folder / MANIFEST).read_text())
+    assert data["format"] == "sbrdf-capture/1" and data["simulation"]["effects"] == ["falloff", "response"]
+    light, R, t = orbit_poses(4)
+    np.testing.assert_allclose([p.R for p in m.poses], R)
+    np.testing.assert_allclose([p.light_pos_mm for p in m.poses], light)
+    src = registry.create("capture", "folder", {"path": str(folder)})
+    d = src.describe()
+    assert (d.n_poses, d.height, d.width) == (4, 72, 96) and d.camera["model"] == "pinhole"
+    assert d.sample["fiducials"]["dictionary"] == "DICT_4X4_50" and len(d.sample["fiducials"]["markers"]) == 12
+    image, valid = src.read_pose(1)
+    assert image.shape == (72, 96, 3) and image.dtype == np.float32 and valid.shape == (72, 96) and valid.any()
+
+
+def test_writer_refuses_a_finished_capture_and_a_different_header(folder, registry, tmp_path):
+    cam = make_camera(registry, effects=["response", "falloff"])
+    with pytest.raises(CaptureFolderError, match="already holds a complete capture"):
+        CaptureFolderWriter(folder, cam.sample_info(), cam.camera_info(), cam.light_info())
+    w = CaptureFolderWriter(tmp_path / "x", cam.sample_info(), cam.camera_info(), cam.light_info())
+    w.write_pose(0, [0, 0, 100], np.eye(3), [0, 0, 300], [(np.zeros((72, 96, 3), np.uint8), 0.1)])
+    other = make_camera(registry, effects=["response", "falloff"], focal_px=131.0)
+    with pytest.raises(CaptureFolderError, match="different sample/camera/light header"):
+        CaptureFolderWriter(tmp_path / "x", other.sample_info(), other.camera_info(), other.light_info())
+    with pytest.raises(CaptureFolderError, match=r"image shape \(10, 10, 3\)"):
+        w.write_pose(1, [0, 0, 100], np.eye(3), [0, 0, 300], [(np.zeros((10, 10, 3), np.uint8), 0.1)])
+    with pytest.raises(CaptureFolderError, match="exposure time must be positive"):
+        w.write_pose(1, [0, 0, 100], np.eye(3), [0, 0, 300], [(np.zeros((72, 96, 3), np.uint8), -0.1)])
+    assert w.done_ids == {0}  # nothing recorded for the rejected poses
+    assert not (tmp_path / "x" / "images" / "p00001_e0.png").exists()
+
+
+def _mutate(folder: Path, tmp: Path, edit) -> Path:
+    dst = tmp / "bad"
+    shutil.copytree(folder, dst)
+    data = json.loads((dst / MANIFEST).read_text())
+    edit(data, dst)
+    (dst / MANIFEST).write_text(json.dumps(data))
+    return dst
+
+
+def _set(path, value):
+    def edit(data, _):
+        node = data
+        for k in path[:-1]:
+            node = node[k]
+        node[path[-1]] = value
+    return edit
+
+
+def _remove_image(data, dst):
+    os.remove(dst / data["poses"][2]["exposures"][1]["file"])
+
+
+def _corrupt_image(data, dst):
+    (dst / data["poses"][1]["exposures"][0]["file"]).write_bytes(b"not a png at all, certainly not one")
+
+
+def _resize_image(data, dst):
+    import cv2
+
+    cv2.imwrite(str(dst / data["poses"][3]["exposures"][0]["file"]), np.zeros((10, 12, 3), np.uint8))
+
+
+def _escape(data, dst):
+    shutil.copy(dst / data["poses"][0]["exposures"][0]["file"], dst.parent / "outside.png")
+    data["poses"][0]["exposures"][0]["file"] = "images/../../outside.png"
+
+
+def _symlink_escape(data, dst):
+    shutil.copy(dst / data["poses"][0]["exposures"][0]["file"], dst.parent / "outside2.png")
+    os.symlink(dst.parent / "outside2.png", dst / "images" / "link.png")
+    data["poses"][0]["exposures"][0]["file"] = "images/link.png"
+
+
+BAD = {
+    "format": (_set(["format"], "sbrdf-capture/2"), r"capture.json: format: is 'sbrdf-capture/2'"),
+    "dictionary": (_set(["sample", "fiducials", "dictionary"], "DICT_9X9_7"), r"sample.fiducials.dictionary: unknown fiducial dictionary 'DICT_9X9_7'.*DICT_4X4_50"),
+    "rotation": (_set(["poses", 2, "camera", "R"], [[1, 0, 0], [0, 1, 0.1], [0, 0, 1]]), r"poses\[2\] \(id 2\)\.camera\.R: not orthonormal"),
+    "reflection": (_set(["poses", 1, "camera", "R"], [[1, 0, 0], [0, 1, 0], [0, 0, -1]]), r"poses\[1\] \(id 1\)\.camera\.R: is a reflection"),
+    "negative_time": (_set(["poses", 3, "exposures", 1, "time_s"], -0.5), r"poses\[3\] \(id 3\)\.exposures\[1\]\.time_s: exposure time must be positive"),
+    "absolute_path": (_set(["poses", 0, "exposures", 0, "file"], "/etc/passwd.png"), r"poses\[0\] \(id 0\)\.exposures\[0\]\.file: '/etc/passwd.png' leads outside"),
+    "dotdot": (_escape, r"leads outside the capture folder"),
+    "symlink": (_symlink_escape, r"resolves to .*outside the capture folder"),
+    "missing_image": (_remove_image, r"poses\[2\] \(id 2\)\.exposures\[1\]\.file: image 'images/p00002_e1.png' is missing"),
+    "unreadable_image": (_corrupt_image, r"p00001_e0.png: unreadable image \(poses\[1\] \(id 1\)\.exposures\[0\]\.file\)"),
+    "size_mismatch": (_resize_image, r"p00003_e0.png: image is 12x10 but camera.width x camera.height is 96x72"),
+    "duplicate_id": (_set(["poses", 1, "id"], 0), r"poses\[1\]\.id: pose id 0 appears twice"),
+    "bad_K": (_set(["camera", "K"], [[100, 0, 50], [0, 100, 40]]), r"camera.K: expected a 3x3 matrix"),
+    "response_table": (_set(["camera", "response"], {"type": "table", "values": [0, 1, 2]}), r"camera.response.values: expected 256 or 65536"),
+    "incomplete": (_set(["complete"], False), r"complete: false - the capture was interrupted"),
+    "no_poses": (_set(["poses"], []), r"poses: the capture has no poses"),
+    "light": (_set(["light", "intensity"], -1), r"light.intensity: must be positive"),
+    "wrong_extension": (_set(["poses", 0, "exposures", 0, "file"], "images/p0.jpg"), r"unsupported image type"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_validation_errors_name_file_pose_and_field(case, folder, tmp_path, registry):
+    edit, pattern = BAD[case]
+    bad = _mutate(folder, tmp_path, edit)
+    with pytest.raises(CaptureFolderError, match=pattern):
+        validate_folder(bad)
+    # Through a one-node graph: the same error, and no artifact left behind.
+    from sbrdf_core.runner import run_graph
+
+    graph = tmp_path / "g.yaml"
+    graph.write_text(f"name: bad\nstore: {tmp_path / 'store'}\nnodes:\n"
+                     f"  capture: {{kind: Capture, plugin: folder, params: {{path: {bad}}}}}\n")
+    with pytest.raises(CaptureFolderError, match=pattern):
+        run_graph(str(graph))
+    assert not (tmp_path / "store" / "capture" / "zarr.json").exists()
+
+
+def test_not_json_and_missing_manifest(tmp_path):
+    (tmp_path / "a").mkdir()
+    with pytest.raises(CaptureFolderError, match=r"capture.json: missing"):
+        load_manifest(tmp_path / "a")
+    (tmp_path / "a" / MANIFEST).write_text("{oops")
+    with pytest.raises(CaptureFolderError, match=r"capture.json: not valid JSON \(line 1"):
+        load_manifest(tmp_path / "a")
+
+
+def test_fingerprint_changes_with_files(folder, registry, tmp_path):
+    copy_ = tmp_path / "copy"
+    shutil.copytree(folder, copy_)
+    src = registry.create("capture", "folder", {"path": str(copy_)})
+    before = src.fingerprint()
+    assert before == registry.create("capture", "folder", {"path": str(copy_)}).fingerprint()
+    img = copy_ / "images" / "p00000_e0.png"
+    img.write_bytes(img.read_bytes() + b"\0")
+    assert src.fingerprint() != before
+
+
+KILLER = textwrap.dedent("""\
+    import os, signal, sys
+    import numpy as np
+    from sbrdf_core.registry import Registry
+    import sbrdf_capture.capture_folder as cf
+    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+
+    kill_at = int(sys.argv[2])
+    real = cf._write_atomic
+    calls = [0]
+    def write(path, data, durable):
+        if path.suffix != ".json" and not path.name.endswith(".journal"):
+            calls[0] += 1
+            if calls[0] == kill_at:  # mid-pose: exposure 0 of this pose is on disk, exposure 1 is not
+                os.kill(os.getpid(), signal.SIGKILL)
+        real(path, data, durable)
+    cf._write_atomic = write
+    reg = Registry()
+    cam = reg.create("device", "virtual-camera", {PARAMS})
+    cam.bind(reg)
+    light, R, t = orbit_poses(6)
+    capture_to_folder(cam, sys.argv[1], light, R, t, [[0.5, 2.0]] * 6)
+""")
+
+
+def test_killed_capture_resumes_to_identical_files(tmp_path, registry):
+    params = {**SMALL, "effects": ["response", "noise", "motor_error", "falloff"], "bit_depth": 16}
+    script = tmp_path / "killer.py"
+    script.write_text(KILLER.replace("{PARAMS}", repr(params)))
+    killed = tmp_path / "killed"
+    proc = subprocess.run([sys.executable, str(script), str(killed), "8"], capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    # Killed while writing pose 3 (its 8th image): poses 0-2 recorded, the folder does not look complete.
+    assert [p.id for p in read_journal(killed)] == [0, 1, 2]
+    assert (killed / "images" / "p00003_e0.png").exists() and not (killed / "images" / "p00003_e1.png").exists()
+    with pytest.raises(CaptureFolderError, match="complete: false"):
+        validate_folder(killed)
+    assert [p.id for p in validate_folder(killed, allow_incomplete=True).poses] == [0, 1, 2]
+
+    # Resume in a fresh process-state camera, and capture the same thing uninterrupted.
+    light, R, t = orbit_poses(6)
+    for target in (killed, tmp_path / "whole"):
+        cam = make_camera(registry, **{k: v for k, v in params.items() if k not in SMALL})
+        capture_to_folder(cam, target, light, R, t, [[0.5, 2.0]] * 6)
+    files = sorted(p.relative_to(killed) for p in killed.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(tmp_path / "whole") for p in (tmp_path / "whole").rglob("*") if p.is_file())
+    assert len([f for f in files if f.suffix == ".png"]) == 12
+    for f in files:
+        assert (killed / f).read_bytes() == (tmp_path / "whole" / f).read_bytes(), f"{f} differs after resume"
+
+
+def test_torn_journal_line_is_dropped(folder, tmp_path, registry):
+    cam = make_camera(registry, effects=[])
+    light, R, t = orbit_poses(3)
+    assert capture_to_folder(cam, tmp_path / "s", light, R, t, 1.0, stop_after=2) is None
+    with open(tmp_path / "s" / JOURNAL, "ab") as f:
+        f.write(b'{"id": 2, "light_pos')  # a writer killed mid-line
+    assert [p.id for p in read_journal(tmp_path / "s")] == [0, 1]
+    m = capture_to_folder(cam, tmp_path / "s", light, R, t, 1.0)
+    assert [p.id for p in m.poses] == [0, 1, 2] and m.complete
+    assert m.poses[0].exposures[0].file.endswith(".exr")
+
+
+def test_manifest_json_round_trip_is_stable(folder):
+    from sbrdf_capture.capture_folder import parse_manifest
+
+    m = load_manifest(folder)
+    again = parse_manifest(copy.deepcopy(m.to_json()))
+    assert again.to_json() == m.to_json()
