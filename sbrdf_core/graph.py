@@ -210,12 +210,30 @@ class _Validator:
             raw_params = {}
         params = {}
         if kind.plugin_category is None or spec is not None:
+            before = len(self.problems)
             params = self._params(declared, raw_params, owner, path + ("params",))
+            if spec is not None and len(self.problems) == before:
+                self._check_combination(spec, params, owner, path + ("params",))
         inputs = decl.get("in", {}) or {}
         if not isinstance(inputs, dict):
             self.problem(f"node {name!r}: 'in' must map input ports to node names", path + ("in",))
             inputs = {}
         return Node(name, kind, plugin, {str(k): v for k, v in inputs.items()}, params, self.loc.line(path))
+
+    def _check_combination(self, spec, params: dict, owner: str, path: tuple) -> None:
+        """Constraints between parameters that single declarations cannot express.
+
+        A plugin implementation may define ``check_params(params) -> [(name or
+        None, message)]``, a cheap check without side effects (devices are not
+        opened), so the problem is reported with its line before anything runs.
+        """
+        try:
+            impl = self.reg.load(spec)
+        except Exception:  # the registry reports broken plugins itself
+            return
+        check = getattr(impl, "check_params", None)
+        for key, msg in (check(params) if check else []):
+            self.problem(f"{owner}: {msg}", path + (key,) if key else path)
 
     def _params(self, declared: list[Param], given: dict, owner: str, path: tuple) -> dict:
         values, problems = resolve(declared, given, owner)

@@ -79,3 +79,12 @@ def LineSearchFitter(**params):  # noqa: N802 - a plugin factory reads like a cl
     from .mcallister import McAllisterFitter
 
     return McAllisterFitter(lobe_fit="line-search", lobe_2_start="text", iterations=1, tolerance=0.0, starts=1, **params)
+
+
+def _check_line_search(params):
+    from .mcallister import McAllisterFitter
+
+    return McAllisterFitter.check_params({**params, "lobe_fit": "line-search"})
+
+
+LineSearchFitter.check_params = _check_line_search

@@ -52,10 +52,17 @@ class McAllisterFitter:
         self.iterations, self.tolerance, self.starts, self.objective = iterations, tolerance, starts, objective
         self.root_floor = root_floor
         self.weights = luminance_weights(colour_space)
-        lobes = int(self.model_config.get("lobes", 1))
-        if lobe_fit == "line-search" and (lobes != 1 or self.model_config.get("beta")):
-            raise ParameterError("the line search fits exactly one lobe without beta (seed 000 §4.3.2); "
-                                 f"got model_params {self.model_config}")
+        for _, msg in self.check_params({"lobe_fit": lobe_fit, "model_params": self.model_config}):
+            raise ParameterError(msg)
+
+    @staticmethod
+    def check_params(params) -> list[tuple[str, str]]:
+        """The line search fits exactly one lobe and no β: say so at graph load, with the line."""
+        cfg = params.get("model_params") or {}
+        if params.get("lobe_fit", "line-search") == "line-search" and (int(cfg.get("lobes", 1)) != 1 or cfg.get("beta")):
+            return [("model_params", "the line search fits exactly one lobe without beta (seed 000 §4.3.2); "
+                                     f"got model_params {dict(cfg)}")]
+        return []
 
     def fit(self, model, f_r, valid, wi, wo) -> FitResult:
         T = f_r.shape[0]

@@ -22,36 +22,32 @@ LOG_CAP = 60.0
 
 
 @njit(cache=True, inline="always")
-def _basis(x, t, ix, iy, iz, ox, oy, oz, lobes, aniso, has_beta, C, K, pred, b, want_jac):
+def _basis(ix, iy, iz, ox, oy, oz, lobes, aniso, has_beta, cb, sb, cx, cy, n, rho, rho_d, C, pred, b, want_jac):
     """Prediction (C,) for one sample and, if ``want_jac``, its channel-free basis ``b``.
 
     ``b = [1, s_1..s_L, per lobe: ∂s/∂c (1 or 2), ∂s/∂log n (, ∂s/∂β)]``: every
     Jacobian entry is one of these times 1 or a lobe's ρ_s,c (see ``_assemble``).
+    Parameters arrive unpacked in local arrays (``cx``, ``cy``, ``n`` per lobe,
+    ``rho`` (L, C)) so the sample loop reads no parameter memory.
     """
     for c in range(C):
-        pred[c] = x[t, c]
+        pred[c] = rho_d[c]
     if has_beta:
-        beta = x[t, K - 1]
-        cb, sb = math.cos(beta), math.sin(beta)
         ix, iy = cb * ix + sb * iy, -sb * ix + cb * iy
         ox, oy = cb * ox + sb * oy, -sb * ox + cb * oy
     pxx, pyy, pzz = ix * ox, iy * oy, iz * oz
     ns = 2 + aniso + has_beta
-    k = C
     for j in range(lobes):
-        cx = x[t, k + C]
-        cy = x[t, k + C + 1] if aniso else cx
-        n = math.exp(x[t, k + C + 1 + aniso])
-        dot = cx * pxx + cy * pyy + pzz
+        dot = cx[j] * pxx + cy[j] * pyy + pzz
         s = 0.0
         dsdx = 0.0
         lx = 0.0
         if dot > 0.0:
             lx = math.log(dot)
-            s = math.exp(min(n * lx, LOG_CAP))
-            dsdx = n * s / dot
+            s = math.exp(min(n[j] * lx, LOG_CAP))
+            dsdx = n[j] * s / dot
         for c in range(C):
-            pred[c] += x[t, k + c] * s
+            pred[c] += rho[j, c] * s
         if want_jac:
             b[1 + j] = s
             q = 1 + lobes + j * ns
@@ -60,10 +56,9 @@ def _basis(x, t, ix, iy, iz, ox, oy, oz, lobes, aniso, has_beta, C, K, pred, b, 
                 b[q + 1] = dsdx * pyy
             else:
                 b[q] = dsdx * (pxx + pyy)
-            b[q + 1 + aniso] = s * lx * n
+            b[q + 1 + aniso] = s * lx * n[j]
             if has_beta:
-                b[q + 2 + aniso] = dsdx * (cx - cy) * (iy * ox + ix * oy)
-        k += C + 2 + aniso
+                b[q + 2 + aniso] = dsdx * (cx[j] - cy[j]) * (iy * ox + ix * oy)
 
 
 @njit(cache=True, inline="always")
@@ -120,6 +115,18 @@ def normal_equations(x, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
         b[0] = 1.0
         G = np.zeros((m, m))
         H = np.zeros((m, C))
+        rho_d = x[t, :C].copy()
+        rho = np.empty((max(lobes, 1), C))
+        cx, cy, n = np.empty(max(lobes, 1)), np.empty(max(lobes, 1)), np.empty(max(lobes, 1))
+        k = C
+        for j in range(lobes):
+            rho[j] = x[t, k:k + C]
+            cx[j] = x[t, k + C]
+            cy[j] = x[t, k + C + 1] if aniso else cx[j]
+            n[j] = math.exp(x[t, k + C + 1 + aniso])
+            k += C + 2 + aniso
+        cb, sb = (math.cos(x[t, K - 1]), math.sin(x[t, K - 1])) if has_beta else (1.0, 0.0)
+        total = 0.0
         for s in range(S):
             ws = w[t, s]
             if ws == 0.0:
@@ -128,14 +135,14 @@ def normal_equations(x, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
             if iz <= 0.0 or oz <= 0.0:
                 for c in range(C):  # below the horizon the model is 0: residual −f, no gradient
                     r = -f[t, s, c] * ws
-                    cost[t] += r * r
+                    total += r * r
                 continue
-            _basis(x, t, wi[t, s, 0], wi[t, s, 1], iz, wo[t, s, 0], wo[t, s, 1], oz, lobes, aniso, has_beta, C, K,
-                   pred, b, want_jac)
+            _basis(wi[t, s, 0], wi[t, s, 1], iz, wo[t, s, 0], wo[t, s, 1], oz, lobes, aniso, has_beta, cb, sb,
+                   cx, cy, n, rho, rho_d, C, pred, b, want_jac)
             w2 = ws * ws
             for c in range(C):
                 r = (pred[c] - f[t, s, c]) * ws
-                cost[t] += r * r
+                total += r * r
                 if want_jac:
                     for i in range(m):
                         H[i, c] += b[i] * r * ws
@@ -144,6 +151,7 @@ def normal_equations(x, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
                     bi = b[i] * w2
                     for l in range(i, m):
                         G[i, l] += bi * b[l]
+        cost[t] = total
         if want_jac:
             for i in range(m):
                 for l in range(i):
