@@ -29,7 +29,7 @@ import numpy as np
 
 from sbrdf_core.nodes.capture import CaptureDescription
 
-from .capture_folder import MANIFEST, CaptureFolderError, Manifest, resolve_image, validate_folder
+from .capture_folder import MANIFEST, CaptureFolderError, Manifest, PoseRecord, resolve_image, validate_folder
 from .hdr import merge_exposures, subtract_dark
 from .response import (ResponseCurve, ResponseError, bracket_samples, cubic_curve, recover_cubic_loglog,
                        recover_debevec)
@@ -65,6 +65,24 @@ def read_image(path: Path, where: str) -> np.ndarray:
     except Exception as e:
         raise CaptureFolderError(f"{path}: unreadable image ({where}): {e}") from None
     return img
+
+
+def manifest_sections(m: Manifest, linear: bool) -> tuple[dict, dict, dict]:
+    """The CaptureSet's ``sample``, ``camera`` and ``light`` attributes for a manifest.
+
+    Shared by every source that reads a capture folder (``folder``, ``gonio``),
+    so the same scan has the same attributes whichever source produced it.
+    """
+    camera = {"width": m.camera.width, "height": m.camera.height, "K": [list(r) for r in m.camera.K],
+              "dist": list(m.camera.dist), "model": "pinhole", "response": "linear" if linear else "table",
+              **m.camera.extra}
+    sample = {"size_mm": list(m.sample.size_mm),
+              "fiducials": None if m.sample.fiducials is None else {
+                  "dictionary": m.sample.fiducials.dictionary,
+                  "markers": [{"id": k.id, "corners_mm": k.corners_mm} for k in m.sample.fiducials.markers]},
+              **m.sample.extra}
+    light = {"type": m.light.type, "intensity": m.light.intensity, **m.light.extra}
+    return sample, camera, light
 
 
 class FolderCapture:
@@ -108,35 +126,52 @@ class FolderCapture:
     def describe(self) -> CaptureDescription:
         m = self._open()
         poses = m.poses
-        K = [list(r) for r in m.camera.K]
-        camera = {"width": m.camera.width, "height": m.camera.height, "K": K, "dist": list(m.camera.dist),
-                  "model": "pinhole", "response": "linear" if self.linear else "table", **m.camera.extra}
-        sample = {"size_mm": list(m.sample.size_mm),
-                  "fiducials": None if m.sample.fiducials is None else {
-                      "dictionary": m.sample.fiducials.dictionary,
-                      "markers": [{"id": k.id, "corners_mm": k.corners_mm} for k in m.sample.fiducials.markers]},
-                  **m.sample.extra}
+        sample, camera, light = manifest_sections(m, self.linear)
         return CaptureDescription(
             height=m.camera.height, width=m.camera.width,
             light_pos=np.array([p.light_pos_mm for p in poses], np.float64),
             camera_R=np.array([p.R for p in poses], np.float64),
             camera_t=np.array([p.t for p in poses], np.float64),
             exposure_s=np.array([min(e.time_s for e in p.exposures) for p in poses], np.float64),
-            sample=sample, camera=camera,
-            light={"type": m.light.type, "intensity": m.light.intensity, **m.light.extra},
+            sample=sample, camera=camera, light=light,
         )
 
     def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         m = self._open()
         pose = m.poses[index]
+        return self.read_record(pose, f"poses[{index}] (id {pose.id})")
+
+    # -- shared with rigs that write a folder while they read it (the ``gonio`` source) -------
+
+    def attach(self, manifest: Manifest) -> None:
+        """Read through ``manifest`` instead of loading ``capture.json``.
+
+        A rig capture source (``gonio``) writes the folder while the Capture
+        node reads it: it hands over its writer's header (and poses) so each
+        pose can be read back as soon as it is on disk, through exactly the
+        response / dark-frame / merge path below, without re-validating the
+        whole folder per pose.  The response curve is chosen here, so a
+        manifest without one needs every bracketed pose (recovery samples them).
+        """
+        self.linear, self.curve, self._dark = False, None, None
+        self._choose_response(manifest)
+        self.manifest = manifest
+        if self.dark_frame_name:
+            self._load_dark(manifest)
+
+    def read_record(self, pose: PoseRecord, where: str) -> tuple[np.ndarray, np.ndarray]:
+        """One pose's linear HDR radiance and validity: decode, linearise, subtract dark, merge, colour."""
+        m = self.manifest
+        if m is None:
+            raise CaptureFolderError(f"{self.path / MANIFEST}: read_record before the folder was opened or attached")
         signals, levels, times = [], [], []
         for k, e in enumerate(pose.exposures):
-            where = f"poses[{index}] (id {pose.id}).exposures[{k}]"
-            img = read_image(resolve_image(self.path, e, where + ".file"), where)
+            at = f"{where}.exposures[{k}]"
+            img = read_image(resolve_image(self.path, e, at + ".file"), at)
             if img.shape[:2] != (m.camera.height, m.camera.width):
                 raise CaptureFolderError(f"{self.path / e.file}: image is {img.shape[1]}x{img.shape[0]} but the camera is "
-                                         f"{m.camera.width}x{m.camera.height} ({where})")
-            signal, level = self._linearize(img, where)
+                                         f"{m.camera.width}x{m.camera.height} ({at})")
+            signal, level = self._linearize(img, at)
             signals.append(subtract_dark(signal, self._dark, self.dark_time_s or 1.0, e.time_s))
             levels.append(level)
             times.append(e.time_s)
@@ -151,11 +186,7 @@ class FolderCapture:
 
     def _open(self) -> Manifest:
         if self.manifest is None:
-            m = validate_folder(self.path, allow_incomplete=self.allow_incomplete)
-            self._choose_response(m)
-            if self.dark_frame_name:
-                self._load_dark(m)
-            self.manifest = m
+            self.attach(validate_folder(self.path, allow_incomplete=self.allow_incomplete))
         return self.manifest
 
     def _linearize(self, img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -177,7 +208,7 @@ class FolderCapture:
     def _choose_response(self, m: Manifest) -> None:
         mode = self.response_mode
         given = m.camera.response
-        if mode == "linear" or (mode == "auto" and given == "linear"):
+        if mode == "linear" or (mode in ("auto", "manifest") and given == "linear"):
             self.linear = True
             return
         if mode in ("auto", "manifest") and isinstance(given, dict):

@@ -8,6 +8,13 @@ Registers two ``device`` plugins (capture sources create them through
 ``indexer``
     :class:`sbrdf_rig.indexer.Indexer`, Compumotor 6000-series command language.
 
+and one ``capture`` source:
+
+``gonio``
+    :class:`sbrdf_rig.gonio.GonioCapture`: drives those motors and a camera
+    device through a pose plan, writing an ``sbrdf-capture/1`` folder pose by
+    pose (resumable), and hands the poses to the Capture node.
+
 Everything else (simulators in :mod:`sbrdf_rig.sim`, :mod:`sbrdf_rig.kinematics`,
 :mod:`sbrdf_rig.planning`) is a library for capture sources and tools; see
 ``docs/acquisition-rig.md``.  This module imports nothing heavy.
@@ -52,4 +59,38 @@ def sbrdf_devices():
                    summary="Pan-tilt unit over serial, Directed Perception PTU command set (PP/TP, A, H)"),
         PluginSpec("indexer", "sbrdf_rig.indexer:Indexer", INDEXER_PARAMS,
                    summary="Rotary indexer over serial, Compumotor 6000-series language (D, GO, TPE, LS)"),
+    ]
+
+
+GONIO_PARAMS = (
+    Param("path", "str", doc="capture folder written pose by pose (resumed if a run was interrupted)"),
+    Param("motors", "dict", doc="motor name -> {device: ptu|indexer, params: {port: /dev/ttyUSB0 | sim, ...}, "
+          "axes: {joint: driver axis}}; joints pan, tilt, roll, light; axes default ptu {pan: pan_deg, tilt: tilt_deg}, "
+          "indexer {light: angle_deg}; port: sim starts the device's pty simulator in-process"),
+    Param("camera", "dict", {"device": "virtual-camera", "params": {}}, "camera device {device, params}"),
+    Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera device's light_info()",
+          nullable=True),
+    Param("geometry", "dict", {}, "rig geometry: RigGeometry fields (distances, offsets, encoder zeros, *_limits_deg "
+          "- also the planner's limits)"),
+    Param("plan", "dict", {"theta_d_deg": 20.0, "isotropic": True},
+          "poses: {angles_deg: [[pan, tilt, roll, light], ...]} or planner settings {theta_d_deg, isotropic, source, "
+          "step_deg, max_theta_i_deg, max_theta_r_deg}"),
+    Param("exposures", "dict", {"times_s": [1.0]}, "exposure brackets: {times_s: [t, ...] (all poses) or [[...], ...] "
+          "(per pose)} or the exposure planner {diffuse_time_s, highlight_time_s, ...}"),
+    Param("read", "dict", {}, "parameters of the folder plugin that reads poses back (response, response_method, "
+          "response_poses, saturation, underexposure, colour_matrix)"),
+    Param("settle_s", "float", 0.0, "wait after the motors stop before photographing (arm vibration)", bounds=(0.0, 600.0),
+          unit="s"),
+    Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
+          choices=("png", "tif")),
+    Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
+)
+
+
+@hookimpl
+def sbrdf_captures():
+    return [
+        PluginSpec("gonio", "sbrdf_rig.gonio:GonioCapture", GONIO_PARAMS,
+                   summary="Drive the gonioreflectometer (motors + camera) through a pose plan into an "
+                           "sbrdf-capture/1 folder, resumably"),
     ]

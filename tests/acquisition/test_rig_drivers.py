@@ -24,22 +24,6 @@ TIMEOUT_S = 0.15
 STALL_S = 0.25  # longer than the timeout: the reply arrives after the driver has given up on it
 
 
-@pytest.fixture
-def start_simulator():
-    """Start simulators for a test: ``sim = start_simulator(SimulatedPTU, faults=[...])``; all stop at teardown."""
-    started = []
-
-    def start(cls, **kwargs):
-        sim = cls(**kwargs).start()
-        started.append(sim)
-        return sim
-
-    yield start
-    for sim in started:
-        sim.stop()
-        assert sim.error is None, f"simulator thread failed: {sim.error!r}"
-
-
 @dataclass(frozen=True)
 class Rig:
     """How to drive one controller kind in these tests."""

@@ -1,0 +1,565 @@
+"""gonio: drive the gonioreflectometer through a pose plan into a capture folder, pose by pose.
+
+This is the capture source that joins the rig's pieces: the serial motor
+drivers (``ptu``, ``indexer`` devices), the kinematics and planner, a camera
+device (``virtual-camera``, or any device with the same protocol), and the
+crash-safe ``sbrdf-capture/1`` writer.  The Capture node sees it like any
+other source: :meth:`GonioCapture.describe` gives the nominal poses,
+:meth:`GonioCapture.read_pose` one linear HDR image per pose.
+
+Why the folder sits in the middle: a real capture runs for hours and can be
+killed at any moment.  Every pose is written to the folder (images first,
+then one journal line) *before* the Capture node stores it, and every image
+the node stores is read back from the folder through the ``folder`` plugin's
+own code (:meth:`sbrdf_capture.folder.FolderCapture.read_record`).  So
+
+* a killed run resumes from the folder's journal: poses already journaled
+  are read back, not taken again, and the rest are taken under the same
+  file names (no image lost or duplicated);
+* the finished folder is an ordinary scan: reading it later with the
+  ``folder`` plugin gives the same images;
+* a resumed capture equals an uninterrupted one, because the drivers make
+  absolute moves and the camera's random effects are seeded per pose.
+
+Per pose not yet in the journal (in plan order, one at a time, in this
+process: the source is ``sequential``): move every motor (blocking, read
+back and verified by the driver), wait ``settle_s``, photograph each bracket
+exposure at the pose the motors *report* (read-back angles through the
+kinematics, so a motor that stops within tolerance but off target shows up
+in the images as it would on a real rig), ``write_pose``.  The folder
+records that read-back pose (plus target and read-back motor angles under
+``motors``); the CaptureSet carries the nominal planned poses (registration
+measures the real ones).
+
+Motors connect in :meth:`~GonioCapture.describe` (which the runner calls only
+when the node actually runs, never for a cached node): every planned angle is
+checked against the drivers' soft limits (and the rig geometry's) *before
+anything moves*.  A motor fault (:class:`~sbrdf_rig.errors.DeviceError`)
+halts every motor and stops the capture with :class:`GonioCaptureError`,
+naming the pose, the motor, its port and the command; the folder then holds
+exactly the completed poses and the CaptureSet stays incomplete.
+
+``port: sim`` in a motor's parameters starts the matching pty simulator
+(:mod:`sbrdf_rig.sim`) inside this process and connects the real driver to
+it, so ``graphs/gonio-virtual.yaml`` runs the whole rig without hardware.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+import weakref
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sbrdf_core.errors import ParameterError, SbrdfError
+from sbrdf_core.nodes.capture import CaptureDescription
+
+from .errors import DeviceError, SoftLimitError
+from .kinematics import RigGeometry, forward
+
+log = logging.getLogger(__name__)
+
+#: Rig joints, in the order of plan angles (``PosePlan.angles_deg``) and :func:`forward`'s arguments.
+JOINTS = ("pan", "tilt", "roll", "light")
+#: ``port`` value that starts the device's simulator in this process.
+SIM_PORT = "sim"
+#: Joint -> driver axis when a motor's ``axes`` is omitted.
+DEFAULT_AXES = {"ptu": {"pan": "pan_deg", "tilt": "tilt_deg"}, "indexer": {"light": "angle_deg"}}
+#: Device plugin name -> simulator class (in :mod:`sbrdf_rig.sim`) for ``port: sim``.
+SIMULATORS = {"ptu": "SimulatedPTU", "indexer": "SimulatedIndexer"}
+
+PLANNER_KEYS = {"theta_d_deg", "isotropic", "source", "step_deg", "max_theta_i_deg", "max_theta_r_deg"}
+EXPOSURE_PLANNER_KEYS = {"diffuse_time_s", "highlight_time_s", "highlight_halfwidth_deg", "field_halfwidth_deg",
+                         "stops_per_exposure", "max_exposures", "min_time_s", "max_time_s"}
+#: ``folder`` parameters the gonio source sets itself (everything else may be given under ``read``).
+READ_RESERVED = {"path", "allow_incomplete", "dark_frame", "dark_time_s"}
+
+
+class GonioCaptureError(DeviceError):
+    """The rig failed during a capture; names the pose, the motor, its port and the command.
+
+    ``pose`` is the plan index of the pose being taken, ``motor`` the name of
+    the motor in the ``motors`` parameter, ``cause`` the driver's error.
+    """
+
+    def __init__(self, message: str, *, pose: int, motor: str, cause: DeviceError):
+        SbrdfError.__init__(self, message)
+        self.device, self.port, self.command, self.received = cause.device, cause.port, cause.command, cause.received
+        self.pose, self.motor, self.cause = pose, motor, cause
+
+
+@dataclass
+class Motor:
+    """One motor controller of the rig, as configured, and its driver once connected."""
+
+    name: str
+    device: str
+    values: dict          # resolved driver parameters (port may still be "sim")
+    axes: dict            # joint -> driver axis
+    driver: Any = None
+    simulator: Any = None
+
+    @property
+    def port(self) -> str:
+        return self.driver.port if self.driver is not None else str(self.values.get("port"))
+
+
+@dataclass
+class _Devices:
+    """What must be halted and released, kept apart from the source so a finalizer can reach it."""
+
+    motors: list = field(default_factory=list)
+
+    def close(self) -> None:
+        for m in self.motors:
+            if m.driver is not None:
+                try:
+                    m.driver.close()  # halts (best effort) and releases the port; idempotent
+                except Exception:  # noqa: BLE001 - closing must reach every motor
+                    log.exception("gonio: closing motor %r failed", m.name)
+            if m.simulator is not None:
+                m.simulator.stop()
+                m.simulator = None
+            m.driver = None
+
+
+def _jsonable(value: Any) -> Any:
+    """What ``value`` reads back as from capture.json (tuples -> lists, numpy -> Python)."""
+    return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def _fmt_angles(angles: dict) -> str:
+    return ", ".join(f"{k}={v:.4f}" for k, v in angles.items())
+
+
+class GonioCapture:
+    """Capture source driving motors + camera through a pose plan (see the module docstring)."""
+
+    #: Hardware: the runner takes poses one at a time, in plan order, in this process.
+    sequential = True
+
+    def __init__(self, path, motors, camera, light, geometry, plan, exposures, read, settle_s, image_format, durable):
+        self.path = Path(str(path)).expanduser()
+        self.motors = self._parse_motors(motors)
+        self.camera_config = self._parse_device(camera, "camera")
+        self.light = None if light is None else dict(light)
+        self.geometry = self._parse_geometry(geometry)
+        self.plan_config = dict(plan)
+        self.exposure_config = dict(exposures)
+        self._check_plan_config()
+        self.read_config = dict(read)
+        bad = sorted(READ_RESERVED & set(self.read_config))
+        if bad:
+            raise ParameterError(f"gonio: read: {bad} are set by the gonio source itself; give only response, "
+                                 "response_method, response_poses, saturation, underexposure, colour_matrix")
+        self.settle_s, self.image_format, self.durable = float(settle_s), image_format, bool(durable)
+        self.registry = None
+        self.camera = None
+        self.reader = None
+        self.writer = None
+        self._plan: tuple[np.ndarray, list[list[float]]] | None = None
+        self._started = False
+        self._complete = False
+        self._devices = _Devices(self.motors)
+        self._finalizer = weakref.finalize(self, self._devices.close)
+
+    # -- configuration ------------------------------------------------------------------------------
+
+    @staticmethod
+    def _parse_device(config, where: str) -> tuple[str, dict]:
+        if not isinstance(config, dict) or "device" not in config:
+            raise ParameterError(f"gonio: {where}: expected {{device: <device plugin>, params: {{...}}}}, got {config!r}")
+        accepted = {"device", "params"} | ({"axes"} if where != "camera" else set())
+        unknown = sorted(set(config) - accepted)
+        if unknown:
+            raise ParameterError(f"gonio: {where}: unknown key(s) {unknown}; accepted: {sorted(accepted)}")
+        params = config.get("params") or {}
+        if not isinstance(params, dict):
+            raise ParameterError(f"gonio: {where}.params: expected a mapping, got {params!r}")
+        return str(config["device"]), dict(params)
+
+    def _parse_motors(self, motors) -> list[Motor]:
+        if not isinstance(motors, dict) or not motors:
+            raise ParameterError("gonio: motors: expected a mapping of motor name -> {device, params, axes}, e.g. "
+                                 "{sample_pan: {device: ptu, params: {port: sim}, axes: {pan: pan_deg}}}")
+        out, driven = [], {}
+        for name, config in motors.items():
+            device, params = self._parse_device(config, f"motors.{name}")
+            axes = config.get("axes", DEFAULT_AXES.get(device))
+            if not isinstance(axes, dict) or not axes:
+                raise ParameterError(f"gonio: motors.{name}.axes: give the joints this {device!r} drives, "
+                                     f"as {{joint: driver axis}} with joints among {list(JOINTS)}")
+            for joint in axes:
+                if joint not in JOINTS:
+                    raise ParameterError(f"gonio: motors.{name}.axes: unknown joint {joint!r}; joints are {list(JOINTS)}")
+                if joint in driven:
+                    raise ParameterError(f"gonio: joint {joint!r} is driven by two motors ({driven[joint]!r} and {name!r})")
+                driven[joint] = name
+            if len(set(axes.values())) != len(axes):
+                raise ParameterError(f"gonio: motors.{name}.axes: one driver axis drives two joints: {axes}")
+            out.append(Motor(str(name), device, params, {str(k): str(v) for k, v in axes.items()}))
+        return out
+
+    def _parse_geometry(self, geometry) -> RigGeometry:
+        known = {f.name for f in fields(RigGeometry)}
+        unknown = sorted(set(geometry) - known)
+        if unknown:
+            raise ParameterError(f"gonio: geometry: unknown field(s) {unknown}; RigGeometry fields: {sorted(known)}")
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in geometry.items()}
+        return RigGeometry(**values)
+
+    def _check_plan_config(self) -> None:
+        plan = self.plan_config
+        if ("angles_deg" in plan) == ("theta_d_deg" in plan):
+            raise ParameterError("gonio: plan: give either angles_deg (explicit [pan, tilt, roll, light] per pose) or "
+                                 f"theta_d_deg (+ planner settings {sorted(PLANNER_KEYS - {'theta_d_deg'})}), not "
+                                 f"{'both' if plan else 'neither'}")
+        allowed = {"angles_deg"} if "angles_deg" in plan else PLANNER_KEYS
+        unknown = sorted(set(plan) - allowed)
+        if unknown:
+            raise ParameterError(f"gonio: plan: unknown key(s) {unknown}; accepted here: {sorted(allowed)}")
+        exp = self.exposure_config
+        if ("times_s" in exp) == ("diffuse_time_s" in exp or "highlight_time_s" in exp):
+            raise ParameterError("gonio: exposures: give either times_s (one bracket for all poses, or one per pose) or "
+                                 "diffuse_time_s + highlight_time_s (the exposure planner)")
+        allowed = {"times_s"} if "times_s" in exp else EXPOSURE_PLANNER_KEYS
+        unknown = sorted(set(exp) - allowed)
+        if unknown:
+            raise ParameterError(f"gonio: exposures: unknown key(s) {unknown}; accepted here: {sorted(allowed)}")
+
+    # -- plugins ------------------------------------------------------------------------------------
+
+    def bind(self, registry) -> None:
+        """Resolve devices and the folder reader through the run's registry, without touching hardware.
+
+        The runner binds a plugin even when its node turns out to be cached,
+        so drivers (whose constructors open the serial port and talk to the
+        controller) are only *validated* here; they connect in :meth:`describe`.
+        """
+        from sbrdf_core.params import resolve
+
+        self.registry = registry
+        for m in self.motors:
+            spec = registry.get("device", m.device)
+            values, problems = resolve(spec.params, m.values, f"gonio motors.{m.name} (device {m.device!r})")
+            if problems:
+                raise ParameterError("; ".join(msg for _, msg in problems))
+            if values.get("port") == SIM_PORT and m.device not in SIMULATORS:
+                raise ParameterError(f"gonio: motors.{m.name}: port: {SIM_PORT} needs a simulator, and device "
+                                     f"{m.device!r} has none (simulated devices: {sorted(SIMULATORS)})")
+            axes = getattr(registry.load(spec), "axes", ())
+            bad = sorted(a for a in m.axes.values() if a not in axes)
+            if bad:
+                raise ParameterError(f"gonio: motors.{m.name}.axes: {m.device!r} has no axis {bad}; its axes are {list(axes)}")
+            m.values = values
+        device, params = self.camera_config
+        self.camera = registry.create("device", device, params)
+        if hasattr(self.camera, "bind"):
+            self.camera.bind(registry)
+        self.reader = registry.create("capture", "folder", {**self.read_config, "path": str(self.path)})
+
+    def __dask_tokenize__(self):
+        return ("sbrdf-gonio", str(self.path), id(self))
+
+    # -- the plan ---------------------------------------------------------------------------------
+
+    def planned(self) -> tuple[np.ndarray, list[list[float]]]:
+        """``(angles (P, 4) pan/tilt/roll/light degrees, exposure times per pose)`` of the plan."""
+        if self._plan is None:
+            angles = self._plan_angles()
+            self._plan = angles, self._plan_exposures(angles)
+        return self._plan
+
+    def _plan_angles(self) -> np.ndarray:
+        plan = self.plan_config
+        if "angles_deg" in plan:
+            try:
+                angles = np.asarray(plan["angles_deg"], dtype=np.float64)
+            except (TypeError, ValueError):
+                angles = np.zeros((0, 0))
+            if angles.ndim != 2 or angles.shape[1] != 4 or not len(angles) or not np.isfinite(angles).all():
+                raise ParameterError("gonio: plan.angles_deg: expected a non-empty list of finite "
+                                     "[pan, tilt, roll, light] angles (degrees)")
+            return angles
+        from .planning import plan_poses
+
+        kwargs = {k: plan[k] for k in ("source", "step_deg", "max_theta_i_deg", "max_theta_r_deg") if k in plan}
+        try:
+            result = plan_poses(self.geometry, float(plan["theta_d_deg"]), isotropic=bool(plan.get("isotropic", True)),
+                                **kwargs)
+        except ValueError as e:
+            raise ParameterError(f"gonio: plan: {e}") from None
+        if not len(result):
+            raise ParameterError(f"gonio: plan: the planner found no reachable pose for {plan} within the geometry's limits")
+        return np.asarray(result.angles_deg, np.float64)
+
+    def _plan_exposures(self, angles: np.ndarray) -> list[list[float]]:
+        P = len(angles)
+        exp = self.exposure_config
+        if "times_s" in exp:
+            given = exp["times_s"]
+            if isinstance(given, (int, float)):
+                given = [given]
+            if isinstance(given, list) and given and all(isinstance(g, (int, float)) for g in given):
+                times = [[float(g) for g in given]] * P
+            elif isinstance(given, list) and len(given) == P and all(isinstance(g, list) for g in given):
+                times = [[float(x) for x in g] for g in given]
+            else:
+                raise ParameterError(f"gonio: exposures.times_s: expected one bracket (1-3 times) for every pose or "
+                                     f"one bracket per pose ({P} lists), got {given!r}")
+        else:
+            from .planning import plan_exposures
+
+            missing = sorted({"diffuse_time_s", "highlight_time_s"} - set(exp))
+            if missing:
+                raise ParameterError(f"gonio: exposures: the exposure planner needs {missing}")
+            wi, wo = forward(self.geometry, *angles.T).directions()
+            table = plan_exposures(wi, wo, **{k: float(v) for k, v in exp.items()})
+            times = [[float(x) for x in row if np.isfinite(x)] for row in table]
+        for i, bracket in enumerate(times):
+            if not 1 <= len(bracket) <= 3 or not all(math.isfinite(x) and x > 0 for x in bracket):
+                raise ParameterError(f"gonio: exposures: pose {i} has bracket {bracket}; a bracket is 1 to 3 positive times")
+        return times
+
+    # -- capture source protocol ------------------------------------------------------------------
+
+    def describe(self) -> CaptureDescription:
+        """Nominal poses of the plan; connects the rig and checks every angle against the limits first."""
+        angles, times = self.planned()
+        if self.camera is None:
+            from sbrdf_core.registry import default_registry
+
+            self.bind(default_registry())
+        nominal = forward(self.geometry, *angles.T)
+        if not self._started:
+            self._start(angles, times)
+        from sbrdf_capture.capture_folder import parse_manifest
+        from sbrdf_capture.folder import manifest_sections
+
+        header = parse_manifest({**self._header(), "complete": False, "poses": []}, f"{self.path} (gonio header)")
+        mode = self.reader.response_mode
+        linear = mode == "linear" or header.camera.response == "linear"
+        sample, camera, light = manifest_sections(header, linear)
+        return CaptureDescription(
+            height=header.camera.height, width=header.camera.width,
+            light_pos=np.asarray(nominal.light_pos_mm, np.float64),
+            camera_R=np.asarray(nominal.camera_R, np.float64),
+            camera_t=np.asarray(nominal.camera_t, np.float64),
+            exposure_s=np.array([min(b) for b in times], np.float64),
+            sample=sample, camera=camera, light=light,
+        )
+
+    def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Take the poses up to ``index`` that the folder lacks, then read pose ``index`` back from the folder."""
+        angles, times = self.planned()
+        if not self._started:
+            self.describe()
+        if not self._complete:
+            # A response curve recovered from brackets needs every pose, so then the whole scan comes first.
+            last = len(angles) - 1 if self._needs_all_poses() else int(index)
+            for j in range(last + 1):
+                if j not in self.writer.done_ids:
+                    self._take(j, angles, times)
+        if self._complete:
+            return self.reader.read_pose(int(index))
+        return self.reader.read_record(self.writer.poses[int(index)], f"pose {int(index)}")
+
+    # -- session ------------------------------------------------------------------------------------
+
+    def _header(self) -> dict:
+        """The capture.json header this capture writes (and a resumed one must match)."""
+        if not hasattr(self, "_header_cache"):
+            cam = self.camera
+            rig = {"source": "gonio", "geometry": asdict(self.geometry),
+                   "motors": {m.name: {"device": m.device, "axes": m.axes} for m in self.motors},
+                   "plan": self.plan_config, "exposures": self.exposure_config}
+            header = {"format": "sbrdf-capture/1", "sample": cam.sample_info(), "camera": cam.camera_info(),
+                      "light": self.light if self.light is not None else cam.light_info(), "rig": rig}
+            if hasattr(cam, "simulation_info"):
+                header["simulation"] = cam.simulation_info()
+            self._header_cache = _jsonable(header)
+        return self._header_cache
+
+    def _needs_all_poses(self) -> bool:
+        mode = self.reader.response_mode
+        given = self._header()["camera"].get("response")
+        return mode == "recover" or (mode == "auto" and not isinstance(given, dict) and given != "linear")
+
+    def _start(self, angles: np.ndarray, times: list[list[float]]) -> None:
+        from sbrdf_capture.capture_folder import MANIFEST, CaptureFolderError, load_manifest, parse_manifest
+
+        self._started = True
+        manifest = self.path / MANIFEST
+        if manifest.exists():
+            old = load_manifest(self.path)
+            if old.extra.get("rig") != self._header()["rig"]:
+                raise CaptureFolderError(
+                    f"{manifest}: holds a capture taken with a different rig, plan or exposures "
+                    f"({'complete' if old.complete else 'unfinished'}); use another path or remove that folder")
+            if old.complete:
+                expected = parse_manifest({**self._header(), "complete": False, "poses": []}, str(manifest)).header_json()
+                if old.header_json() != expected:
+                    raise CaptureFolderError(f"{manifest}: holds a complete capture with a different sample, camera or "
+                                             "light; use another path or remove that folder")
+                self._check_recorded(old.poses, angles, times, complete=True)
+                self._complete = True
+                self.reader.manifest = None  # read it as the folder plugin would
+                log.info("gonio: %s already holds the complete capture; no motion", self.path)
+                return
+        self._connect()
+        try:
+            self._check_limits(angles)
+            extra = {k: v for k, v in self._header().items() if k not in ("format", "sample", "camera", "light")}
+            from sbrdf_capture.capture_folder import CaptureFolderWriter
+
+            h = self._header()
+            self.writer = CaptureFolderWriter(self.path, h["sample"], h["camera"], h["light"],
+                                              image_format=self.image_format, durable=self.durable, extra=extra)
+            self._check_recorded(list(self.writer.poses.values()), angles, times, complete=False)
+            if not self._needs_all_poses():
+                self.reader.attach(self.writer.manifest)
+            if self.writer.done_ids:
+                log.info("gonio: resuming %s: %d of %d poses already recorded", self.path, len(self.writer.done_ids),
+                         len(angles))
+            self._maybe_finish(len(angles))
+        except BaseException:
+            self._devices.close()
+            raise
+
+    def _check_recorded(self, poses, angles: np.ndarray, times: list[list[float]], complete: bool) -> None:
+        """Poses already in the folder must be the plan's (a planner change must not mix two scans)."""
+        from sbrdf_capture.capture_folder import MANIFEST, CaptureFolderError
+
+        P = len(angles)
+        ids = sorted(p.id for p in poses)
+        if complete and ids != list(range(P)):
+            raise CaptureFolderError(f"{self.path / MANIFEST}: the complete capture there has pose ids {ids[:5]}... "
+                                     f"({len(ids)} poses) but the plan has {P} poses; use another path")
+        for p in poses:
+            target = (p.extra.get("motors") or {}).get("target_deg")
+            ok = (0 <= p.id < P and isinstance(target, dict)
+                  and np.allclose([target.get(j, np.nan) for j in JOINTS], angles[p.id], rtol=0, atol=1e-9)
+                  and np.allclose(sorted(e.time_s for e in p.exposures), sorted(times[p.id])))
+            if not ok:
+                raise CaptureFolderError(f"{self.path / MANIFEST}: recorded pose {p.id} (motors {target}) is not pose "
+                                         f"{p.id} of this plan; the folder belongs to another plan - use another path")
+
+    def _connect(self) -> None:
+        """Start ``port: sim`` simulators and open every driver (no motion: drivers only configure and query)."""
+        from . import sim as sims
+
+        try:
+            for m in self.motors:
+                values = dict(m.values)
+                if values.get("port") == SIM_PORT:
+                    m.simulator = self._simulator(getattr(sims, SIMULATORS[m.device]), m.device, values).start()
+                    values["port"] = m.simulator.port
+                spec = self.registry.get("device", m.device)
+                try:
+                    m.driver = self.registry.load(spec)(**values)
+                except DeviceError as e:
+                    raise GonioCaptureError(f"gonio: motor {m.name!r} ({m.device} on {values['port']}) could not be "
+                                            f"connected: {e}", pose=-1, motor=m.name, cause=e) from e
+        except BaseException:
+            self._devices.close()
+            raise
+
+    @staticmethod
+    def _simulator(cls, device: str, values: dict):
+        if device == "indexer":
+            return cls(axes=int(values.get("axis", 1)), gear_ratio=float(values.get("gear_ratio", 90.0)))
+        return cls()
+
+    def _check_limits(self, angles: np.ndarray) -> None:
+        """Refuse the plan before any motion if a pose leaves a driver's or the geometry's limits."""
+        problems = []
+        geo = self.geometry.limits
+        driven = {}
+        for m in self.motors:
+            for joint, axis in m.axes.items():
+                driven[joint] = (m, axis)
+        for k, joint in enumerate(JOINTS):
+            col = angles[:, k]
+            if joint not in driven:
+                bad = np.flatnonzero(np.abs(col) > 1e-9)
+                if len(bad):
+                    problems.append((bad, f"{joint} = {col[bad[0]]:g} deg but no motor drives {joint} (it stays at 0)",
+                                     None))
+                continue
+            lo, hi = geo[k]
+            bad = np.flatnonzero((col < lo) | (col > hi))
+            if len(bad):
+                problems.append((bad, f"{joint} = {col[bad[0]]:g} deg is outside the rig geometry's "
+                                      f"{joint}_limits_deg [{lo:g}, {hi:g}]", None))
+            m, axis = driven[joint]
+            lo, hi = m.driver.limits[axis]
+            bad = np.flatnonzero((col < lo) | (col > hi))
+            if len(bad):
+                problems.append((bad, f"{joint} = {col[bad[0]]:g} deg is outside motor {m.name!r} ({m.device} on "
+                                      f"{m.driver.port}) {axis} soft limits [{lo:g}, {hi:g}]", m))
+        if problems:
+            first = min(problems, key=lambda p: p[0][0])
+            poses = sorted(set(np.concatenate([p[0] for p in problems]).tolist()))
+            detail = "; ".join(f"pose {p[0][0]}: {p[1]} ({len(p[0])} pose{'s' if len(p[0]) > 1 else ''})"
+                               for p in problems)
+            m = first[2]
+            error = SoftLimitError(
+                f"the gonio plan is refused before any motion: {len(poses)} of {len(angles)} poses leave the limits - "
+                f"{detail}. Narrow the plan (geometry *_limits_deg, or the explicit angles) or widen the motor limits",
+                device=m.device if m else "rig geometry", port=m.driver.port if m else "")
+            self._devices.close()
+            raise error
+
+    def _take(self, index: int, angles: np.ndarray, times: list[list[float]]) -> None:
+        """Move, settle, photograph the bracket at the read-back pose, record the pose."""
+        target = dict(zip(JOINTS, (float(a) for a in angles[index])))
+        read = {j: 0.0 for j in JOINTS}
+        try:
+            for m in self.motors:
+                goal = {axis: target[joint] for joint, axis in m.axes.items()}
+                try:
+                    position = m.driver.move_to(**goal)
+                except DeviceError as e:
+                    done = len(self.writer.done_ids)
+                    raise GonioCaptureError(
+                        f"gonio: pose {index} of {len(angles)} failed: motor {m.name!r} ({m.device} on {e.port or m.port}) "
+                        f"moving to {_fmt_angles(goal)}: {e}. All motors halted; {self.path} holds the {done} completed "
+                        f"poses - fix the cause and re-run the graph to resume from pose {index}",
+                        pose=index, motor=m.name, cause=e) from e
+                for joint, axis in m.axes.items():
+                    read[joint] = float(position[axis])
+            if self.settle_s:
+                time.sleep(self.settle_s)
+            at = forward(self.geometry, *(read[j] for j in JOINTS))
+            light, R, t = at.light_pos_mm[0], at.camera_R[0], at.camera_t[0]
+            images = [(self.camera.photograph(light, R, t, ts, pose_id=index, exposure_index=k), ts)
+                      for k, ts in enumerate(times[index])]
+            extra: dict[str, Any] = {"motors": {"target_deg": target, "read_deg": read}}
+            true = getattr(self.camera, "true_poses", {}).get(index)
+            if true is not None:
+                extra["simulation"] = {"true_light_pos_mm": true[0].tolist(), "true_R": true[1].tolist(),
+                                       "true_t": true[2].tolist()}
+            self.writer.write_pose(index, light, R, t, images, extra=extra)
+        except BaseException:
+            self._devices.close()
+            raise
+        log.debug("gonio: pose %d/%d recorded at %s", index + 1, len(angles), _fmt_angles(read))
+        self._maybe_finish(len(angles))
+
+    def _maybe_finish(self, n_poses: int) -> None:
+        if len(self.writer.done_ids) == n_poses and not self._complete:
+            self.writer.finish()
+            self._devices.close()
+            self._complete = True
+            self.reader.manifest = None  # from now on the finished folder is read exactly as `folder` reads it
+            log.info("gonio: capture complete: %s (%d poses)", self.path, n_poses)
+
+    def close(self) -> None:
+        """Halt the motors, release the ports and stop simulators (also done on completion and on errors)."""
+        self._devices.close()
