@@ -20,7 +20,7 @@ from __future__ import annotations
 import warnings
 import numpy as np
 
-from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, rms_error, usable
+from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable
 
 #: A texel stops when λ exceeds this: no step along the gradient helps any more.
 MAX_DAMPING = 1e10
@@ -79,7 +79,10 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-5, damping=1e-3,
               fixed=(), starts=1, seed=0):
-    """LM fit of ``model`` in its fit form; returns ``(params in model form, converged)``.
+    """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
+
+    ``cost`` is each texel's final sum of squared residuals over its valid
+    samples (all channels), so RMS = sqrt(cost / (channels · samples)).
 
     ``initial``: fit-form parameters to start from (default: the form's
     ``initial_guess``).  ``fixed``: fit-form parameter names held constant.
@@ -108,7 +111,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         xs, cs, conv = levenberg_marquardt(problem, np.clip(form.pack(guess), lo, hi), (lo, hi), **opts)
         better = cs < cost
         x[better], cost[better], converged[better] = xs[better], cs[better], conv[better]
-    return form.to_model(form.unpack(x)), converged
+    return form.to_model(form.unpack(x)), converged, cost
 
 
 class LevenbergMarquardtFitter:
@@ -125,7 +128,10 @@ class LevenbergMarquardtFitter:
 
     def fit(self, model, f_r, valid, wi, wo) -> FitResult:
         f_r, valid = usable(f_r, valid)
-        params, converged = fit_model(model, f_r, valid, wi, wo, iterations=self.iterations, tolerance=self.tolerance,
-                                      damping=self.damping, fixed=self.fixed, starts=self.starts, seed=self.seed)
+        params, converged, cost = fit_model(model, f_r, valid, wi, wo, iterations=self.iterations,
+                                            tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
+                                            starts=self.starts, seed=self.seed)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
-        return FitResult(params, rms_error(model, params, f_r, valid, wi, wo), valid.sum(axis=1), flags)
+        n = valid.sum(axis=1)
+        rms = np.sqrt(cost / np.maximum(f_r.shape[-1] * n, 1))  # the fit's own cost: no second evaluation
+        return FitResult(params, rms, n, flags)

@@ -113,13 +113,13 @@ class McAllisterFitter:
         start = _zero_diffuse(form, data, use, wi, wo)
         if model.lobes >= 2 and self.lobe_2_start == "one-lobe":
             one = LafortuneModel(1, model.anisotropic, model.has_beta, channels=1)
-            first, _ = fit_model(one, data, use, wi, wo, initial=_zero_diffuse(one.fit_form(), data, use, wi, wo), **opts)
+            first, _, _ = fit_model(one, data, use, wi, wo, initial=_zero_diffuse(one.fit_form(), data, use, wi, wo), **opts)
             one_form = one.fit_form().from_model(first)
             for k, v in one_form.items():
                 if k.endswith("_1") or k == "beta":
                     start[k] = v
             start = form.refine_linear(start, data, use, wi, wo)
-        fitted, converged = fit_model(scalar, data, use, wi, wo, initial=start, **opts)
+        fitted, converged, _ = fit_model(scalar, data, use, wi, wo, initial=start, **opts)
         fitted = scalar.canonical(fitted)
         lobes = []
         for j, lobe in enumerate(scalar.lobe_list(fitted), 1):

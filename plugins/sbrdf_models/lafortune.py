@@ -54,8 +54,6 @@ INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
 EXPONENT_BOUNDS = (0.1, 20000.0)
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
-#: About this many samples per texel rank the starting exponents.
-START_SAMPLES = 100
 C_BOUNDS = (-10.0, 10.0)
 #: C_z > 0: the fit form's C_z = 1 gauge needs it, and a lobe with C_z ≤ 0 is
 #: dark at normal incidence (no measured material in the seed needs one).
@@ -291,22 +289,15 @@ class LafortuneFitForm(LafortuneModel):
         if not self.lobes:
             return params
         # The text starts lobe 1 at n = 10; a coarse scan over n (magnitudes solved
-        # for each) starts every texel near its own sharpness and saves LM iterations.
-        # A subsample (every k-th sample, ~START_SAMPLES) is plenty to rank five exponents.
-        sub = slice(None, None, max(1, f_r.shape[1] // START_SAMPLES))
-        f_r, valid, wi, wo = f_r[:, sub], valid[:, sub], wi[:, sub], wo[:, sub]
-        best, best_cost = None, None
-        for log_n in np.log(START_EXPONENTS):
-            trial = {**params, "log_exponent_1": np.full((f_r.shape[0], 1), log_n)}
-            trial.update(solve_magnitudes(self, trial, f_r, valid, wi, wo))
-            cost = np.einsum("tsc,tsc->t", *(2 * [np.where(valid[..., None], self.eval(trial, wi, wo) - f_r, 0.0)]))
-            if best is None:
-                best, best_cost = trial, cost
-            else:
-                take = cost < best_cost
-                best = {k: np.where(take[:, None], trial[k], best[k]) for k in best}
-                best_cost = np.minimum(cost, best_cost)
-        return best
+        # for each, compiled) starts every texel near its own sharpness and saves
+        # LM iterations.
+        from .lafortune_kernels import scan_first_exponent
+
+        x = scan_first_exponent(self.pack(params), np.log(np.asarray(START_EXPONENTS)),
+                                np.ascontiguousarray(wi, dtype=np.float64), np.ascontiguousarray(wo, dtype=np.float64),
+                                np.ascontiguousarray(f_r, dtype=np.float64), valid.astype(np.float64),
+                                self.lobes, int(self.anisotropic), bool(self.has_beta))
+        return self.unpack(x)
 
     def least_squares(self, f_r, weight, wi, wo):
         """The compiled problem (``lafortune_kernels``): same numbers as the NumPy default, far faster."""

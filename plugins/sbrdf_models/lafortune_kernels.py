@@ -100,8 +100,12 @@ def _assemble(x, t, G, H, lobes, aniso, has_beta, C, K, M, A, g):
 
 
 @njit(parallel=True, cache=True)
-def normal_equations(x, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
-    """``(JᵀJ (T,K,K), Jᵀr (T,K), cost (T,))`` over each texel's weighted samples."""
+def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
+    """``(JᵀJ (T,K,K), Jᵀr (T,K), cost (T,))`` for parameter rows ``x`` of texels ``idx``.
+
+    Reading the data through ``idx`` (instead of copying ``wi[idx]`` ...) keeps
+    the per-iteration cost to the texels still active.
+    """
     T, K = x.shape
     S = wi.shape[1]
     C = f.shape[2]
@@ -110,6 +114,7 @@ def normal_equations(x, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
     g = np.zeros((T, K)) if want_jac else np.zeros((T, 0))
     cost = np.zeros(T)
     for t in prange(T):
+        d = idx[t]
         pred = np.empty(C)
         b = np.zeros(m)
         b[0] = 1.0
@@ -128,20 +133,20 @@ def normal_equations(x, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
         cb, sb = (math.cos(x[t, K - 1]), math.sin(x[t, K - 1])) if has_beta else (1.0, 0.0)
         total = 0.0
         for s in range(S):
-            ws = w[t, s]
+            ws = w[d, s]
             if ws == 0.0:
                 continue
-            iz, oz = wi[t, s, 2], wo[t, s, 2]
+            iz, oz = wi[d, s, 2], wo[d, s, 2]
             if iz <= 0.0 or oz <= 0.0:
                 for c in range(C):  # below the horizon the model is 0: residual −f, no gradient
-                    r = -f[t, s, c] * ws
+                    r = -f[d, s, c] * ws
                     total += r * r
                 continue
-            _basis(wi[t, s, 0], wi[t, s, 1], iz, wo[t, s, 0], wo[t, s, 1], oz, lobes, aniso, has_beta, cb, sb,
+            _basis(wi[d, s, 0], wi[d, s, 1], iz, wo[d, s, 0], wo[d, s, 1], oz, lobes, aniso, has_beta, cb, sb,
                    cx, cy, n, rho, rho_d, C, pred, b, want_jac)
             w2 = ws * ws
             for c in range(C):
-                r = (pred[c] - f[t, s, c]) * ws
+                r = (pred[c] - f[d, s, c]) * ws
                 total += r * r
                 if want_jac:
                     for i in range(m):
@@ -160,6 +165,82 @@ def normal_equations(x, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
     return A, g, cost
 
 
+@njit(parallel=True, cache=True)
+def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
+    """Starting point: for each texel, the lobe-1 exponent from ``log_exponents`` with the smallest cost.
+
+    For every candidate the lobe magnitudes are solved by least squares (ρ_d
+    and the other lobes' shapes held at ``x``), clipped to ≥ 0, and the cost
+    follows in closed form from the same sums: one pass over the samples per
+    candidate.  Returns the updated fit-form rows.
+    """
+    T, K = x.shape
+    S = wi.shape[1]
+    C = f.shape[2]
+    out = x.copy()
+    kn1 = C + C + 1 + aniso  # index of log_exponent_1
+    for t in prange(T):
+        best = np.inf
+        cx, cy, n = np.empty(lobes), np.empty(lobes), np.empty(lobes)
+        k = C
+        for j in range(lobes):
+            cx[j] = x[t, k + C]
+            cy[j] = x[t, k + C + 1] if aniso else cx[j]
+            n[j] = math.exp(x[t, k + C + 1 + aniso])
+            k += C + 2 + aniso
+        cb, sb = (math.cos(x[t, K - 1]), math.sin(x[t, K - 1])) if has_beta else (1.0, 0.0)
+        sv = np.empty(lobes)
+        for q in range(log_exponents.size):
+            n[0] = math.exp(log_exponents[q])
+            G = np.zeros((lobes, lobes))
+            h = np.zeros((lobes, C))
+            e0 = 0.0
+            for s in range(S):
+                ws = w[t, s]
+                if ws == 0.0:
+                    continue
+                iz, oz = wi[t, s, 2], wo[t, s, 2]
+                if iz <= 0.0 or oz <= 0.0:
+                    for c in range(C):
+                        e0 += (f[t, s, c] * ws) ** 2
+                    continue
+                ix, iy, ox, oy = wi[t, s, 0], wi[t, s, 1], wo[t, s, 0], wo[t, s, 1]
+                if has_beta:
+                    ix, iy = cb * ix + sb * iy, -sb * ix + cb * iy
+                    ox, oy = cb * ox + sb * oy, -sb * ox + cb * oy
+                for j in range(lobes):
+                    dot = cx[j] * ix * ox + cy[j] * iy * oy + iz * oz
+                    sv[j] = math.exp(min(n[j] * math.log(dot), LOG_CAP)) * ws if dot > 0.0 else 0.0
+                for c in range(C):
+                    r0 = (f[t, s, c] - x[t, c]) * ws
+                    e0 += r0 * r0
+                    for j in range(lobes):
+                        h[j, c] += sv[j] * r0
+                for j in range(lobes):
+                    for i in range(lobes):
+                        G[j, i] += sv[j] * sv[i]
+            for j in range(lobes):
+                G[j, j] += 1e-12
+            rho = np.linalg.solve(G, h)
+            cost = e0
+            for c in range(C):
+                for j in range(lobes):
+                    rho[j, c] = min(max(rho[j, c], 0.0), 1e6) if np.isfinite(rho[j, c]) else 0.0
+                for j in range(lobes):
+                    cost -= 2.0 * rho[j, c] * h[j, c]
+                    for i in range(lobes):
+                        cost += rho[j, c] * G[j, i] * rho[i, c]
+            if cost < best:
+                best = cost
+                out[t, kn1] = log_exponents[q]
+                k = C
+                for j in range(lobes):
+                    for c in range(C):
+                        out[t, k + c] = rho[j, c]
+                    k += C + 2 + aniso
+    return out
+
+
 class CompiledLafortuneProblem:
     """:class:`~sbrdf_core.least_squares.LeastSquaresProblem` for the Lafortune fit form, compiled."""
 
@@ -176,10 +257,8 @@ class CompiledLafortuneProblem:
         return np.einsum("tsc,tsc->t", wf, wf)
 
     def _call(self, x, idx, want_jac):
-        whole = len(idx) == self.f_r.shape[0]
-        pick = (lambda a: a) if whole else (lambda a: a[idx])  # noqa: E731
-        return normal_equations(np.ascontiguousarray(x, dtype=np.float64), pick(self.wi), pick(self.wo),
-                                pick(self.f_r), pick(self.weight), *self.flags, want_jac)
+        return normal_equations(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(idx, dtype=np.int64),
+                                self.wi, self.wo, self.f_r, self.weight, *self.flags, want_jac)
 
     def cost(self, x, idx):
         return self._call(x, idx, False)[2]

@@ -105,7 +105,7 @@ def test_random_starts_reach_the_same_solution(lafortune):
                 guess["log_exponent_2"] = rng.uniform(np.log(1), np.log(50), (30, 1))
             guess["rho_d"] = np.full((30, 3), 0.05)
             guess = form.refine_linear(guess, f, valid, wi, wo)
-            fitted, _ = fit_model(model, f, valid, wi, wo, initial=guess, iterations=300, tolerance=1e-12)
+            fitted, _, _ = fit_model(model, f, valid, wi, wo, initial=guess, iterations=300, tolerance=1e-12)
             hits.append(relative_error(model, fitted, truth) < 1e-2)
         assert np.mean(hits) > 0.9, (lobes, np.mean(hits))
 
