@@ -35,11 +35,12 @@ def directions_to(points: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, 
     distance and the +z direction rather than NaN.
     """
     d = targets[(None,) * (points.ndim - 1)] - points[..., None, :]
-    r = np.linalg.norm(d, axis=-1)
-    safe = np.where(r > 0, r, 1.0)
-    omega = d / safe[..., None]
-    omega = np.where((r > 0)[..., None], omega, np.array([0.0, 0.0, 1.0]))
-    return omega, r
+    r = np.sqrt(np.einsum("...i,...i->...", d, d))  # several times faster than np.linalg.norm here
+    zero = r == 0
+    d /= np.where(zero, 1.0, r)[..., None]
+    if zero.any():
+        d[zero] = (0.0, 0.0, 1.0)
+    return d, r
 
 
 def tile_directions(texels_uv: tuple[int, int], size_mm: tuple[float, float], rows: tuple[int, int], cols: tuple[int, int],
