@@ -4,6 +4,7 @@
     sbrdf validate GRAPH
     sbrdf plugins [--category fitter]
     sbrdf info STORE_OR_ARTIFACT
+    sbrdf plot SAMPLED_REFLECTANCE [--params PARAM_MAPS] [--out DIR] [--texel U V] [--wi θ φ] [--wo θ φ]
 
 ``-p MODULE`` registers an extra plugin module (pytest's ``-p``), and
 ``-p no:NAME`` disables an installed plugin by entry-point name.
@@ -118,6 +119,16 @@ def cmd_info(args) -> int:
     return 0
 
 
+def cmd_plot(args) -> int:
+    from .plot import plot_views
+
+    paths = plot_views(args.samples, args.out, params_url=args.params, texel=tuple(args.texel) if args.texel else None,
+                       wi=tuple(args.wi), wo=tuple(args.wo), tol_deg=args.tol, registry=_registry(args))
+    for p in paths:
+        print(p)
+    return 0
+
+
 def fit_table(fits) -> str:
     """Seed 000 Table 3.4's fitting columns (time, average and maximum RMS) for ParamMaps artifacts.
 
@@ -167,6 +178,17 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("info", help="describe an artifact or every artifact in a store")
     p.add_argument("store")
     p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("plot", help="the SBRDF viewer: spatial image, exitant hemisphere, incidence-plane plot (PNG)")
+    p.add_argument("samples", help="a SampledReflectance artifact (e.g. runs/x/reflectance)")
+    p.add_argument("--params", default=None, help="a ParamMaps artifact whose fitted model is drawn over the samples")
+    p.add_argument("--out", default="plots", help="folder for spatial.png, hemisphere.png, incidence-plane.png")
+    p.add_argument("--texel", type=int, nargs=2, metavar=("U", "V"), help="texel of views (b) and (c); default the centre")
+    p.add_argument("--wi", type=float, nargs=2, default=[30.0, 0.0], metavar=("THETA", "PHI"), help="incident direction, deg")
+    p.add_argument("--wo", type=float, nargs=2, default=[30.0, 180.0], metavar=("THETA", "PHI"),
+                   help="exitant direction of the spatial image, deg")
+    p.add_argument("--tol", type=float, default=15.0, help="angular tolerance of views (b) and (c), deg")
+    p.set_defaults(func=cmd_plot)
 
     args = ap.parse_args(argv)
     try:

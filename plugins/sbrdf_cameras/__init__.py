@@ -48,6 +48,8 @@ VIRTUAL_CAMERA_PARAMS = (
     Param("blur_px", "float", 0.7, "blur effect: Gaussian lens-blur σ", bounds=(0.0, 50.0), unit="px"),
     Param("seed", "int", 0, "seed of every random effect (per pose and exposure)"),
     Param("row_chunk", "int", 128, "image rows rendered at once (bounds memory)", bounds=(1, 16384)),
+    Param("carrier_supersample", "int", 4, "rays per pixel side over the printed carrier (pixel-area integration of the "
+          "fiducials; 1 = point sampling)", bounds=(1, 16)),
 )
 
 

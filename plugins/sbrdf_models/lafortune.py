@@ -291,9 +291,9 @@ class LafortuneFitForm(LafortuneModel):
         # The text starts lobe 1 at n = 10; a coarse scan over n (magnitudes solved
         # for each, compiled) starts every texel near its own sharpness and saves
         # LM iterations.
-        from .lafortune_kernels import scan_first_exponent
+        from .lafortune_kernels import run_parallel, scan_first_exponent
 
-        x = scan_first_exponent(self.pack(params), np.log(np.asarray(START_EXPONENTS)),
+        x = run_parallel(scan_first_exponent, self.pack(params), np.log(np.asarray(START_EXPONENTS)),
                                 np.ascontiguousarray(wi, dtype=np.float64), np.ascontiguousarray(wo, dtype=np.float64),
                                 np.ascontiguousarray(f_r, dtype=np.float64), valid.astype(np.float64),
                                 self.lobes, int(self.anisotropic), bool(self.has_beta))

@@ -14,11 +14,29 @@ a fraction of the work per sample.  Packed layout (as :meth:`LafortuneFitForm.pa
 from __future__ import annotations
 
 import math
+import threading
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 LOG_CAP = 60.0
+
+
+@njit(cache=True, inline="always")
+def _unpack(x, t, lobes, aniso, has_beta, C, rho, cx, cy, n):
+    """Texel t's packed fit-form row -> local per-lobe arrays; returns (cos β, sin β)."""
+    K = x.shape[1]
+    k = C
+    for j in range(lobes):
+        rho[j] = x[t, k:k + C]
+        cx[j] = x[t, k + C]
+        cy[j] = x[t, k + C + 1] if aniso else cx[j]
+        n[j] = math.exp(x[t, k + C + 1 + aniso])
+        k += C + 2 + aniso
+    if has_beta:
+        return math.cos(x[t, K - 1]), math.sin(x[t, K - 1])
+    return 1.0, 0.0
 
 
 @njit(cache=True, inline="always")
@@ -123,14 +141,7 @@ def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
         rho_d = x[t, :C].copy()
         rho = np.empty((max(lobes, 1), C))
         cx, cy, n = np.empty(max(lobes, 1)), np.empty(max(lobes, 1)), np.empty(max(lobes, 1))
-        k = C
-        for j in range(lobes):
-            rho[j] = x[t, k:k + C]
-            cx[j] = x[t, k + C]
-            cy[j] = x[t, k + C + 1] if aniso else cx[j]
-            n[j] = math.exp(x[t, k + C + 1 + aniso])
-            k += C + 2 + aniso
-        cb, sb = (math.cos(x[t, K - 1]), math.sin(x[t, K - 1])) if has_beta else (1.0, 0.0)
+        cb, sb = _unpack(x, t, lobes, aniso, has_beta, C, rho, cx, cy, n)
         total = 0.0
         for s in range(S):
             ws = w[d, s]
@@ -181,14 +192,8 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     kn1 = C + C + 1 + aniso  # index of log_exponent_1
     for t in prange(T):
         best = np.inf
-        cx, cy, n = np.empty(lobes), np.empty(lobes), np.empty(lobes)
-        k = C
-        for j in range(lobes):
-            cx[j] = x[t, k + C]
-            cy[j] = x[t, k + C + 1] if aniso else cx[j]
-            n[j] = math.exp(x[t, k + C + 1 + aniso])
-            k += C + 2 + aniso
-        cb, sb = (math.cos(x[t, K - 1]), math.sin(x[t, K - 1])) if has_beta else (1.0, 0.0)
+        cx, cy, n, rho0 = np.empty(lobes), np.empty(lobes), np.empty(lobes), np.empty((lobes, C))
+        cb, sb = _unpack(x, t, lobes, aniso, has_beta, C, rho0, cx, cy, n)
         sv = np.empty(lobes)
         for q in range(log_exponents.size):
             n[0] = math.exp(log_exponents[q])
@@ -241,6 +246,26 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     return out
 
 
+_LAYER_LOCK = threading.Lock()
+_serialise: bool | None = None  # unknown until the first parallel call has picked a threading layer
+
+
+def run_parallel(kernel, *args):
+    """Call a ``parallel=True`` kernel safely from dask's worker threads.
+
+    Numba's OpenMP and TBB layers accept concurrent calls; its fallback
+    ``workqueue`` layer (no libgomp or tbb on the machine) aborts the process
+    when two threads enter it at once, so calls are serialised there.
+    """
+    global _serialise
+    if _serialise is False:
+        return kernel(*args)
+    with _LAYER_LOCK:
+        out = kernel(*args)
+        _serialise = numba.threading_layer() == "workqueue"
+        return out
+
+
 class CompiledLafortuneProblem:
     """:class:`~sbrdf_core.least_squares.LeastSquaresProblem` for the Lafortune fit form, compiled."""
 
@@ -257,8 +282,9 @@ class CompiledLafortuneProblem:
         return np.einsum("tsc,tsc->t", wf, wf)
 
     def _call(self, x, idx, want_jac):
-        return normal_equations(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(idx, dtype=np.int64),
-                                self.wi, self.wo, self.f_r, self.weight, *self.flags, want_jac)
+        return run_parallel(normal_equations, np.ascontiguousarray(x, dtype=np.float64),
+                            np.ascontiguousarray(idx, dtype=np.int64), self.wi, self.wo, self.f_r, self.weight,
+                            *self.flags, want_jac)
 
     def cost(self, x, idx):
         return self._call(x, idx, False)[2]

@@ -27,9 +27,16 @@ from .base import BuildContext, NodeKind, Output, Port
 
 
 def reflectance_block(radiance: np.ndarray, valid: np.ndarray, light_pos: np.ndarray, camera_pos: np.ndarray,
-                      texels: tuple[int, int], size_mm: tuple[float, float], intensity: float, min_cos: float) -> np.ndarray:
-    """Kernel over a pose block: ``radiance (p, V, U, 3)`` -> ``(p, V, U, 4)`` = f_r RGB + validity."""
-    p = texel_centres(texels, size_mm)  # (V, U, 3)
+                      texels: tuple[int, int], size_mm: tuple[float, float], intensity: float, min_cos: float,
+                      rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None) -> np.ndarray:
+    """Kernel over a pose block: ``radiance (p, V', U', 3)`` -> ``(p, V', U', 4)`` = f_r RGB + validity.
+
+    ``rows``/``cols`` (``(start, stop)``) place a block that holds only part of
+    the texel grid (the default is the whole grid).
+    """
+    v0, v1 = rows if rows is not None else (0, None)
+    u0, u1 = cols if cols is not None else (0, None)
+    p = texel_centres(texels, size_mm, v0, v1, u0, u1)  # (V', U', 3)
     wi, r = directions_to(p, light_pos)  # (V, U, p, 3), (V, U, p)
     wo, _ = directions_to(p, camera_pos)
     cos_i = np.moveaxis(wi[..., 2], -1, 0)  # (p, V, U)
@@ -46,8 +53,9 @@ def reflectance_block(radiance: np.ndarray, valid: np.ndarray, light_pos: np.nda
 
 
 def _block(radiance, valid, light_pos, camera_pos, texels, size_mm, intensity, min_cos, block_info=None):
-    lo, hi = block_info[0]["array-location"][0]
-    return reflectance_block(radiance, valid[..., 0], light_pos[lo:hi], camera_pos[lo:hi], texels, size_mm, intensity, min_cos)
+    (lo, hi), rows, cols = block_info[0]["array-location"][:3]
+    return reflectance_block(radiance, valid[..., 0], light_pos[lo:hi], camera_pos[lo:hi], texels, size_mm, intensity, min_cos,
+                             rows, cols)
 
 
 class Reflectance(NodeKind):

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..artifacts import CaptureSet, RegisteredStack
+from ..store import texel_tile
 from .base import BuildContext, NodeKind, Output, Port
 
 
@@ -64,6 +65,10 @@ class Register(NodeKind):
             name=f"register-resample-{ctx.node}",
         )
         small = lambda a: da.from_array(np.asarray(a))  # noqa: E731
+        # Stored one pose per chunk but split into the texel tiles Reflectance stores
+        # all poses of: its pose-major -> tile-major transpose then reads whole chunks,
+        # each exactly once, and holds one tile of all poses at a time (never the scan).
+        t = texel_tile((V, U), len(ids), channels=4)
         return Output(
             arrays={
                 "radiance": packed[..., :3],
@@ -74,6 +79,7 @@ class Register(NodeKind):
                 "homography": small(np.asarray(reg.homography, float)),
                 "rms_mm": small(np.asarray(reg.rms_mm, float)),
             },
+            chunks={"radiance": (1, t, t, 3), "valid": (1, t, t)},
             attrs={
                 "texels": [int(U), int(V)],
                 "size_mm": [float(s) for s in reg.size_mm],

@@ -1,0 +1,204 @@
+"""Register (aruco) + Reflectance on a virtual capture of about N GB, local threads and a LocalCluster.
+
+What it measures
+----------------
+The ``virtual-camera`` photographs a Lambertian sample of constant albedo
+``a = 0.5`` (100 mm, on the ArUco carrier; 640x480 pixels, focal 900 px, lens
+distortion; effects falloff, blur, motor_error) from ``P`` poses
+(``orbit_poses``), written by ``capture_to_folder`` as float32 EXR.  ``P`` is
+chosen so the CaptureSet holds ``--gb`` GB of float32 RGB (P·H·W·3·4 bytes).
+The graph capture (``folder``) -> register (``aruco``, 256x256 texels) ->
+reflectance runs once to build the CaptureSet (not timed), then Register +
+Reflectance are timed (the runner's node wall times) on
+
+``threads``  dask's threaded scheduler in this process, and
+``cluster``  a ``distributed.LocalCluster`` (2 worker processes, 1 thread each).
+
+``mb_per_s`` = CaptureSet MB / (Register + Reflectance seconds), threads run.
+``peak_rss_mb`` = peak resident set of this process plus its children (cluster
+workers), sampled every 50 ms during the timed nodes; the larger of the two runs.
+With ``--quick`` the threaded run is also done at half the size, so the two
+peaks show whether memory grows with the scan (it must not: the stack is
+stored in texel tiles and the transpose streams one tile of all poses at a time).
+``registration_rms_texel`` = mean homography RMS (mm) / texel size (mm).
+``lambert_err`` = max over every valid texel and pose of |f_r·π/a − 1|.
+
+How to run
+----------
+::
+
+    python benchmarks/reflectance.py [--gb 2] [--quick] [--tmpdir DIR] [--no-cluster]
+
+Full size is 2 GB (``--gb 8`` also works: disk ≈ 2x the GB for the folder plus
+the stores); ``--quick`` is 0.1 GB (about a minute on 2 cores).  Progress to
+stderr; the last line of stdout is::
+
+    reflectance: gb=<float> mb_per_s=<float> peak_rss_mb=<float> registration_rms_texel=<float> lambert_err=<float>
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+W, H, FOCAL, TEXELS, ALBEDO = 640, 480, 900.0, 256, 0.5
+
+
+class PeakRSS:
+    """Samples this process's RSS plus its children's every 50 ms (psutil)."""
+
+    def __init__(self):
+        import psutil
+
+        self.proc = psutil.Process()
+        self.peak = 0
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+
+    def _sample(self) -> int:
+        total = self.proc.memory_info().rss
+        for c in self.proc.children(recursive=True):
+            try:
+                total += c.memory_info().rss
+            except Exception:
+                pass
+        return total
+
+    def _run(self):
+        while not self._stop.is_set():
+            self.peak = max(self.peak, self._sample())
+            time.sleep(0.05)
+
+    def __enter__(self):
+        self._t.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._t.join()
+        self.peak = max(self.peak, self._sample())
+
+
+def make_capture(folder: Path, gb: float) -> tuple[int, float]:
+    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_core.registry import default_registry
+
+    P = max(4, int(round(gb * 1e9 / (W * H * 3 * 4))))
+    reg = default_registry()
+    cam = reg.create("device", "virtual-camera", {"width": W, "height": H, "focal_px": FOCAL, "texels": [64, 64],
+                                                  "model": "lambert", "intensity": 1.5e5, "motor_light_mm": 0.0,
+                                                  "effects": ["falloff", "blur", "motor_error"]})
+    cam.bind(reg)
+    cam._maps = {"rho_d": np.full((64, 64, 3), ALBEDO / np.pi)}  # constant albedo (lambert's rho_d is in sr^-1)
+    light, R, t = orbit_poses(P, max_camera_theta_deg=45.0)
+    t0 = time.perf_counter()
+    capture_to_folder(cam, folder, light, R, t, [[1.0]] * P, durable=False, image_format="png",
+                      progress=lambda d, n: print(f"\rcapture {d}/{n}", end="", file=sys.stderr) if d % 20 == 0 else None)
+    print(f"\rvirtual capture: {P} poses in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return P, cam.intensity
+
+
+def graph(path: Path, folder: Path, store: Path) -> Path:
+    path.write_text(f"""name: reflectance-bench
+store: {store}
+nodes:
+  capture: {{kind: Capture, plugin: folder, params: {{path: '{folder}'}}}}
+  register: {{kind: Register, plugin: aruco, in: {{capture: capture}}, params: {{texels: [{TEXELS}, {TEXELS}], edge_margin_px: 2.0}}}}
+  reflectance: {{kind: Reflectance, in: {{stack: register}}}}
+""")
+    return path
+
+
+def timed_run(g: Path, scheduler) -> tuple[float, float]:
+    from sbrdf_core.graph import load_graph
+    from sbrdf_core.runner import Runner
+
+    runner = Runner(scheduler=scheduler)
+    gr = load_graph(str(g), runner.registry)
+    runner.run(gr, only=["capture"])  # untimed: the CaptureSet
+    with PeakRSS() as mem:
+        rep = runner.run(gr, only=["reflectance"])
+    seconds = rep["register"].wall_s + rep["reflectance"].wall_s
+    return seconds, mem.peak / 2**20
+
+
+def summarise(store: Path) -> tuple[float, float, float]:
+    from sbrdf_core.store import open_artifact
+
+    st = open_artifact(str(store / "register"))
+    rms_texel = float(st.attrs["registration"]["rms_texel_mean"])
+    fr = open_artifact(str(store / "reflectance"))
+    f, valid = fr.zarr_array("f_r"), fr.zarr_array("valid")
+    worst, n_valid, n = 0.0, 0, 0
+    tv = f.chunks[0]
+    for v0 in range(0, f.shape[0], tv):  # tile rows at a time: never the whole array
+        fv, vv = f[v0:v0 + tv], valid[v0:v0 + tv]
+        if vv.any():
+            worst = max(worst, float(np.abs(fv[vv] * np.pi / ALBEDO - 1).max()))
+        n_valid += int(vv.sum())
+        n += vv.size
+    return rms_texel, worst, n_valid / max(n, 1)
+
+
+def one(tmp: Path, gb: float, cluster: bool) -> dict:
+    folder = tmp / f"scan-{gb:g}"
+    P, _ = make_capture(folder, gb)
+    mb = P * W * H * 3 * 4 / 1e6
+    out = {"P": P, "mb": mb}
+    store = tmp / f"store-{gb:g}-threads"
+    secs, peak = timed_run(graph(tmp / "g.yaml", folder, store), "threads")
+    out.update(threads_s=secs, threads_peak=peak)
+    out["rms_texel"], out["lambert_err"], out["valid"] = summarise(store)
+    print(f"threads: {P} poses, {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS {peak:.0f} MB; "
+          f"registration RMS {out['rms_texel']:.3f} texel; lambert max err {out['lambert_err']:.4f}; "
+          f"valid {out['valid']:.2f}", flush=True)
+    shutil.rmtree(store, ignore_errors=True)
+    if cluster:
+        from distributed import Client, LocalCluster
+
+        store = tmp / f"store-{gb:g}-cluster"
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
+                Client(lc) as client:
+            secs, peak = timed_run(graph(tmp / "gc.yaml", folder, store), client)
+        rms, err, _ = summarise(store)
+        out.update(cluster_s=secs, cluster_peak=peak, cluster_err=err)
+        print(f"cluster (2 workers): {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS (all processes) "
+              f"{peak:.0f} MB; lambert max err {err:.4f}", flush=True)
+        shutil.rmtree(store, ignore_errors=True)
+    shutil.rmtree(folder, ignore_errors=True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--gb", type=float, default=None, help="CaptureSet size in GB (default 2; --quick 0.1)")
+    ap.add_argument("--quick", action="store_true", help="0.1 GB, plus a half-size threads run for the memory check")
+    ap.add_argument("--tmpdir", default=None)
+    ap.add_argument("--no-cluster", action="store_true", help="skip the LocalCluster run")
+    args = ap.parse_args()
+    gb = args.gb if args.gb is not None else (0.1 if args.quick else 2.0)
+    tmp = Path(tempfile.mkdtemp(prefix="sbrdf-reflectance-", dir=args.tmpdir))
+    try:
+        if args.quick:
+            half = one(tmp, gb / 2, cluster=False)
+            print(f"memory check: peak RSS {half['threads_peak']:.0f} MB at {gb / 2:g} GB", flush=True)
+        r = one(tmp, gb, cluster=not args.no_cluster)
+        peak = max(r["threads_peak"], r.get("cluster_peak", 0.0))
+        err = max(r["lambert_err"], r.get("cluster_err", 0.0))
+        print(f"reflectance: gb={r['mb'] / 1e3:.3f} mb_per_s={r['mb'] / r['threads_s']:.1f} peak_rss_mb={peak:.0f} "
+              f"registration_rms_texel={r['rms_texel']:.3f} lambert_err={err:.4f}")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    main()

@@ -1,0 +1,512 @@
+"""aruco: fiducial registration of real (or virtual) photographs onto the texel grid.
+
+McAllister's scanner (seed 000 §3.6, notes §4) knows each pose only as well as
+its motors do: up to ≈3 mm on the sample, a dozen texels.  Printed fiducials
+around the sample measure where the sample really is in every photograph, so
+this plugin, per pose:
+
+1. **detects** the carrier's ArUco markers (``cv2.aruco``, dictionary from the
+   capture's ``sample.fiducials``) on a tone-mapped 8-bit copy of the linear
+   HDR image, with sub-pixel corner refinement;
+2. **undistorts** the corners (``cv2.undistortPoints`` with the capture's K and
+   dist) so a plane maps to the ideal image by a homography;
+3. fits the **homography** sample-plane mm → undistorted pixel by least squares
+   (``cv2.findHomography``, method 0, as the text does) and reports its **RMS
+   residual in mm** on the sample plane (corners mapped back through H⁻¹);
+4. recovers the **camera pose** from the same corners (``cv2.solvePnP``, IPPE
+   for planar targets, then Levenberg–Marquardt refinement), so the camera
+   centre used for ω_r is measured, not the nominal motor one; the nominal
+   light is carried into the measured sample frame with the same pose error
+   (the rig's camera and light are fixed in the lab, the sample is what moves);
+5. **rejects** poses it cannot trust, with the reason listed in the
+   RegisteredStack's ``rejected`` attribute: nominal camera behind the sample,
+   an unusable (black, non-finite) image, too few markers, RMS over
+   ``max_rms_mm``, a measured camera behind the sample, a measured pose too far
+   from the nominal one.
+
+Resampling (:meth:`ArucoRegistration.resample`, one pose per dask task) maps
+every texel through H and the lens distortion into the photograph and samples
+it with bicubic interpolation (``cv2.remap``).  When a texel covers more than a
+pixel (the camera is close, or the sample is seen at a grazing angle so the
+footprint is long in one direction) plain point sampling would alias, so the
+footprint — the columns of the mapping's local Jacobian, in pixels — chooses a
+pyramid level (``cv2.pyrDown``, a Gaussian pre-blur per octave) and a number
+of bicubic sub-samples along u and v inside the texel (an anisotropic box
+filter in texture space) that are averaged.  When the camera sees fewer pixels
+than texels, bicubic interpolation alone is right; the stack then simply
+holds less detail than its grid suggests, and the pixels-per-texel figures are
+recorded so users can see it.
+
+A texel sample is invalid (``valid`` false) when any pixel its filter touches
+is saturated or under-exposed (the capture's ``valid`` mask), lies outside the
+image, or lies outside the sample area (on the carrier, a marker, or beyond the
+carrier edge), or when the texel faces away from the camera.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sbrdf_core.errors import SbrdfError
+from sbrdf_core.geometry import camera_centre, texel_centres
+from sbrdf_core.nodes.register import Registration
+
+#: Pixels of bicubic support on each side of a sample point (the kernel is 4×4).
+BICUBIC_RADIUS = 2
+
+
+@dataclass
+class PoseFit:
+    """What detection measured for one pose (``ok`` false: ``reason`` says why)."""
+
+    pose: int
+    ok: bool
+    reason: str = ""
+    markers: int = 0
+    H: np.ndarray | None = None  # sample mm -> undistorted pixel
+    rms_mm: float = float("nan")
+    reproj_px: float = float("nan")
+    R: np.ndarray | None = None  # measured world-to-camera rotation
+    t: np.ndarray | None = None
+    corners_px: np.ndarray | None = None  # (n, 2) detected (distorted) corners
+    corners_mm: np.ndarray | None = None  # (n, 2) their printed positions
+
+
+# ---------------------------------------------------------------------------
+# camera model helpers (vectorised, no per-pixel Python)
+# ---------------------------------------------------------------------------
+
+
+def distort(xn: np.ndarray, yn: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised ideal coordinates -> distorted pixel coordinates (OpenCV's 5-term model)."""
+    k = np.zeros(5)
+    k[: min(5, len(dist))] = np.asarray(dist, float)[:5]
+    k1, k2, p1, p2, k3 = k
+    r2 = xn * xn + yn * yn
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+    yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
+    return K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]
+
+
+def plane_to_pixels(xy_mm: np.ndarray, H: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Sample-plane points ``(..., 2)`` mm -> distorted pixel coordinates ``(..., 2)`` through H then the lens.
+
+    Points behind the camera (homogeneous w ≤ 0) come back as NaN.
+    """
+    x, y = xy_mm[..., 0], xy_mm[..., 1]
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w
+        v = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+    u = np.where(w > 0, u, np.nan)
+    v = np.where(w > 0, v, np.nan)
+    Ki = np.linalg.inv(K)
+    xn = Ki[0, 0] * u + Ki[0, 1] * v + Ki[0, 2]
+    yn = Ki[1, 1] * v + Ki[1, 2]
+    pu, pv = distort(xn, yn, K, dist)
+    return np.stack([pu, pv], axis=-1)
+
+
+def tone_map(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Linear HDR RGB -> 8-bit grey for the marker detector (robust white point, gamma 1/2.2)."""
+    grey = image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
+    grey = np.where(np.isfinite(grey), grey, 0.0)
+    sel = grey[valid] if valid.any() else grey.ravel()
+    white = float(np.percentile(sel, 99.0)) if sel.size else 0.0
+    if not white > 0:
+        return np.zeros(grey.shape, np.uint8)
+    # Saturated pixels keep their clipped value, which is bright: fine for black/white markers.
+    return (255.0 * np.clip(grey / white, 0.0, 1.0) ** (1 / 2.2) + 0.5).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------------
+# the plugin
+# ---------------------------------------------------------------------------
+
+
+class ArucoRegistration:
+    """Register plugin ``aruco`` (see the module docstring)."""
+
+    def __init__(self, texels, max_rms_mm, min_markers, max_pose_deg, pose_from, correct_light, refine_win_px,
+                 max_subsamples, edge_margin_px, corner_refine="edges"):
+        self.texels = (int(texels[0]), int(texels[1]))
+        self.max_rms_mm = float(max_rms_mm)
+        self.min_markers = int(min_markers)
+        self.max_pose_deg = max_pose_deg
+        self.pose_from = pose_from
+        self.correct_light = bool(correct_light)
+        self.refine_win_px = int(refine_win_px)
+        self.max_subsamples = int(max_subsamples)
+        self.edge_margin_px = float(edge_margin_px)
+        self.corner_refine = corner_refine
+        self._plans: dict[int, dict] = {}
+
+    # -- measuring (once per capture, before any resampling) --------------------------------------
+
+    def register(self, capture) -> Registration:
+        import dask
+
+        cam = capture.attrs.get("camera", {})
+        sample = capture.attrs.get("sample", {})
+        if cam.get("model", "pinhole") != "pinhole":
+            raise SbrdfError(f"capture {capture.url}: aruco registration needs photographs (camera model 'pinhole'), "
+                             f"got {cam.get('model')!r}; use texel-aligned for texel-aligned simulations")
+        fid = sample.get("fiducials")
+        if not fid or not fid.get("markers"):
+            raise SbrdfError(f"capture {capture.url}: sample.fiducials lists no markers; aruco registration needs "
+                             "the printed marker corners (capture.json sample.fiducials)")
+        K = np.asarray(cam["K"], float)
+        dist = np.asarray(cam.get("dist", [0] * 5), float)
+        light_nom = capture.read("light_pos")
+        R_nom, t_nom = capture.read("camera_R"), capture.read("camera_t")
+        P = light_nom.shape[0]
+        images = capture.array("images").to_delayed().ravel()
+        valids = capture.array("valid").to_delayed().ravel()
+        if len(images) != P:  # pose-major storage is the CaptureSet contract; be explicit if someone broke it
+            images = [capture.array("images")[i:i + 1].to_delayed().ravel()[0] for i in range(P)]
+            valids = [capture.array("valid")[i:i + 1].to_delayed().ravel()[0] for i in range(P)]
+        tasks = [dask.delayed(_measure_pose, pure=True)(i, images[i], valids[i], fid, K, dist, R_nom[i], t_nom[i],
+                                                        self._detector_settings())
+                 for i in range(P)]
+        fits: list[PoseFit] = list(dask.compute(*tasks))
+        return self._assemble(capture, fits, K, dist, light_nom, R_nom, t_nom)
+
+    def _detector_settings(self) -> dict:
+        return {"min_markers": self.min_markers, "refine_win_px": self.refine_win_px,
+                "edge_refine": self.corner_refine == "edges"}
+
+    def _assemble(self, capture, fits, K, dist, light_nom, R_nom, t_nom) -> Registration:
+        sx, sy = (float(s) for s in capture.attrs["sample"]["size_mm"])
+        U, V = self.texels
+        texel_mm = min(sx / U, sy / V)
+        accepted, rejected = [], []
+        for f in fits:
+            reason = f.reason
+            if f.ok and f.rms_mm > self.max_rms_mm:
+                reason = (f"registration RMS {f.rms_mm:.3f} mm > max_rms_mm {self.max_rms_mm:g} mm "
+                          f"({f.markers} markers)")
+            if f.ok and not reason and self.max_pose_deg is not None:
+                dR = R_nom[f.pose].T @ f.R
+                ang = math.degrees(math.acos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))
+                if ang > self.max_pose_deg:
+                    reason = (f"fiducial pose differs from the nominal one by {ang:.1f} deg > max_pose_deg "
+                              f"{self.max_pose_deg:g} (wrong manifest pose or misidentified markers?)")
+            if reason:
+                rejected.append({"pose": int(f.pose), "reason": reason,
+                                 **({"rms_mm": round(float(f.rms_mm), 4)} if np.isfinite(f.rms_mm) else {})})
+            else:
+                accepted.append(f)
+        if not accepted:
+            lines = "; ".join(f"pose {r['pose']}: {r['reason']}" for r in rejected[:8])
+            raise SbrdfError(f"capture {capture.url}: aruco registration rejected all {len(fits)} poses ({lines}"
+                             f"{' ...' if len(rejected) > 8 else ''})")
+        ids = np.array([f.pose for f in accepted], np.int64)
+        if self.pose_from == "fiducials":
+            R = np.stack([f.R for f in accepted])
+            t = np.stack([f.t for f in accepted])
+        else:
+            R, t = R_nom[ids], t_nom[ids]
+        cam_pos = camera_centre(R, t)
+        light = light_nom[ids].copy()
+        if self.pose_from == "fiducials" and self.correct_light:
+            # [R_m|t_m] = [R_n|t_n]·[dR|dt]: the sample frame moved by (dR, dt) in the lab, the light did not.
+            for k, i in enumerate(ids):
+                dR = R_nom[i].T @ R[k]
+                dt = R_nom[i].T @ (t[k] - t_nom[i])
+                light[k] = dR.T @ (light_nom[i] - dt)
+        rms = np.array([f.rms_mm for f in accepted])
+        reg = Registration(
+            texels=(U, V), size_mm=(sx, sy), pose_ids=ids, light_pos=light, camera_pos=cam_pos,
+            homography=np.stack([f.H for f in accepted]), rms_mm=rms, rejected=rejected,
+            extra={
+                "method": "aruco",
+                "K": K.tolist(), "dist": dist.tolist(), "image_size": [int(capture.attrs["camera"]["width"]),
+                                                                         int(capture.attrs["camera"]["height"])],
+                "homography_maps": "sample-plane mm -> undistorted pixel (apply K, dist to reach the photograph)",
+                "pose_from": self.pose_from,
+                "texel_mm": texel_mm,
+                "rms_mm_mean": float(rms.mean()),
+                "rms_mm_max": float(rms.max()),
+                "rms_texel_mean": float(rms.mean() / texel_mm),
+                "reprojection_px_mean": float(np.mean([f.reproj_px for f in accepted])),
+                "markers_mean": float(np.mean([f.markers for f in accepted])),
+                "camera_R": R.tolist(), "camera_t": t.tolist(),
+                "accepted": int(len(ids)), "rejected": int(len(rejected)),
+            },
+        )
+        # Footprint statistics per pose (cheap: V×U points), so users see the effective resolution.
+        plans = [self._plan(reg, k) for k in range(len(ids))]
+        reg.extra["pixels_per_texel"] = [round(float(p["px_per_texel"]), 4) for p in plans]
+        reg.extra["pyramid_level"] = [int(p["level"]) for p in plans]
+        reg.extra["subsamples"] = [[int(p["n_u"]), int(p["n_v"])] for p in plans]
+        return reg
+
+    # -- resampling (one pose per task) ---------------------------------------------------------
+
+    def _plan(self, reg: Registration, k: int) -> dict:
+        """Per-pose filter choice from the mapping's Jacobian: pyramid level and sub-samples per texel axis."""
+        if k in self._plans:
+            return self._plans[k]
+        K = np.asarray(reg.extra["K"], float)
+        dist = np.asarray(reg.extra["dist"], float)
+        U, V = reg.texels
+        centres = texel_centres((U, V), reg.size_mm)[..., :2]
+        pix = plane_to_pixels(centres, reg.homography[k], K, dist)  # (V, U, 2)
+        # Jacobian columns: pixels moved per texel step along u (axis 1) and v (axis 0).
+        du = np.linalg.norm(np.gradient(pix, axis=1), axis=-1) if U > 1 else np.ones((V, U))
+        dv = np.linalg.norm(np.gradient(pix, axis=0), axis=-1) if V > 1 else np.ones((V, U))
+        fin = np.isfinite(du) & np.isfinite(dv)
+        lu = float(np.max(du[fin])) if fin.any() else 1.0
+        lv = float(np.max(dv[fin])) if fin.any() else 1.0
+        # Octaves of pre-blur so that no texel edge spans more than max_subsamples pixels.
+        level = max(0, math.ceil(math.log2(max(lu, lv, 1e-9) / self.max_subsamples))) if max(lu, lv) > self.max_subsamples else 0
+        scale = 2.0 ** -level
+        plan = {
+            "level": level,
+            "n_u": max(1, math.ceil(lu * scale - 1e-6)),
+            "n_v": max(1, math.ceil(lv * scale - 1e-6)),
+            "px_per_texel": float(np.sqrt(np.median(du[fin] * dv[fin]))) if fin.any() else 0.0,
+        }
+        self._plans[k] = plan
+        return plan
+
+    def resample(self, image: np.ndarray, valid: np.ndarray, pose: int, registration: Registration):
+        """One pose -> ``(V, U, 3)`` texel radiance and ``(V, U)`` validity (see the module docstring)."""
+        import cv2
+
+        reg = registration
+        k = int(np.flatnonzero(reg.pose_ids == pose)[0])
+        plan = self._plan(reg, k)
+        K = np.asarray(reg.extra["K"], float)
+        dist = np.asarray(reg.extra["dist"], float)
+        H = reg.homography[k]
+        U, V = reg.texels
+        sx, sy = reg.size_mm
+        h, w = image.shape[:2]
+        image = np.where(np.isfinite(image), image, 0.0).astype(np.float32)
+
+        # "bad" pixels: invalid in the capture, or not on the sample (carrier, markers, beyond its edge).
+        bad = (~np.asarray(valid, bool)).astype(np.uint8)
+        bad |= self._outside_sample_mask(H, K, dist, (sx, sy), (h, w))
+        r = BICUBIC_RADIUS + int(math.ceil(self.edge_margin_px))
+        bad = cv2.dilate(bad, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        bad_f = bad.astype(np.float32)
+
+        level = plan["level"]
+        for _ in range(level):
+            image = cv2.pyrDown(image)
+            bad_f = cv2.pyrDown(bad_f)
+        scale = 2.0 ** -level
+
+        n_u, n_v = plan["n_u"], plan["n_v"]
+        acc = np.zeros((V, U, 3), np.float32)
+        badness = np.zeros((V, U), np.float32)
+        for a in range(n_u):
+            for b in range(n_v):
+                ou = (a + 0.5) / n_u - 0.5
+                ov = (b + 0.5) / n_v - 0.5
+                xy = _texel_points((U, V), (sx, sy), ou, ov)
+                pix = plane_to_pixels(xy, H, K, dist)
+                # Pixel centres at level l: x_l = (x + 0.5)·2^-l − 0.5.
+                mx = ((pix[..., 0] + 0.5) * scale - 0.5).astype(np.float32)
+                my = ((pix[..., 1] + 0.5) * scale - 0.5).astype(np.float32)
+                mx = np.where(np.isfinite(mx), mx, -1e6).astype(np.float32)
+                my = np.where(np.isfinite(my), my, -1e6).astype(np.float32)
+                acc += cv2.remap(image, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                badness = np.maximum(badness, cv2.remap(bad_f, mx, my, cv2.INTER_LINEAR,
+                                                        borderMode=cv2.BORDER_CONSTANT, borderValue=1.0))
+                # Outside the (possibly reduced) image, with room for the bicubic kernel.
+                hl, wl = image.shape[:2]
+                out = (mx < 1) | (my < 1) | (mx > wl - 2) | (my > hl - 2)
+                badness[out] = 1.0
+        texels = acc / np.float32(n_u * n_v)
+        ok = badness <= 1e-6
+        # Texels facing away from the measured camera are not seen at all.
+        if reg.camera_pos[k][2] <= 0:
+            ok[:] = False
+        ok &= np.isfinite(texels).all(axis=-1)
+        texels = np.where(ok[..., None], texels, 0.0).astype(np.float32)
+        return texels, ok
+
+    @staticmethod
+    def _outside_sample_mask(H, K, dist, size_mm, shape) -> np.ndarray:
+        """``(h, w)`` uint8, 1 outside the sample rectangle as seen in the photograph (distortion included)."""
+        import cv2
+
+        sx, sy = size_mm
+        n = 64
+        s = np.linspace(0.0, 1.0, n, endpoint=False)
+        edge = np.concatenate([
+            np.stack([-sx / 2 + s * sx, np.full(n, -sy / 2)], -1),
+            np.stack([np.full(n, sx / 2), -sy / 2 + s * sy], -1),
+            np.stack([sx / 2 - s * sx, np.full(n, sy / 2)], -1),
+            np.stack([np.full(n, -sx / 2), sy / 2 - s * sy], -1),
+        ])
+        pix = plane_to_pixels(edge, H, K, dist)
+        mask = np.ones(shape, np.uint8)
+        if not np.isfinite(pix).all():
+            return mask  # the sample reaches behind the camera: nothing is trusted
+        pts = np.round(pix * 16).astype(np.int32).reshape(-1, 1, 2)  # 4 fractional bits
+        cv2.fillPoly(mask, [pts], 0, lineType=cv2.LINE_8, shift=4)
+        return mask
+
+
+def _texel_points(texels_uv, size_mm, ou: float, ov: float) -> np.ndarray:
+    """Sample-plane points (mm) at offset (ou, ov) texels from every texel centre, ``(V, U, 2)``."""
+    U, V = texels_uv
+    sx, sy = size_mm
+    x = (np.arange(U) + 0.5 + ou) / U * sx - sx / 2
+    y = (np.arange(V) + 0.5 + ov) / V * sy - sy / 2
+    out = np.empty((V, U, 2))
+    out[..., 0] = x[None, :]
+    out[..., 1] = y[:, None]
+    return out
+
+
+def refine_corners_by_edges(grey: np.ndarray, corners: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray | None:
+    """Sub-pixel marker corners from the marker's four outer edges, in *undistorted* pixels ``(4, 2)``.
+
+    ``cv2.aruco``'s corner refiners look at a small window around each corner,
+    where the L-shaped edge carries little information (≈0.4–0.8 px errors on
+    the virtual camera's markers).  Every point of the black border's outer
+    edge does: along each side the 50 % crossing between the border's black
+    and the quiet zone's white is found on profiles across the edge in the
+    *linear* image (where a symmetric blur or the pixel's area integration
+    keeps the crossing on the edge), undistorted, and a straight line is fitted
+    through them; corners are the intersections of adjacent lines.  Returns
+    ``None`` when an edge has too little contrast or too few crossings (the
+    caller then keeps the detector's corners).
+    """
+    import cv2
+
+    c = np.asarray(corners, np.float64).reshape(4, 2)
+    centre = c.mean(axis=0)
+    side_px = np.mean([np.linalg.norm(c[(k + 1) % 4] - c[k]) for k in range(4)])
+    module = side_px / 6.0
+    reach = float(np.clip(0.7 * module, 1.0, 4.0))
+    offs = np.arange(-reach, reach + 1e-9, 0.2)
+    lines = []
+    for k in range(4):
+        a, b = c[k], c[(k + 1) % 4]
+        d = (b - a) / np.linalg.norm(b - a)
+        n = np.array([-d[1], d[0]])
+        if np.dot(n, (a + b) / 2 - centre) < 0:
+            n = -n  # outward: black border inside, white quiet zone outside
+        m = max(8, int(np.linalg.norm(b - a)))
+        tt = np.linspace(0.15, 0.85, m)
+        base = a[None] + tt[:, None] * (b - a)[None]  # (m, 2)
+        pts = base[:, None, :] + offs[None, :, None] * n[None, None, :]  # (m, S, 2)
+        prof = cv2.remap(grey, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        q = max(1, len(offs) // 5)
+        black = np.median(prof[:, :q], axis=1)
+        white = np.median(prof[:, -q:], axis=1)
+        good = white > black * 1.5 + 1e-12
+        half = (black + white) / 2
+        above = prof >= half[:, None]
+        # First index from the inside where the profile reaches half level.
+        idx = np.argmax(above, axis=1)
+        good &= (idx > 0) & above.any(axis=1)
+        idx = np.clip(idx, 1, len(offs) - 1)
+        rows = np.arange(m)
+        p0, p1 = prof[rows, idx - 1], prof[rows, idx]
+        frac = np.where(p1 > p0, (half - p0) / np.where(p1 > p0, p1 - p0, 1.0), 0.5)
+        s_edge = offs[idx - 1] + np.clip(frac, 0, 1) * (offs[1] - offs[0])
+        if good.sum() < 4:
+            return None
+        edge = base[good] + s_edge[good, None] * n[None]
+        und = cv2.undistortPoints(edge.reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
+        mu = und.mean(axis=0)
+        _, _, vt = np.linalg.svd(und - mu)
+        lines.append((mu, vt[0]))  # point, direction
+    out = np.empty((4, 2))
+    for k in range(4):
+        (p, u), (q_, v) = lines[(k - 1) % 4], lines[k]
+        A = np.array([u, -v]).T
+        if abs(np.linalg.det(A)) < 1e-9:
+            return None
+        s_, _ = np.linalg.solve(A, q_ - p)
+        out[k] = p + s_ * u
+    return out
+
+
+# ---------------------------------------------------------------------------
+# detection + measurement of one pose (a dask task)
+# ---------------------------------------------------------------------------
+
+
+def _measure_pose(pose: int, image, valid, fiducials: dict, K, dist, R_nom, t_nom, settings) -> PoseFit:
+    import cv2
+
+    image = np.asarray(image)[0]
+    valid = np.asarray(valid)[0]
+    centre_nom = camera_centre(R_nom, t_nom)
+    if centre_nom[2] <= 0:
+        return PoseFit(pose, False, f"nominal camera is behind the sample plane (camera z = {centre_nom[2]:.1f} mm in "
+                                    "the manifest); the sample cannot be seen from there")
+    finite = np.isfinite(image)
+    if not finite.any() or not np.nanmax(np.where(finite, image, np.nan)) > 0:
+        return PoseFit(pose, False, "image is black (no positive radiance): too few markers (found 0)")
+    grey = tone_map(image, valid)
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, fiducials["dictionary"]))
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    params.cornerRefinementWinSize = settings["refine_win_px"]
+    params.cornerRefinementMaxIterations = 50
+    params.cornerRefinementMinAccuracy = 0.005
+    if hasattr(params, "relativeCornerRefinmentWinSize"):
+        params.relativeCornerRefinmentWinSize = settings.get("relative_win", 0.3)
+    params.cornerRefinementMethod = settings.get("method", cv2.aruco.CORNER_REFINE_SUBPIX)
+    corners, ids, _ = cv2.aruco.ArucoDetector(dictionary, params).detectMarkers(grey)
+    printed = {int(m["id"]): np.asarray(m["corners_mm"], float) for m in fiducials["markers"]}
+    found = [] if ids is None else [(int(i), c.reshape(4, 2)) for i, c in zip(ids.ravel(), corners)]
+    found = [(i, c) for i, c in found if i in printed]
+    seen = {}
+    for i, c in found:  # a marker id seen twice is ambiguous: drop both
+        seen[i] = None if i in seen else c
+    found = [(i, c) for i, c in seen.items() if c is not None]
+    n_need = settings["min_markers"]
+    if len(found) < n_need:
+        return PoseFit(pose, False, f"too few markers: found {len(found)} of {len(printed)}, need min_markers "
+                                    f"{n_need} (occluded, blurred, too dark or out of view)", markers=len(found))
+    obj = np.concatenate([printed[i] for i, _ in found])
+    if settings.get("edge_refine", True):
+        lin = np.where(np.isfinite(image), image, 0.0).astype(np.float32) @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+        und_list = []
+        for _, c in found:
+            r = refine_corners_by_edges(lin, c, K, dist)
+            und_list.append(r if r is not None else cv2.undistortPoints(c.reshape(-1, 1, 2).astype(np.float64), K, dist,
+                                                                         P=K).reshape(-1, 2))
+        und = np.concatenate(und_list)
+    else:
+        und = cv2.undistortPoints(np.concatenate([c for _, c in found]).reshape(-1, 1, 2).astype(np.float64), K, dist,
+                                  P=K).reshape(-1, 2)
+    # Back to the photograph (distorted pixels) for solvePnP and the reported corners.
+    nrm = cv2.undistortPoints(und.reshape(-1, 1, 2), K, np.zeros(5)).reshape(-1, 2)
+    img_pts = np.stack(distort(nrm[:, 0], nrm[:, 1], K, dist), axis=-1)
+    H, _ = cv2.findHomography(obj, und, 0)
+    if H is None or not np.isfinite(H).all():
+        return PoseFit(pose, False, f"homography fit failed on {len(found)} markers (degenerate corner layout)",
+                       markers=len(found))
+    H = H / H[2, 2]
+    back = cv2.perspectiveTransform(und.reshape(-1, 1, 2), np.linalg.inv(H)).reshape(-1, 2)
+    rms_mm = float(np.sqrt(np.mean(np.sum((back - obj) ** 2, axis=-1))))
+    obj3 = np.concatenate([obj, np.zeros((len(obj), 1))], axis=1)
+    ok, rvec, tvec = cv2.solvePnP(obj3, img_pts, K, dist, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        return PoseFit(pose, False, "solvePnP found no camera pose for the detected markers", markers=len(found))
+    rvec, tvec = cv2.solvePnPRefineLM(obj3, img_pts, K, dist, rvec, tvec)
+    R, _ = cv2.Rodrigues(rvec)
+    t = tvec.ravel()
+    proj, _ = cv2.projectPoints(obj3, rvec, tvec, K, dist)
+    reproj = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img_pts) ** 2, axis=-1))))
+    fit = PoseFit(pose, True, markers=len(found), H=H, rms_mm=rms_mm, reproj_px=reproj, R=R, t=t,
+                  corners_px=img_pts, corners_mm=obj)
+    c = camera_centre(R, t)
+    if c[2] <= 0:
+        fit.ok, fit.reason = False, f"fiducials put the camera behind the sample plane (z = {c[2]:.1f} mm)"
+    return fit
