@@ -6,7 +6,7 @@ from sbrdf_core.plugin import PluginSpec, hookimpl
 _MODEL = Param("model", "str", "lambert", "BRDF model to fit", extra={"plugin_category": "brdf-model"})
 _MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"})
 _ITERATIONS = Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000))
-_TOLERANCE = Param("tolerance", "float", 1e-5, "stop a texel when its cost improves by less than this fraction",
+_TOLERANCE = Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
                    bounds=(0.0, 1.0))
 _STARTS = Param("starts", "int", 1, "starting points per texel: 1 = the model's initial guess, more adds random starts "
                 "and keeps the best (for 3+ lobes)", bounds=(1, 64))

@@ -29,7 +29,7 @@ EXACT = 1e-24
 
 
 def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *, iterations: int = 50,
-                        tolerance: float = 1e-5, damping: float = 1e-3, free: np.ndarray | None = None):
+                        tolerance: float = 1e-4, damping: float = 1e-3, free: np.ndarray | None = None):
     """Minimise each texel's cost in ``problem`` (a :class:`~sbrdf_core.least_squares.LeastSquaresProblem`).
 
     Each trial point is evaluated with its normal equations in one call: an
@@ -77,7 +77,7 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
     return x, cost, ~active
 
 
-def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-5, damping=1e-3,
+def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
               fixed=(), starts=1, seed=0):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
