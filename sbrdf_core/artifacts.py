@@ -105,12 +105,14 @@ TextureSet = ArtifactKind(
     "TextureSet",
     1,
     "Quantized textures plus the scale/bias that decode them. Attributes: quantizer, model, model_config, "
-    "bytes_per_texel, added_rms (sr^-1).",
+    "bytes_per_texel, added_rms (sr^-1), added_rms_own (sr^-1, with samples), files (written beside the arrays).",
     (
         ArraySpec("textures/*", "VUK", "uint8|uint16|float16|float32", "encoded texture"),
         ArraySpec("scale/*", "K", "float64", "decode: value = texel * scale + bias"),
         ArraySpec("bias/*", "K", "float64", "decode offset"),
-        ArraySpec("error", "VU", "float32", "RMS error quantizing added per texel, sr^-1"),
+        ArraySpec("error", "VU", "float32", "RMS error quantizing added per texel over a uniform direction set, sr^-1"),
+        ArraySpec("error_own", "VU", "float32", "RMS error quantizing added per texel over the texel's own valid "
+                  "sampled directions, sr^-1 (when the Quantize node was given its samples)", required=False),
     ),
 )
 

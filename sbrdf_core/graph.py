@@ -278,7 +278,7 @@ class _Validator:
                         path + (port_name,),
                     )
             for port in node.kind.inputs:
-                if port.name not in node.inputs:
+                if port.name not in node.inputs and not port.optional:
                     self.problem(f"node {node.name!r}: missing input {port.name!r} ({port.kind_names}) in 'in:'", ("nodes", node.name))
 
     def _topological(self, nodes: dict[str, Node]) -> list[str]:

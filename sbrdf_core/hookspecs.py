@@ -164,9 +164,12 @@ def sbrdf_fitters() -> list[PluginSpec]:
 def sbrdf_quantizers() -> list[PluginSpec]:
     """Texture layouts: the ``plugin:`` of a ``Quantize`` node.
 
-    :returns: specs whose ``impl`` provides ``encode(param_maps, model)``
-        returning lazy texture arrays and ``decode(texture_set, model)``
-        returning lazy parameter maps; see :mod:`sbrdf_core.nodes.quantize`.
+    :returns: specs whose ``impl`` provides ``encode(params, model)``
+        returning an ``Encoded`` (lazy textures, scale, bias) and
+        ``decode(textures, scale, bias, model)`` returning parameter maps,
+        optionally ``write_files`` and ``bytes_per_texel``; see
+        :mod:`sbrdf_core.nodes.quantize`.  ``decode`` must not depend on the
+        plugin's parameters (a TextureSet is decoded by a default instance).
 
     Call semantics: collected; called once when the registry loads.
     """

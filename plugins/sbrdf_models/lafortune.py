@@ -52,6 +52,8 @@ PARAMS = (
 #: McAllister's initial guesses (§4.3.1): lobe 1 forward (mirror), lobe 2 back-scatter.
 INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
 EXPONENT_BOUNDS = (0.1, 20000.0)
+#: A lobe whose ρ_s (every channel) is below this, sr⁻¹, contributes nothing measurable: see to_model.
+DEAD_LOBE = 1e-9
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
 C_BOUNDS = (-10.0, 10.0)
@@ -263,10 +265,23 @@ class LafortuneFitForm(LafortuneModel):
         return self
 
     def to_model(self, params):
+        """Back to the model's form; a *dead* lobe (ρ_s below DEAD_LOBE) is reset to a harmless shape.
+
+        A fit may park an unneeded lobe at ρ_s ≈ 1e-29 with |C| = 10 and
+        n = 20000: invisible at the sampled directions, but at grazing angles
+        |C·ω|^n explodes, and any quantization of ρ_s turns it into 1e18 sr⁻¹.
+        """
         out = {k: np.asarray(v) for k, v in params.items() if not k.startswith("log_exponent_")}
         for j in range(1, self.lobes + 1):
             out[f"c_z_{j}"] = np.ones_like(np.asarray(params[f"log_exponent_{j}"]))
             out[f"exponent_{j}"] = np.exp(np.asarray(params[f"log_exponent_{j}"]))
+            dead = np.asarray(params[f"rho_s_{j}"]).max(axis=1, keepdims=True) < DEAD_LOBE
+            if dead.any():
+                c0 = INITIAL_LOBES[min(j, 2) - 1][0]
+                out[f"rho_s_{j}"] = np.where(dead, 0.0, out[f"rho_s_{j}"])
+                out[f"exponent_{j}"] = np.where(dead, 1.0, out[f"exponent_{j}"])
+                for nm in (("c_x", "c_y") if self.anisotropic else ("c_xy",)):
+                    out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"])
         if self.has_beta:
             out["beta"] = np.mod(np.asarray(params["beta"]) + np.pi / 2, np.pi) - np.pi / 2
         if self.mirror:

@@ -90,3 +90,40 @@ def read_png(url: str) -> np.ndarray:
     if img.ndim == 3:
         img = img[..., [2, 1, 0, 3][: img.shape[-1]]]
     return img
+
+
+def write_exr_channels(url: str, channels: dict, attributes: dict | None = None) -> None:
+    """Write named ``(H, W)`` channels (float32 -> FLOAT, float16 -> HALF) as one ZIP-compressed EXR.
+
+    For multi-channel material files (``rho_d.R``, ``rho_s_1.G``, ``exponent_1``): every
+    parameter of a texel in one file, each channel at its own precision.  ``attributes``
+    are string header attributes (a JSON description, the colour space).
+    """
+    import OpenEXR
+
+    chans = {}
+    for name, a in channels.items():
+        a = np.asarray(a)
+        if a.ndim != 2:
+            raise ValueError(f"{url}: channel {name!r} must be (H, W), got {a.shape}")
+        if a.dtype not in (np.float16, np.float32):
+            a = a.astype(np.float32)
+        chans[name] = np.ascontiguousarray(a)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header.update({k: str(v) for k, v in (attributes or {}).items()})
+    _put(url, lambda p: OpenEXR.File(header, chans).write(p))
+
+
+def read_exr_channels(url: str) -> tuple[dict, dict]:
+    """Every channel of an EXR as ``name -> (H, W)`` array at its stored precision, plus the header."""
+    import OpenEXR
+
+    fs, path = fsspec.core.url_to_fs(url)
+    with tempfile.TemporaryDirectory() as d:
+        local = path if _is_local(fs) else os.path.join(d, "x.exr")
+        if local != path:
+            fs.get_file(path, local)
+        with OpenEXR.File(local, separate_channels=True) as f:
+            chans = {k: np.array(c.pixels) for k, c in f.channels().items()}
+            header = dict(f.header())
+    return chans, header

@@ -29,6 +29,8 @@ class Port:
     name: str
     kinds: tuple[ArtifactKind, ...]
     doc: str = ""
+    #: An optional input may be left out of ``in:``; the node then works without it.
+    optional: bool = False
 
     def accepts(self, kind: ArtifactKind) -> bool:
         return any(k.kind == kind.kind for k in self.kinds)
