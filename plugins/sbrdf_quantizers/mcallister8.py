@@ -6,7 +6,8 @@ Textures, all 8 bits per channel:
 texture         channels  content
 ==============  ========  ===========================================================
 ``rho_d``       RGBA      ρ_d in [0, 1] sr⁻¹ (clamped above: "the uncommon case"), alpha =
-                          transparency (opaque here; 0 kills the fragment)
+                          transparency from the ``alpha`` mask PNG (opaque without one;
+                          0 kills the fragment)
 ``rho_s_<j>``   RGB       lobe j ρ_s after the per-texel rescale, [0, 1]
 ``lobe_<j>``    RGBA      C_x, C_y, C_z biased by −128 over −1..1 (7 bits) or −2..2
                           (``c_range: 2``, 6 bits, keeps |C| > 1), and n' in alpha
@@ -113,12 +114,27 @@ def _encode_block(packed, model, strategy, c_range, names):
 class McAllister8Quantizer:
     """The hardware layout; ``decode`` is exact given the codes (the only loss is in ``encode``)."""
 
-    def __init__(self, rescale: str = "max", c_range: float = 1.0):
+    def __init__(self, rescale: str = "max", c_range: float = 1.0, alpha: str | None = None):
         if rescale not in RESCALES:
             raise ValueError(f"mcallister8: unknown rescale {rescale!r}; known: {', '.join(RESCALES)}")
         if c_range not in (1.0, 2.0):
             raise ValueError(f"mcallister8: c_range must be 1 (−1..1) or 2 (−2..2), not {c_range}")
-        self.rescale, self.c_range = rescale, float(c_range)
+        self.rescale, self.c_range, self.alpha = rescale, float(c_range), alpha
+
+    def alpha_codes(self, shape) -> np.ndarray | None:
+        """The transparency mask (``alpha``: an 8- or 16-bit PNG of the texel grid; 0 = cut away), as uint8."""
+        if self.alpha is None:
+            return None
+        from sbrdf_core.io.images import read_png
+
+        img = np.asarray(read_png(self.alpha))
+        if img.ndim == 3:
+            img = img[..., -1] if img.shape[-1] in (2, 4) else img[..., 0]
+        if img.shape != tuple(shape):
+            raise ValueError(f"mcallister8: alpha mask {self.alpha} is {img.shape[1]}x{img.shape[0]} pixels, "
+                             f"the texel grid is {shape[1]}x{shape[0]}")
+        scale = 255.0 / (65535.0 if img.dtype == np.uint16 else 255.0)
+        return np.clip(np.round(img * scale), 0, 255).astype(np.uint8)
 
     @staticmethod
     def _check(model):
@@ -140,6 +156,10 @@ class McAllister8Quantizer:
                               chunks=packed.chunks[:2] + ((K,),))
         enc = Encoded()
         enc.textures["rho_d"] = codes[..., :4]
+        mask = self.alpha_codes(packed.shape[:2])
+        if mask is not None:  # ρ_d's alpha is transparency: alpha-kill in the shader
+            enc.textures["rho_d"] = da.concatenate(
+                [codes[..., :3], da.from_array(mask[..., None], chunks=codes.chunks[:2] + ((1,),))], axis=-1)
         enc.scale["rho_d"], enc.bias["rho_d"] = np.full(4, 1 / 255), np.zeros(4)
         for j in range(1, L + 1):
             k = 4 + 7 * (j - 1)

@@ -156,3 +156,22 @@ def test_highlight_tails_band_in_8_bit_and_not_in_float(registry):
     runs = np.diff(np.flatnonzero(np.diff(ht) != 0))
     assert runs.max() >= 5
     assert np.abs(np.diff(ht)).max() > 3 * np.abs(np.diff(f[tail])).max()  # and jumps between them
+
+
+def test_alpha_mask_is_stored_and_kills_texels(registry, tmp_path):
+    """ρ_d's alpha is transparency (§6.5): read from a mask PNG, alpha 0 gives f_r = 0 in the hardware shader."""
+    from sbrdf_core.io.images import write_png
+
+    model = lafortune(registry)
+    params = {k: np.repeat(v, 4, axis=0) for k, v in CHERRY.items()}
+    mask = np.array([[255, 0, 255, 128]], np.uint8)
+    write_png(str(tmp_path / "alpha.png"), mask)
+    tex, scale, bias, dec = encode_decode(McAllister8Quantizer(alpha=str(tmp_path / "alpha.png")), model, params)
+    np.testing.assert_array_equal(tex["rho_d"][:, 3], mask[0])
+    assert set(dec) == set(params)  # alpha is a texture property, not a BRDF parameter
+    wi, wo = mirror_pairs([30.0] * 4)
+    wi, wo = np.repeat(wi, 4, axis=0), np.repeat(wo, 4, axis=0)
+    f = hardware_shade({k: t for k, t in tex.items()}, scale, bias, wi, wo)
+    assert (f[1] == 0).all() and (f[0] > 0).all()
+    with pytest.raises(ValueError, match="alpha mask .* 4x1 pixels, the texel grid is 5x1"):
+        McAllister8Quantizer(alpha=str(tmp_path / "alpha.png")).alpha_codes((1, 5))
