@@ -39,7 +39,7 @@ def test_invalid_graph_exits_2_with_every_problem(write_graph, tmp_path):
 def test_plugins_lists_parameters_and_disabling(tmp_path):
     out = sbrdf("plugins")
     assert "synthetic" in out.stdout and "texels (list[int][2], default [64, 64]" in out.stdout
-    out = sbrdf("-p", "no:fitters", "plugins", "--category", "fitter")
+    out = sbrdf("-p", "no:fitters", "-p", "no:tables", "plugins", "--category", "fitter")
     assert "lm" not in out.stdout.split("fitter:")[1]
 
 
