@@ -144,6 +144,31 @@ class VirtualCamera:
                 self._maps[p.name] = np.stack([lo + (hi - lo) * pattern(n_u, n_v, k, c) for c in range(p.channels)], axis=-1)
         return self._maps
 
+    def reference_f_r(self, texels_uv: tuple[int, int], light_pos: np.ndarray, camera_pos: np.ndarray,
+                      rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None) -> np.ndarray:
+        """The true material's f_r at a texel grid's centres: ``(V', U', P, 3)``, SampledReflectance's layout.
+
+        Each texel centre of the ``texels_uv`` grid over the sample takes the parameters of
+        the material texel it lies in, and the model is evaluated at its own ω_i, ω_r
+        towards ``light_pos``, ``camera_pos`` (``(P, 3)``, mm, sample frame) — what a
+        Reflectance sample of that texel should hold.  ``rows``/``cols`` (``(start, stop)``)
+        select part of the grid.
+        """
+        from sbrdf_core.geometry import texel_centres, tile_directions
+
+        n_u, n_v = texels_uv
+        rows = rows if rows is not None else (0, n_v)
+        cols = cols if cols is not None else (0, n_u)
+        maps = self.ground_truth()
+        sx, sy = self.size_mm
+        m_u, m_v = self.texels
+        p = texel_centres(texels_uv, self.size_mm, rows[0], rows[1], cols[0], cols[1]).reshape(-1, 3)
+        u = np.clip(((p[:, 0] + sx / 2) / sx * m_u).astype(np.int64), 0, m_u - 1)
+        v = np.clip(((p[:, 1] + sy / 2) / sy * m_v).astype(np.int64), 0, m_v - 1)
+        wi, _, wo = tile_directions(texels_uv, self.size_mm, rows, cols, light_pos, camera_pos)
+        f = self.model.eval({name: m[v, u] for name, m in maps.items()}, wi, wo)
+        return f.reshape(rows[1] - rows[0], cols[1] - cols[0], *f.shape[1:])
+
     # -- manifest sections --------------------------------------------------------------
 
     def camera_info(self) -> dict:
