@@ -37,10 +37,6 @@ class LeastSquaresProblem:
             pred = m.eval(m.unpack(x), self.wi[idx], self.wo[idx])
         return ((pred - self.f_r[idx]) * self.weight[idx]).reshape(len(idx), -1)
 
-    def cost(self, x: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        r = self.residual(x, idx)
-        return np.einsum("ti,ti->t", r, r)
-
     def normal_equations(self, x: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(JᵀJ (n, K, K), Jᵀr (n, K), cost (n,))`` at ``x``."""
         m = self.model

@@ -205,7 +205,8 @@ class LafortuneModel(BRDFModel):
 
     def initial_guess(self, f_r, valid, wi, wo):
         """McAllister's start: ρ_d = 10th percentile, lobes at the text's C and n, ρ_s by linear least squares."""
-        return self.fit_form().to_model(self.fit_form().initial_guess(f_r, valid, wi, wo))
+        form = self.fit_form()
+        return form.to_model(form.initial_guess(f_r, valid, wi, wo))
 
     def canonical(self, params):
         """Rescale to C_z = 1 (ρ_s = peak at normal incidence); lobes in C_x + C_y order; β to [−π/4, π/4)

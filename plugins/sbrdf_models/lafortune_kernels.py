@@ -40,8 +40,8 @@ def _unpack(x, t, lobes, aniso, has_beta, C, rho, cx, cy, n):
 
 
 @njit(cache=True, inline="always")
-def _basis(ix, iy, iz, ox, oy, oz, lobes, aniso, has_beta, cb, sb, cx, cy, n, rho, rho_d, C, pred, b, want_jac):
-    """Prediction (C,) for one sample and, if ``want_jac``, its channel-free basis ``b``.
+def _basis(ix, iy, iz, ox, oy, oz, lobes, aniso, has_beta, cb, sb, cx, cy, n, rho, rho_d, C, pred, b):
+    """Prediction (C,) for one sample and its channel-free basis ``b``.
 
     ``b = [1, s_1..s_L, per lobe: ∂s/∂c (1 or 2), ∂s/∂log n (, ∂s/∂β)]``: every
     Jacobian entry is one of these times 1 or a lobe's ρ_s,c (see ``_assemble``).
@@ -66,17 +66,16 @@ def _basis(ix, iy, iz, ox, oy, oz, lobes, aniso, has_beta, cb, sb, cx, cy, n, rh
             dsdx = n[j] * s / dot
         for c in range(C):
             pred[c] += rho[j, c] * s
-        if want_jac:
-            b[1 + j] = s
-            q = 1 + lobes + j * ns
-            if aniso:
-                b[q] = dsdx * pxx
-                b[q + 1] = dsdx * pyy
-            else:
-                b[q] = dsdx * (pxx + pyy)
-            b[q + 1 + aniso] = s * lx * n[j]
-            if has_beta:
-                b[q + 2 + aniso] = dsdx * (cx[j] - cy[j]) * (iy * ox + ix * oy)
+        b[1 + j] = s
+        q = 1 + lobes + j * ns
+        if aniso:
+            b[q] = dsdx * pxx
+            b[q + 1] = dsdx * pyy
+        else:
+            b[q] = dsdx * (pxx + pyy)
+        b[q + 1 + aniso] = s * lx * n[j]
+        if has_beta:
+            b[q + 2 + aniso] = dsdx * (cx[j] - cy[j]) * (iy * ox + ix * oy)
 
 
 @njit(cache=True, inline="always")
@@ -118,7 +117,7 @@ def _assemble(x, t, G, H, lobes, aniso, has_beta, C, K, M, A, g):
 
 
 @njit(parallel=True, cache=True)
-def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
+def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta):
     """``(JᵀJ (T,K,K), Jᵀr (T,K), cost (T,))`` for parameter rows ``x`` of texels ``idx``.
 
     Reading the data through ``idx`` (instead of copying ``wi[idx]`` ...) keeps
@@ -128,8 +127,8 @@ def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
     S = wi.shape[1]
     C = f.shape[2]
     m = 1 + lobes + lobes * (2 + aniso + has_beta)
-    A = np.zeros((T, K, K)) if want_jac else np.zeros((T, 0, 0))
-    g = np.zeros((T, K)) if want_jac else np.zeros((T, 0))
+    A = np.zeros((T, K, K))
+    g = np.zeros((T, K))
     cost = np.zeros(T)
     for t in prange(T):
         d = idx[t]
@@ -154,25 +153,22 @@ def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta, want_jac):
                     total += r * r
                 continue
             _basis(wi[d, s, 0], wi[d, s, 1], iz, wo[d, s, 0], wo[d, s, 1], oz, lobes, aniso, has_beta, cb, sb,
-                   cx, cy, n, rho, rho_d, C, pred, b, want_jac)
+                   cx, cy, n, rho, rho_d, C, pred, b)
             w2 = ws * ws
             for c in range(C):
                 r = (pred[c] - f[d, s, c]) * ws
                 total += r * r
-                if want_jac:
-                    for i in range(m):
-                        H[i, c] += b[i] * r * ws
-            if want_jac:
                 for i in range(m):
-                    bi = b[i] * w2
-                    for l in range(i, m):
-                        G[i, l] += bi * b[l]
-        cost[t] = total
-        if want_jac:
+                    H[i, c] += b[i] * r * ws
             for i in range(m):
-                for l in range(i):
-                    G[i, l] = G[l, i]
-            _assemble(x, t, G, H, lobes, aniso, has_beta, C, K, np.empty((K, m)), A, g)
+                bi = b[i] * w2
+                for l in range(i, m):
+                    G[i, l] += bi * b[l]
+        cost[t] = total
+        for i in range(m):
+            for l in range(i):
+                G[i, l] = G[l, i]
+        _assemble(x, t, G, H, lobes, aniso, has_beta, C, K, np.empty((K, m)), A, g)
     return A, g, cost
 
 
@@ -281,13 +277,7 @@ class CompiledLafortuneProblem:
         wf = self.f_r * self.weight[..., None]
         return np.einsum("tsc,tsc->t", wf, wf)
 
-    def _call(self, x, idx, want_jac):
+    def normal_equations(self, x, idx):
         return run_parallel(normal_equations, np.ascontiguousarray(x, dtype=np.float64),
                             np.ascontiguousarray(idx, dtype=np.int64), self.wi, self.wo, self.f_r, self.weight,
-                            *self.flags, want_jac)
-
-    def cost(self, x, idx):
-        return self._call(x, idx, False)[2]
-
-    def normal_equations(self, x, idx):
-        return self._call(x, idx, True)
+                            *self.flags)
