@@ -91,8 +91,23 @@ class BRDFModel:
         return out
 
     def glsl(self) -> str:
-        """GLSL source of ``vec3 brdf(...)`` for the GL renderer."""
+        """GLSL source of ``vec3 brdf_<name>(vec3 wi, vec3 wo, <parameters>)`` for the GL renderer.
+
+        Directions are in the local surface frame (z = normal, x = tangent); by
+        default the parameters follow ``parameters`` in order, ``vec3`` for
+        three channels and ``float`` for one (see :meth:`glsl_call`).
+        """
         raise NotImplementedError(f"model {self.name!r} supplies no GLSL")
+
+    def glsl_call(self, wi: str, wo: str, args: Mapping[str, str]) -> str:
+        """A GLSL expression for f_r(wi, wo), given each parameter's GLSL expression by name.
+
+        Renderers fetch parameters from textures however they store them and
+        call the model through this; override it when :meth:`glsl` takes its
+        arguments in another shape (Lafortune's per-lobe arrays).
+        """
+        fn = "brdf_" + self.name.replace("-", "_")
+        return f"{fn}({wi}, {wo}, " + ", ".join(args[p.name] for p in self.parameters) + ")"
 
     def fit_form(self) -> "BRDFModel":
         """An equivalent, better-conditioned parametrisation for fitters (default: ``self``).

@@ -239,6 +239,10 @@ class _Validator:
         values, problems = resolve(declared, given, owner)
         for key, msg in problems:
             self.problem(msg, path + (key,) if key is not None else path)
+        for p in declared:  # file parameters declared with extra={"path": True} are relative to the graph file
+            v = values.get(p.name)
+            if p.extra.get("path") and isinstance(v, str) and "://" not in v and not Path(v).is_absolute():
+                values[p.name] = str(self.base / v)
         # Parameters that name another plugin, and parameters that are that plugin's parameters.
         for p in declared:
             category = p.extra.get("plugin_category")

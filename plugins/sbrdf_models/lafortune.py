@@ -198,6 +198,21 @@ class LafortuneModel(BRDFModel):
             "}\n"
         )
 
+    def glsl_call(self, wi, wo, args):
+        """Gathers the per-lobe parameters into the arrays :meth:`glsl` takes."""
+        L = max(self.lobes, 1)
+        if self.lobes == 0:
+            rho_s, c, n = "vec3[1](vec3(0.0))", "vec3[1](vec3(0.0))", "float[1](0.0)"
+        else:
+            js = range(1, self.lobes + 1)
+            cx = [args[f"c_x_{j}"] if self.anisotropic else args[f"c_xy_{j}"] for j in js]
+            cy = [args[f"c_y_{j}"] if self.anisotropic else args[f"c_xy_{j}"] for j in js]
+            rho_s = f"vec3[{L}](" + ", ".join(args[f"rho_s_{j}"] for j in js) + ")"
+            c = f"vec3[{L}](" + ", ".join(f"vec3({x}, {y}, {args[f'c_z_{j}']})" for j, x, y in zip(js, cx, cy)) + ")"
+            n = f"float[{L}](" + ", ".join(args[f"exponent_{j}"] for j in js) + ")"
+        beta = args["beta"] if self.has_beta else "0.0"
+        return f"brdf_lafortune({wi}, {wo}, {args['rho_d']}, {rho_s}, {c}, {n}, {beta})"
+
     # -- fitting support ----------------------------------------------------------------------------
 
     def fit_form(self) -> "LafortuneFitForm":

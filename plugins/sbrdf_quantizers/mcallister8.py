@@ -189,6 +189,8 @@ class McAllister8Quantizer:
             out[f"exponent_{j}"] = 255.0 * lobe[..., 3:4] ** 2
         if "rho_m" in val:
             out["rho_m"] = val["rho_m"]
+        if val["rho_d"].shape[-1] == 4:  # transparency for renderers' alpha-kill (not a model parameter)
+            out["alpha"] = val["rho_d"][..., 3:4]
         return out
 
     def bytes_per_texel(self, textures):

@@ -1,9 +1,13 @@
 """Render: images of a material, as linear EXR and display PNG.
 
-Renderer protocol: ``render(material) -> RenderResult`` with a lazy
-``(H, W, 3)`` linear image.  The node accepts fitted ParamMaps or quantized
-TextureSets; a TextureSet is decoded by the quantizer that wrote it, so the
-renderer always sees the model and its parameter maps.
+Renderer protocol: ``render(material) -> RenderResult`` with a lazy or
+NumPy ``(H, W, 3)`` linear image.  The node accepts fitted ParamMaps or
+quantized TextureSets; a TextureSet is decoded by the quantizer that wrote
+it, so the renderer always sees the model and its parameter maps (and, for
+renderers that emulate a texture format, the encoded textures too).
+Renderers that draw scenes read the scene file themselves
+(:mod:`sbrdf_core.scene`) and may load further materials with
+:func:`load_material`.
 """
 
 from __future__ import annotations
@@ -16,9 +20,8 @@ import numpy as np
 
 from ..artifacts import Images, ParamMaps, TextureSet
 from ..io import linear_to_srgb8, write_exr, write_png
-from ..store import join
+from ..store import join, open_artifact
 from .base import BuildContext, NodeKind, Output, Port
-from .quantize import model_of
 
 
 @dataclass
@@ -30,35 +33,64 @@ class Material:
     texels: tuple[int, int]  # (U, V)
     size_mm: tuple[float, float]
     source: str = ""
+    alpha: Any = None  # (V, U, 1) transparency in [0, 1] (alpha-kill below 0.5), or None when opaque
+    #: For TextureSets: the quantizer's name and its stored ``textures``, ``scale``, ``bias`` (lazy).
+    encoded: dict | None = None
 
 
 @dataclass
 class RenderResult:
-    image: Any  # (H, W, 3) lazy linear RGB
+    image: Any  # (H, W, 3) linear RGB, lazy or NumPy
     exposure: float | None = None  # display exposure for the PNG; None = automatic
     attrs: dict = field(default_factory=dict)
+    gamma: str = "srgb"  # display transfer of the PNG: "srgb" or "2.2"
+
+
+def load_material(registry, art) -> Material:
+    """A ParamMaps or TextureSet artifact as a :class:`Material` (parameters stay lazy)."""
+    model = registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
+    alpha, encoded = None, None
+    if art.kind == TextureSet.kind:
+        quantizer_name = art.attrs["quantizer"]
+        quantizer = registry.create("quantizer", quantizer_name, {})
+        names = sorted({n.split("/", 1)[1] for n in art.names() if n.startswith("textures/")})
+        encoded = {"quantizer": quantizer_name, "textures": {n: art.array(f"textures/{n}") for n in names},
+                   "scale": {n: art.read(f"scale/{n}") for n in names}, "bias": {n: art.read(f"bias/{n}") for n in names}}
+        decoded = quantizer.decode(encoded["textures"], encoded["scale"], encoded["bias"], model)
+        params = {p.name: decoded[p.name] for p in model.parameters}
+        alpha = decoded.get("alpha")
+    else:
+        params = {p.name: art.array(f"params/{p.name}") for p in model.parameters}
+    return Material(model, params, tuple(art.attrs["texels"]), tuple(art.attrs["size_mm"]), art.url, alpha, encoded)
+
+
+def open_material(registry, url: str) -> Material:
+    """:func:`load_material` of the store at ``url`` (a scene's ``materials: {x: {artifact: path}}``)."""
+    return load_material(registry, open_artifact(url, (ParamMaps, TextureSet)))
 
 
 def material_from(ctx: BuildContext, art) -> Material:
-    model = model_of(ctx, art)
-    if art.kind == TextureSet.kind:
-        quantizer = ctx.registry.create("quantizer", art.attrs["quantizer"], {})
-        names = sorted({n.split("/", 1)[1] for n in art.names() if n.startswith("textures/")})
-        decoded = quantizer.decode(
-            {n: art.array(f"textures/{n}") for n in names},
-            {n: art.read(f"scale/{n}") for n in names},
-            {n: art.read(f"bias/{n}") for n in names},
-            model,
-        )
-        params = {p.name: decoded[p.name] for p in model.parameters}
-    else:
-        params = {p.name: art.array(f"params/{p.name}") for p in model.parameters}
-    return Material(model, params, tuple(art.attrs["texels"]), tuple(art.attrs["size_mm"]), art.url)
+    return load_material(ctx.registry, art)
+
+
+def display_exposure(image: np.ndarray) -> float:
+    """Automatic exposure: the 99th percentile of finite radiance maps to 0.8."""
+    finite = image[np.isfinite(image)]
+    top = float(np.percentile(finite, 99)) if finite.size else 0.0
+    return 0.8 / top if top > 0 else 1.0
+
+
+def to_display(image: np.ndarray, exposure: float, gamma: str = "srgb") -> np.ndarray:
+    """Linear radiance -> 8-bit display values (sRGB curve, or a plain 1/2.2 power)."""
+    if gamma == "srgb":
+        return linear_to_srgb8(image, exposure)
+    x = np.clip(np.nan_to_num(image * exposure, nan=0.0), 0.0, 1.0)
+    return np.round(255.0 * x ** (1 / 2.2)).astype(np.uint8)
 
 
 class Render(NodeKind):
     name = "Render"
-    doc = "Render a material; writes image.exr (linear) and image.png (sRGB) beside the arrays."
+    doc = "Render a material; writes image.exr (linear) and image.png (display) beside the arrays."
     inputs = (Port("material", (ParamMaps, TextureSet), "fitted or quantized material"),)
     output = Images
     plugin_category = "renderer"
@@ -71,18 +103,19 @@ class Render(NodeKind):
         def finalize(art):
             t0 = time.perf_counter()
             image = art.read("image")
-            exposure = result.exposure
-            if exposure is None:  # auto: 99th percentile of finite radiance -> 0.8
-                finite = image[np.isfinite(image)]
-                top = float(np.percentile(finite, 99)) if finite.size else 0.0
-                exposure = 0.8 / top if top > 0 else 1.0
+            exposure = result.exposure if result.exposure is not None else display_exposure(image)
             write_exr(join(art.url, "image.exr"), image)
-            write_png(join(art.url, "image.png"), linear_to_srgb8(image, exposure))
+            write_png(join(art.url, "image.png"), to_display(image, exposure, result.gamma))
             return {"files": ["image.exr", "image.png"], "write_s": time.perf_counter() - t0, "exposure": exposure,
                     "finite": bool(np.isfinite(image).all())}
 
+        image = result.image
+        if isinstance(image, np.ndarray):
+            import dask.array as da
+
+            image = da.from_array(image)
         return Output(
-            arrays={"image": result.image.astype(np.float32)},
+            arrays={"image": image.astype(np.float32)},
             attrs={"renderer": ctx.spec.name, "material": material.source, "model": material.model.name, **result.attrs},
             finalize=finalize,
         )

@@ -1,0 +1,137 @@
+"""cpu: the NumPy reference renderer (ray casting; any BRDF-model plugin through its ``eval``).
+
+For every pixel a ray through the pixel centre finds the nearest surface
+(analytic planes, spheres and cylinders, triangle meshes), the material's
+parameters are looked up at the hit's texture coordinates, and the radiance
+is seed 000 Eq 6.3 with point and directional lights:
+
+    L(ω_r) = Σ_l f_r(ω_l → ω_r) · E_l · (N · ω_l),   E_l = I_l / d_l² (fall-off) or I_l.
+
+It is the ground truth the ``gl`` renderer is tested against: float64, exact
+intersections, shadow rays (only when the scene asks for shadows), and the
+same per-pixel tangent frames and parameter lookups as the GPU.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from sbrdf_core.errors import SbrdfError
+from sbrdf_core.nodes.render import RenderResult
+from sbrdf_core.scene import check_scene_param, load_scene
+
+from . import materials as mat
+from .shapes import Hits, intersect, local_frame, tessellate
+
+#: Pixels shaded per BRDF evaluation: bounds the temporaries of multi-lobe models at 1080p.
+BATCH = 1 << 16
+
+
+def cast(scene, materials, dirs: np.ndarray, origin: np.ndarray, meshes: dict | None = None):
+    """Nearest alpha-surviving hit per ray, and the index of its object (−1 for a miss)."""
+    meshes = meshes if meshes is not None else {}
+    best = Hits.empty(len(dirs))
+    which = np.full(len(dirs), -1)
+    for k, obj in enumerate(scene.objects):
+        mesh = meshes.get(k)
+        if obj.shape == "mesh" and mesh is None:
+            mesh = meshes[k] = tessellate(obj)
+        m = materials[obj.material]
+        for hits in intersect(obj, origin, dirs, mesh):
+            hit = np.isfinite(hits.t) & (hits.t < best.t)
+            if m.alpha is not None and hit.any():
+                idx = np.nonzero(hit)[0]
+                hit[idx[~m.alive(hits.uv[idx])]] = False
+            best.take(hits, hit)
+            which[hit] = k
+    return best, which
+
+
+def occluded(scene, materials, points: np.ndarray, to_light: np.ndarray, distance: np.ndarray, meshes: dict) -> np.ndarray:
+    """Whether anything opaque lies between each point and its light (shadow rays, offset off the surface)."""
+    start = points + 1e-6 * max(1.0, float(np.abs(points).max(initial=1.0))) * to_light
+    hits, _ = cast(scene, materials, to_light, start, meshes)
+    return hits.t < distance * (1 - 1e-6)
+
+
+def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray, shadow=None) -> np.ndarray:
+    """Radiance ``(R, 3)`` of hit points under point and directional lights (Eq 6.3)."""
+    model = material.model
+    out = np.zeros((len(view_dirs), 3))
+    for s in range(0, len(view_dirs), BATCH):
+        sl = slice(s, s + BATCH)
+        t, b, n = local_frame(hits.normal[sl], hits.tangent[sl])
+        params = model.unpack(material.lookup(hits.uv[sl]))
+        wo = -view_dirs[sl]
+        wo_local = np.stack([np.einsum("ij,ij->i", t, wo), np.einsum("ij,ij->i", b, wo), np.einsum("ij,ij->i", n, wo)], 1)
+        for k, light in enumerate(lights):
+            if light.type == "point":
+                d = light.vector - hits.position[sl]
+                dist = np.linalg.norm(d, axis=1)
+                wi = d / np.maximum(dist, 1e-300)[:, None]
+                E = np.broadcast_to(light.power, wi.shape) / (dist**2 if light.falloff else 1.0)[:, None]
+            else:
+                wi = np.broadcast_to(light.vector, hits.position[sl].shape)
+                dist = np.full(len(wi), np.inf)
+                E = np.broadcast_to(light.power, wi.shape)
+            cos = np.einsum("ij,ij->i", n, wi)
+            lit = cos > 0
+            if shadow is not None:
+                lit &= ~shadow(k, hits.position[sl], wi, dist)
+            if not lit.any():
+                continue
+            wi_local = np.stack([np.einsum("ij,ij->i", t, wi), np.einsum("ij,ij->i", b, wi), cos], 1)
+            f = model.eval({k2: v[lit] for k2, v in params.items()}, wi_local[lit][:, None], wo_local[lit][:, None])[:, 0]
+            idx = np.arange(s, min(s + BATCH, len(view_dirs)))[lit]
+            out[idx] += f * E[lit] * cos[lit][:, None]
+    return out
+
+
+def render_scene(scene, materials: dict, meshes: dict | None = None) -> tuple[np.ndarray, dict]:
+    """The scene's linear image ``(H, W, 3)`` float64, and timings; ``materials`` from :func:`materials.resolve`."""
+    if scene.environment is not None:
+        raise SbrdfError(f"{scene.file}: the cpu renderer draws point and directional lights; environment lighting "
+                         "needs the environment scene effect, which is not installed")
+    t0 = time.perf_counter()
+    meshes = {} if meshes is None else meshes
+    dirs, origin = scene.camera.rays()
+    H, W = dirs.shape[:2]
+    dirs = dirs.reshape(-1, 3)
+    hits, which = cast(scene, materials, dirs, origin, meshes)
+    t_cast = time.perf_counter() - t0
+    image = np.tile(scene.background, (len(dirs), 1)).astype(np.float64)
+    shadow = None
+    if scene.shadows:
+        def shadow(k, points, wi, dist):
+            return occluded(scene, materials, points, wi, dist, meshes)
+    for name, material in materials.items():
+        ks = [k for k, o in enumerate(scene.objects) if o.material == name]
+        sel = np.nonzero(np.isin(which, ks))[0]
+        if sel.size == 0:
+            continue
+        sub = Hits(hits.t[sel], hits.position[sel], hits.normal[sel], hits.tangent[sel], hits.uv[sel])
+        image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow)
+    stats = {"cast_s": t_cast, "total_s": time.perf_counter() - t0, "pixels_hit": int((which >= 0).sum())}
+    return image.reshape(H, W, 3), stats
+
+
+class CPURenderer:
+    """``Render`` plugin ``cpu``: one scene file, rendered by :func:`render_scene`."""
+
+    def __init__(self, scene: str, exposure: float | None = None):
+        self.scene_path, self.exposure = scene, exposure
+        self.registry = None
+
+    def bind(self, registry) -> None:
+        self.registry = registry
+
+    check_params = staticmethod(check_scene_param)
+
+    def render(self, material) -> RenderResult:
+        scene = load_scene(self.scene_path)
+        materials = mat.resolve(scene, material, self.registry)
+        image, stats = render_scene(scene, materials)
+        return RenderResult(image, self.exposure if self.exposure is not None else scene.exposure,
+                            {"scene": self.scene_path, **stats}, scene.gamma)

@@ -1,0 +1,349 @@
+"""gl: the real-time renderer, moderngl on EGL (Mesa llvmpipe here, a GPU where there is one).
+
+One float pass per material (McAllister's "DirectX 9-class" path, seed 000
+§6.8): parameter maps in RGBA32F textures, the BRDF plugin's own GLSL, every
+lobe and light in one fragment shader, linear radiance into a float
+framebuffer.  The display transfer is applied when the PNG is written.
+
+The shader is generated from what the scene uses (:func:`fragment_source`):
+the number of point and directional lights and their fall-off, tangent frames
+only for anisotropic materials, the alpha-kill only where a material has
+transparency, two-sided lighting only for transmissive models, shadow-map
+lookups only when the scene asks for shadows.  Nothing else is compiled or
+bound.  The GeForce 4 emulation lives in :mod:`sbrdf_render.gf4`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sbrdf_core.errors import SbrdfError
+from sbrdf_core.nodes.render import RenderResult
+from sbrdf_core.scene import Features, check_scene_param, load_scene
+
+from . import materials as mat
+from .shapes import tessellate
+
+_CONTEXT = None
+
+
+def context():
+    """The process's standalone EGL context (created once; EGL contexts are expensive)."""
+    global _CONTEXT
+    if _CONTEXT is None:
+        import moderngl
+
+        try:
+            _CONTEXT = moderngl.create_context(standalone=True, backend="egl", require=330)
+        except Exception as e:  # no libEGL, no driver
+            raise SbrdfError(f"gl renderer: cannot create an OpenGL 3.3 context through EGL ({e}); install "
+                             "Mesa's EGL (Debian: libegl1 libgl1-mesa-dri) or use the cpu renderer") from None
+    return _CONTEXT
+
+
+def device_name() -> str:
+    ctx = context()
+    return f"{ctx.info['GL_RENDERER']} ({ctx.info['GL_VENDOR']})"
+
+
+# -- shader generation -------------------------------------------------------------------------------------------------
+
+VERTEX = """#version 330
+uniform mat4 u_mvp;
+in vec3 in_pos;
+in vec3 in_normal;
+{tangent_in}in vec2 in_uv;
+out vec3 v_pos;
+out vec3 v_normal;
+{tangent_out}out vec2 v_uv;
+void main() {{
+    v_pos = in_pos;
+    v_normal = in_normal;
+    {tangent_copy}v_uv = in_uv;
+    gl_Position = u_mvp * vec4(in_pos, 1.0);
+}}
+"""
+
+
+def parameter_exprs(model, samplers: str = "u_params") -> tuple[int, dict[str, str]]:
+    """Number of RGBA textures holding the packed parameters, and each parameter's GLSL expression."""
+    exprs, offset = {}, 0
+    for p in model.parameters:
+        comps = [f"{samplers}_{(offset + c) // 4}.{'xyzw'[(offset + c) % 4]}" for c in range(p.channels)]
+        exprs[p.name] = comps[0] if p.channels == 1 else f"vec{p.channels}({', '.join(comps)})"
+        offset += p.channels
+    return (offset + 3) // 4, exprs
+
+
+def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
+    """The fragment shader for one material under the scene's lights: only the code the scene needs."""
+    model = material.model
+    ntex, exprs = parameter_exprs(model, "p")
+    aniso = material.anisotropic
+    two_sided = bool(getattr(model, "two_sided", False))
+    NP, ND = features.point_lights, features.directional_lights
+    out = ["#version 330", "in vec3 v_pos;", "in vec3 v_normal;"]
+    if aniso:
+        out.append("in vec4 v_tangent;")
+    out += ["in vec2 v_uv;", "out vec4 frag;", "uniform vec3 u_eye;"]
+    out += [f"uniform sampler2D u_params_{k};" for k in range(ntex)]
+    if material.alpha is not None:
+        out.append("uniform sampler2D u_alpha;")
+    if NP:
+        out += [f"uniform vec3 u_point_pos[{NP}];", f"uniform vec3 u_point_power[{NP}];"]
+    if ND:
+        out += [f"uniform vec3 u_dir_dir[{ND}];", f"uniform vec3 u_dir_power[{ND}];"]
+    if features.shadows:
+        from .shadows import BIAS
+
+        out += [f"uniform sampler2DShadow u_shadow[{NP + ND}];", f"uniform mat4 u_shadow_mvp[{NP + ND}];",
+                f"const float SHADOW_BIAS = {BIAS!r};", SHADOW_LOOKUP]
+    out.append(model.glsl())
+    call = model.glsl_call("wi", "wo", exprs)
+    body = ["void main() {"]
+    if material.alpha is not None:
+        body.append("    if (texture(u_alpha, v_uv).r < 0.5) discard;  // alpha-kill (seed 000 §6.5)")
+    body += [f"    vec4 p_{k} = texture(u_params_{k}, v_uv);" for k in range(ntex)]
+    body.append("    vec3 N = normalize(v_normal);")
+    if aniso:  # per-pixel Gram–Schmidt; B from the handedness (Eq 6.1)
+        body += ["    vec3 T = normalize(v_tangent.xyz - N * dot(N, v_tangent.xyz));",
+                 "    vec3 B = (v_tangent.w < 0.0 ? -1.0 : 1.0) * cross(N, T);"]
+    else:  # an isotropic BRDF does not care which tangent: any frame around N
+        body += ["    vec3 T = normalize(cross(abs(N.z) < 0.9 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0), N));",
+                 "    vec3 B = cross(N, T);"]
+    body += ["    vec3 V = normalize(u_eye - v_pos);",
+             "    vec3 wo = vec3(dot(T, V), dot(B, V), dot(N, V));",
+             "    vec3 L = vec3(0.0);"]
+    lit = "c != 0.0" if two_sided else "c > 0.0"
+    cosine = "abs(c)" if two_sided else "c"
+
+    def light_loop(count, setup, shadow_base):
+        """One block per light, unrolled: constant indices (sampler arrays need them) and no loop overhead."""
+        lines = []
+        for l in range(count):
+            shadow = (f" * shadow_visibility(u_shadow[{shadow_base + l}], u_shadow_mvp[{shadow_base + l}], v_pos)"
+                      if features.shadows else "")
+            lines += (["    {"] + [ln.replace("[l]", f"[{l}]") for ln in setup] +
+                      ["        float c = dot(N, Lw);",
+                       f"        if ({lit}) {{",
+                       "            vec3 wi = vec3(dot(T, Lw), dot(B, Lw), c);",
+                       f"            L += {call} * E * {cosine}{shadow};",
+                       "        }", "    }"])
+        return lines
+
+    if NP:
+        E = {"all": "u_point_power[l] / r2", "none": "u_point_power[l]",
+             "mixed": "u_point_power[l] / (u_point_falloff[l] ? r2 : 1.0)"}[features.falloff]
+        setup = ["        vec3 d = u_point_pos[l] - v_pos;", "        float r2 = dot(d, d);",
+                 "        vec3 Lw = d * inversesqrt(r2);", f"        vec3 E = {E};"]
+        if features.falloff == "mixed":
+            out.append(f"uniform bool u_point_falloff[{NP}];")
+        body += light_loop(NP, setup, 0)
+    if ND:
+        body += light_loop(ND, ["        vec3 Lw = u_dir_dir[l];", "        vec3 E = u_dir_power[l];"], NP)
+    body += ["    frag = vec4(L, 1.0);", "}"]
+    return "\n".join(out + body) + "\n"
+
+
+SHADOW_LOOKUP = """float shadow_visibility(sampler2DShadow map, mat4 mvp, vec3 p) {
+    vec4 q = mvp * vec4(p, 1.0);
+    vec3 s = q.xyz / q.w * 0.5 + 0.5;
+    if (q.w <= 0.0 || any(lessThan(s, vec3(0.0))) || any(greaterThan(s, vec3(1.0)))) return 1.0;
+    return texture(map, vec3(s.xy, s.z - SHADOW_BIAS));
+}
+"""
+
+
+# -- drawing ------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Frame:
+    image: np.ndarray  # (H, W, 3) float32 linear, row 0 at the top
+    gpu_ms: float  # GL time-elapsed query around the draw calls
+    wall_ms: float  # including glFinish
+    stats: dict = field(default_factory=dict)
+
+
+class GLScene:
+    """A scene uploaded to the GPU: meshes, textures and one program per material.
+
+    Build once, :meth:`draw` many times (benchmarks), :meth:`release` at the end.
+    """
+
+    def __init__(self, scene, materials: dict[str, mat.SceneMaterial], meshes: dict | None = None):
+        import moderngl
+
+        self.scene, self.materials = scene, materials
+        self.ctx = ctx = context()
+        W, H = scene.camera.resolution
+        self._res = []
+        self.fbo = self._keep(ctx.framebuffer(color_attachments=[self._keep(ctx.texture((W, H), 4, dtype="f4"))],
+                                              depth_attachment=self._keep(ctx.depth_texture((W, H)))))
+        self.features = scene.features(materials)
+        self.sources, self.programs, self.textures = {}, {}, {}
+        for name, m in materials.items():
+            fs = fragment_source(m, self.features)
+            vs = VERTEX.format(tangent_in="in vec4 in_tangent;\n" if m.anisotropic else "",
+                               tangent_out="out vec4 v_tangent;\n" if m.anisotropic else "",
+                               tangent_copy="v_tangent = in_tangent;\n    " if m.anisotropic else "")
+            self.sources[name] = (vs, fs)
+            try:
+                self.programs[name] = self._keep(ctx.program(vertex_shader=vs, fragment_shader=fs))
+            except moderngl.Error as e:
+                raise SbrdfError(f"gl renderer: the shader for material {name!r} (model {m.model.name!r}) does not "
+                                 f"compile:\n{e}") from None
+            self.textures[name] = self._upload_material(m)
+        meshes = meshes if meshes is not None else {}
+        self.vaos = []
+        self.triangles = 0
+        for k, obj in enumerate(scene.objects):
+            mesh = meshes.get(k) or tessellate(obj)
+            meshes[k] = mesh
+            m = materials[obj.material]
+            prog = self.programs[obj.material]
+            cols = [mesh.positions, mesh.normals] + ([mesh.tangents] if m.anisotropic else []) + [mesh.uvs]
+            names = ["in_pos", "in_normal"] + (["in_tangent"] if m.anisotropic else []) + ["in_uv"]
+            fmt = "3f 3f " + ("4f " if m.anisotropic else "") + "2f"
+            vbo = self._keep(ctx.buffer(np.concatenate(cols, axis=1).astype("f4").tobytes()))
+            ibo = self._keep(ctx.buffer(mesh.indices.astype("u4").tobytes()))
+            self.vaos.append((obj.material, self._keep(ctx.vertex_array(prog, [(vbo, fmt, *names)], ibo))))
+            self.triangles += mesh.triangles
+        self.meshes = meshes
+        self.shadow = None
+        if self.features.shadows:
+            from .shadows import ShadowMaps
+
+            self.shadow = ShadowMaps(ctx, scene, meshes)
+            self._res.append(self.shadow)
+        self.query = self._keep(ctx.query(time=True))
+        self._set_uniforms()
+
+    def _keep(self, obj):
+        self._res.append(obj)
+        return obj
+
+    def _upload_material(self, m: mat.SceneMaterial) -> list:
+        import moderngl
+
+        ctx = self.ctx
+        V, U, K = m.maps.shape
+        ntex = (K + 3) // 4
+        padded = np.zeros((V, U, ntex * 4), np.float32)
+        padded[..., :K] = m.maps
+        filt = (moderngl.NEAREST, moderngl.NEAREST) if m.filter == "nearest" else (moderngl.LINEAR, moderngl.LINEAR)
+        texs = []
+        for k in range(ntex):
+            t = self._keep(ctx.texture((U, V), 4, np.ascontiguousarray(padded[..., 4 * k:4 * k + 4]).tobytes(), dtype="f4"))
+            t.filter = filt
+            t.repeat_x = t.repeat_y = True
+            texs.append(t)
+        if m.alpha is not None:
+            t = self._keep(ctx.texture((U, V), 1, np.ascontiguousarray(m.alpha, np.float32).tobytes(), dtype="f4"))
+            t.filter = filt
+            texs.append(t)
+        return texs
+
+    def _set_uniforms(self) -> None:
+        scene = self.scene
+        centre, radius = scene.bounds()
+        dist = np.linalg.norm(scene.camera.position - centre)
+        far = dist + radius * 1.01 + 1e-6
+        near = max(far * 1e-5, dist - radius * 1.01)
+        view, proj = scene.camera.matrices(near, far)
+        mvp = (proj @ view).astype("f4")
+        points = [lt for lt in scene.lights if lt.type == "point"]
+        dirs = [lt for lt in scene.lights if lt.type == "directional"]
+        for name, prog in self.programs.items():
+            prog["u_mvp"].write(mvp.T.tobytes())
+            prog["u_eye"].value = tuple(scene.camera.position)
+            if points:
+                prog["u_point_pos"].write(np.array([lt.vector for lt in points], "f4").tobytes())
+                prog["u_point_power"].write(np.array([lt.power for lt in points], "f4").tobytes())
+                if "u_point_falloff" in prog:
+                    prog["u_point_falloff"].write(np.array([lt.falloff for lt in points], "i4").tobytes())
+            if dirs:
+                prog["u_dir_dir"].write(np.array([lt.vector for lt in dirs], "f4").tobytes())
+                prog["u_dir_power"].write(np.array([lt.power for lt in dirs], "f4").tobytes())
+            unit = 0
+            for k in range(len(self.textures[name]) - (self.materials[name].alpha is not None)):
+                prog[f"u_params_{k}"].value = unit
+                unit += 1
+            if self.materials[name].alpha is not None:
+                prog["u_alpha"].value = unit
+                unit += 1
+            if self.shadow is not None:
+                self.shadow.set_uniforms(prog, unit)
+
+    def draw(self, read: bool = True) -> Frame:
+        import moderngl
+
+        ctx = self.ctx
+        t0 = time.perf_counter()
+        if self.shadow is not None:
+            self.shadow.render()
+        self.fbo.use()
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        bg = tuple(float(x) for x in self.scene.background)
+        with self.query:
+            self.fbo.clear(*bg, 0.0, depth=1.0)
+            for name, vao in self.vaos:
+                unit = 0
+                for t in self.textures[name]:
+                    t.use(unit)
+                    unit += 1
+                if self.shadow is not None:
+                    self.shadow.use(unit)
+                vao.render(moderngl.TRIANGLES)
+        ctx.finish()
+        wall = (time.perf_counter() - t0) * 1e3
+        gpu = self.query.elapsed / 1e6 if self.query.elapsed else wall
+        image = None
+        if read:
+            W, H = self.scene.camera.resolution
+            raw = np.frombuffer(self.fbo.read(components=3, dtype="f4"), dtype=np.float32).reshape(H, W, 3)
+            image = raw[::-1].copy()  # GL's row 0 is the bottom
+        return Frame(image, gpu, wall, {"triangles": self.triangles})
+
+    def release(self) -> None:
+        for obj in reversed(self._res):
+            obj.release()
+        self._res = []
+
+
+class GLRenderer:
+    """``Render`` plugin ``gl``: the scene file drawn by :class:`GLScene` (or the GeForce 4 emulation)."""
+
+    def __init__(self, scene: str, exposure: float | None = None, pipeline: str = "float", frames: int = 1):
+        self.scene_path, self.exposure, self.pipeline, self.frames = scene, exposure, pipeline, frames
+        self.registry = None
+
+    def bind(self, registry) -> None:
+        self.registry = registry
+
+    check_params = staticmethod(check_scene_param)
+
+    def render(self, material) -> RenderResult:
+        scene = load_scene(self.scene_path)
+        materials = mat.resolve(scene, material, self.registry)
+        if scene.environment is not None:
+            raise SbrdfError(f"{scene.file}: environment lighting needs the environment scene effect, which is not "
+                             "installed")
+        if self.pipeline == "geforce4":
+            from .gf4 import GF4Scene as Drawer
+        else:
+            Drawer = GLScene
+        drawer = Drawer(scene, materials)
+        try:
+            frames = [drawer.draw(read=(i == self.frames - 1)) for i in range(self.frames)]
+        finally:
+            drawer.release()
+        gpu = [f.gpu_ms for f in frames]
+        attrs = {"scene": self.scene_path, "device": device_name(), "pipeline": self.pipeline,
+                 "gpu_ms": gpu, "gpu_ms_median": float(np.median(gpu)), "triangles": frames[-1].stats["triangles"]}
+        return RenderResult(frames[-1].image, self.exposure if self.exposure is not None else scene.exposure, attrs,
+                            scene.gamma)
