@@ -61,6 +61,9 @@ class BRDFModel:
 
     name: ClassVar[str] = ""
     parameters: tuple[ModelParameter, ...] = ()
+    #: Whether f_r depends on the azimuth of the tangent frame, not only on relative azimuth.  Renderers skip
+    #: per-pixel tangent frames for models that set it False; the safe default is True.
+    anisotropic: bool = True
 
     # -- required ---------------------------------------------------------------
 

@@ -52,6 +52,7 @@ SQRT_PI = float(np.sqrt(np.pi))
 
 class CookTorranceModel(BRDFModel):
     name = "cook-torrance"
+    anisotropic = False
     parameters = (
         ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term"),
         ModelParameter("f0", 3, (0.0, 1.0), (0.02, 0.9), 0.04, unit="1", doc="Fresnel reflectance at normal incidence"),

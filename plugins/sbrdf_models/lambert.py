@@ -25,6 +25,7 @@ from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
 
 class LambertModel(BRDFModel):
     name = "lambert"
+    anisotropic = False
     parameters = (
         ModelParameter("rho_d", channels=3, bounds=(0.0, 10.0), typical=(0.02, 0.3), default=0.1, unit="sr^-1",
                        doc="diffuse reflectance per channel"),

@@ -59,6 +59,7 @@ def occluded(scene, materials, points: np.ndarray, to_light: np.ndarray, distanc
 def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray, shadow=None) -> np.ndarray:
     """Radiance ``(R, 3)`` of hit points under point and directional lights (Eq 6.3)."""
     model = material.model
+    two_sided = bool(getattr(model, "two_sided", False))  # transmissive: lit from either side, |N·ω_l|
     out = np.zeros((len(view_dirs), 3))
     for s in range(0, len(view_dirs), BATCH):
         sl = slice(s, s + BATCH)
@@ -71,13 +72,13 @@ def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray
                 d = light.vector - hits.position[sl]
                 dist = np.linalg.norm(d, axis=1)
                 wi = d / np.maximum(dist, 1e-300)[:, None]
-                E = np.broadcast_to(light.power, wi.shape) / (dist**2 if light.falloff else 1.0)[:, None]
+                E = np.broadcast_to(light.power, wi.shape) / (dist**2 if light.falloff else np.ones_like(dist))[:, None]
             else:
                 wi = np.broadcast_to(light.vector, hits.position[sl].shape)
                 dist = np.full(len(wi), np.inf)
                 E = np.broadcast_to(light.power, wi.shape)
             cos = np.einsum("ij,ij->i", n, wi)
-            lit = cos > 0
+            lit = cos != 0 if two_sided else cos > 0
             if shadow is not None:
                 lit &= ~shadow(k, hits.position[sl], wi, dist)
             if not lit.any():
@@ -85,7 +86,7 @@ def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray
             wi_local = np.stack([np.einsum("ij,ij->i", t, wi), np.einsum("ij,ij->i", b, wi), cos], 1)
             f = model.eval({k2: v[lit] for k2, v in params.items()}, wi_local[lit][:, None], wo_local[lit][:, None])[:, 0]
             idx = np.arange(s, min(s + BATCH, len(view_dirs)))[lit]
-            out[idx] += f * E[lit] * cos[lit][:, None]
+            out[idx] += f * E[lit] * np.abs(cos[lit])[:, None]
     return out
 
 

@@ -24,6 +24,7 @@ MIN_COS = 1e-3
 
 class MinnaertModel(BRDFModel):
     name = "minnaert"
+    anisotropic = False
     parameters = (
         ModelParameter("rho_d", channels=3, bounds=(0.0, 10.0), typical=(0.05, 0.3), default=0.1, unit="sr^-1"),
         ModelParameter("k", channels=1, bounds=(0.2, 3.0), typical=(0.6, 1.4), default=1.0),

@@ -1,0 +1,443 @@
+"""Scenes, the cpu reference renderer and the gl renderer: agreement, closed forms, variants, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sbrdf_core.errors import GraphError, SbrdfError
+from sbrdf_core.scene import SceneError, load_scene
+from sbrdf_render import materials as mat
+from sbrdf_render.cpu import cast, render_scene
+from sbrdf_render.shapes import load_obj, tessellate, vertex_frames
+
+from .test_models import CONFIGS, REGISTRY
+
+
+@pytest.fixture(scope="module")
+def gl():
+    pytest.importorskip("moderngl")
+    from sbrdf_render import gl as glmod
+
+    try:
+        glmod.context()
+    except SbrdfError as e:
+        pytest.skip(str(e))
+    return glmod
+
+
+def draw_gl(gl, scene, materials):
+    s = gl.GLScene(scene, materials)
+    try:
+        return s.draw().image.astype(np.float64), s
+    finally:
+        s.release()
+
+
+def interior(scene, materials, margin_uv: float | None = None, texels: tuple[int, int] | None = None) -> np.ndarray:
+    """Pixels whose 3×3 neighbourhood hits one object (no silhouettes) and, for nearest lookups, away from texel edges."""
+    dirs, origin = scene.camera.rays()
+    H, W = dirs.shape[:2]
+    hits, which = cast(scene, materials, dirs.reshape(-1, 3), origin)
+    w = which.reshape(H, W)
+    ok = w >= 0
+    pad = np.pad(w, 1, mode="edge")
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            ok &= pad[1 + dy:1 + dy + H, 1 + dx:1 + dx + W] == w
+    ok[[0, -1], :] = ok[:, [0, -1]] = False
+    if margin_uv is not None:
+        f = (hits.uv * np.asarray(texels)) % 1.0
+        ok &= ((np.minimum(f, 1 - f) > margin_uv).all(axis=1)).reshape(H, W)
+    return ok
+
+
+def relative_errors(got, ref, mask, floor=1e-3):
+    """Per-pixel relative error against the reference, with the denominator floored at ``floor`` × the image's peak."""
+    floor = floor * np.abs(ref[mask]).max()
+    rel = np.abs(got - ref).max(axis=-1) / np.maximum(np.abs(ref).max(axis=-1), floor)
+    return rel[mask]
+
+
+def random_scene(rng, model_name, cfg, shape="plane") -> str:
+    cam = rng.uniform([-1.5, -2.5, 1.0], [1.5, -1.0, 2.5])
+    lights = []
+    for _ in range(rng.integers(1, 4)):
+        if rng.random() < 0.5:
+            p = rng.uniform([-2, -2, 0.5], [2, 2, 3])
+            lights.append(f"{{type: point, position: {p.tolist()}, intensity: {rng.uniform(1, 8):.3f}, "
+                          f"falloff: {str(bool(rng.random() < 0.7)).lower()}}}")
+        else:
+            d = rng.uniform([-1, -1, 0.2], [1, 1, 1])
+            lights.append(f"{{type: directional, direction: {d.tolist()}, irradiance: {rng.uniform(0.2, 2):.3f}}}")
+    obj = ("{shape: plane, size: [2, 2], material: m}" if shape == "plane" else
+           "{shape: sphere, radius: 0.8, segments: [256, 128], material: m, transform: {rotate_deg: [10, 20, 30]}}")
+    return f"""
+camera: {{position: {cam.tolist()}, look_at: [0, 0, 0], fov_deg: 50, resolution: [96, 72]}}
+materials: {{m: {{artifact: input}}}}
+objects: [{obj}]
+lights: [{', '.join(lights)}]
+"""
+
+
+def random_material(rng, model, texels=(4, 4), filter="nearest") -> mat.SceneMaterial:
+    """Per-texel random parameters within each parameter's typical range."""
+    T = texels[0] * texels[1]
+    x = model.pack(model.random_guess(rng, T))
+    return mat.SceneMaterial("m", model, x.reshape(texels[1], texels[0], -1).astype(np.float32), None, filter)
+
+
+MODEL_CASES = [pytest.param(n, c, id=f"{n}-" + "-".join(f"{k}={v}" for k, v in c.items()))
+               for n in REGISTRY.names("brdf-model") for c in CONFIGS.get(n, [{}])
+               if n not in ("separable",)]
+
+
+@pytest.mark.parametrize("name,cfg", MODEL_CASES)
+def test_gl_matches_cpu_per_pixel_for_every_model(gl, name, cfg):
+    """Random camera, 1–3 random point/directional lights, random per-texel parameters: nearest lookups,
+    pixels away from texel edges and silhouettes.
+
+    On the plane both renderers see the same geometry, so the bound is float32 against float64.  The GPU's
+    sphere is 256×128 facets with interpolated normals (normals off by ~1e-4 rad), so there the denominator is
+    floored at 1 % of the peak: the terminator, where the cosine is tiny, is otherwise all relative error."""
+    model = REGISTRY.create("brdf-model", name, cfg)
+    rng = np.random.default_rng(abs(hash((name, str(cfg)))) % 2**32)
+    for shape in ("plane", "sphere"):
+        scene = load_scene(random_scene(rng, name, cfg, shape))
+        materials = {"m": random_material(rng, model)}
+        ref, _ = render_scene(scene, materials)
+        got, _ = draw_gl(gl, scene, materials)
+        mask = interior(scene, materials, margin_uv=0.02, texels=(4, 4))
+        assert mask.sum() > 500
+        rel = relative_errors(got, ref, mask, floor=1e-3 if shape == "plane" else 1e-2)
+        rms, worst = float(np.sqrt(np.mean(rel**2))), float(rel.max())
+        print(f"{name} {cfg} {shape}: rel rms {rms:.2e} max {worst:.2e}")
+        assert rms < (1e-5 if shape == "plane" else 2e-3) and worst < (1e-4 if shape == "plane" else 3e-2), (rms, worst)
+        assert np.isfinite(got).all() and np.isfinite(ref).all()
+
+
+def test_bilinear_lookups_agree_within_filtering_precision(gl):
+    """GL_LINEAR blends with limited sub-texel precision (8 bits on most hardware, llvmpipe too): a smooth map keeps
+    the difference to that order."""
+    model = REGISTRY.create("brdf-model", "lafortune", {"lobes": 1})
+    rng = np.random.default_rng(3)
+    scene = load_scene(random_scene(rng, "lafortune", {}, "plane"))
+    base = model.pack(model.random_guess(rng, 1))[0]
+    ramp = np.linspace(0.9, 1.1, 16)
+    maps = (base[None, None, :] * ramp[None, :, None] * ramp[::-1, None, None]).astype(np.float32)
+    materials = {"m": mat.SceneMaterial("m", model, maps, None, "bilinear")}
+    ref, _ = render_scene(scene, materials)
+    got, _ = draw_gl(gl, scene, materials)
+    rel = relative_errors(got, ref, interior(scene, materials))
+    assert np.sqrt(np.mean(rel**2)) < 5e-3 and rel.max() < 0.05
+
+
+def lambert_plane(falloff=True):
+    return load_scene(f"""
+camera: {{position: [0.3, -1.2, 1.5], look_at: [0, 0, 0], fov_deg: 60, resolution: [80, 60]}}
+materials: {{m: {{model: lambert, params: {{rho_d: [0.25, 0.15, 0.05]}}}}}}
+objects: [{{shape: plane, size: [40, 40], material: m}}]
+lights: [{{type: point, position: [0.5, 0.2, 1.0], intensity: [4, 4, 4], falloff: {str(falloff).lower()}}}]
+""")
+
+
+@pytest.mark.parametrize("falloff", [True, False])
+def test_lambertian_plane_under_a_point_light_matches_the_closed_form(gl, registry, falloff):
+    """L = ρ_d · I · cos θ / d² (ρ_d = albedo/π), at every pixel, on both renderers."""
+    scene = lambert_plane(falloff)
+    materials = mat.resolve(scene, None, registry)
+    dirs, origin = scene.camera.rays()
+    hits, which = cast(scene, materials, dirs.reshape(-1, 3), origin)
+    d = np.array([0.5, 0.2, 1.0]) - hits.position
+    r = np.linalg.norm(d, axis=1)
+    expect = np.array([0.25, 0.15, 0.05]) * (4 * d[:, 2] / r / (r**2 if falloff else 1.0))[:, None]
+    expect = expect.reshape(60, 80, 3)
+    assert (which >= 0).all()
+    cpu, _ = render_scene(scene, materials)
+    np.testing.assert_allclose(cpu, expect, rtol=1e-7)  # ρ_d is stored as float32
+    got, _ = draw_gl(gl, scene, materials)
+    np.testing.assert_allclose(got, expect, rtol=1e-4, atol=1e-6)
+
+
+def test_renders_are_deterministic(gl, registry):
+    scene = load_scene(random_scene(np.random.default_rng(9), "lafortune", {}, "sphere"))
+    materials = {"m": random_material(np.random.default_rng(1), REGISTRY.create("brdf-model", "lafortune", {"lobes": 2}))}
+    a, _ = draw_gl(gl, scene, materials)
+    b, _ = draw_gl(gl, scene, materials)
+    assert a.tobytes() == b.tobytes()
+    c, _ = render_scene(scene, materials)
+    d, _ = render_scene(scene, materials)
+    assert c.tobytes() == d.tobytes()
+
+
+def test_shaders_contain_only_what_the_scene_uses(gl):
+    from sbrdf_render.gl import fragment_source
+
+    iso = REGISTRY.create("brdf-model", "lafortune", {"lobes": 1})
+    aniso = REGISTRY.create("brdf-model", "lafortune", {"lobes": 3, "anisotropic": True, "beta": True})
+    scene = load_scene("""
+camera: {position: [0, -2, 2]}
+objects: [{shape: plane, material: m}]
+materials: {m: {artifact: input}}
+lights: [{type: point, position: [1, 1, 1]}, {type: point, position: [0, 1, 1]}]
+""")
+    src = fragment_source(mat.SceneMaterial("m", iso, np.zeros((1, 1, iso.size), np.float32), None, "nearest"),
+                          scene.features({"m": mat.SceneMaterial("m", iso, None, None, "nearest")}))
+    for absent in ("v_tangent", "beta = ", "cos(beta)", "c_y", "u_dir_", "sampler2DShadow", "discard", "env", "u_alpha",
+                   "abs(c)", "u_point_falloff"):
+        assert absent not in src, absent
+    assert "u_point_pos[2]" in src and src.count("brdf_lafortune(wi, wo") == 2  # two lights, unrolled
+    assert "vec3[1](" in src  # one lobe
+    m3 = mat.SceneMaterial("m", aniso, np.zeros((1, 1, aniso.size), np.float32), np.ones((1, 1), np.float32), "nearest")
+    scene3 = load_scene("""
+camera: {position: [0, -2, 2]}
+objects: [{shape: plane, material: m}]
+materials: {m: {artifact: input}}
+lights: [{type: directional, direction: [0, 0, 1]}, {type: point, position: [0, 1, 1], falloff: false}]
+shadows: true
+""")
+    src3 = fragment_source(m3, scene3.features({"m": m3}))
+    for present in ("v_tangent", "cos(beta)", "vec3[3](", "u_dir_dir[1]", "sampler2DShadow", "discard", "u_alpha"):
+        assert present in src3, present
+    assert "/ r2" not in src3  # the only point light has no fall-off
+
+
+def test_anisotropic_frames_follow_uv_handedness_on_a_mirrored_mesh(gl, tmp_path):
+    """Two quads meeting at a mirror seam (u runs +x on the left, −x on the right; v along +y on both): the tangent
+    flips, the handedness w = −1 keeps B = w·N×T along +v, and the CPU and GL frames (hence an anisotropic BRDF)
+    agree on both halves."""
+    obj = tmp_path / "mirrored.obj"
+    obj.write_text("v -1 -1 0\nv 0 -1 0\nv 0 1 0\nv -1 1 0\nv 1 -1 0\nv 1 1 0\n"
+                   "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 1 0\nvt 1 1\n"
+                   "f 1/1 2/2 3/3 4/4\nf 2/5 5/1 6/4 3/6\n")  # the seam's corners are split, as exporters do
+    pos, uv, nrm, idx = load_obj(str(obj))
+    normals, tangents = vertex_frames(pos, uv, idx)
+    left = np.arange(len(pos)) < 4  # the first face's corners
+    assert (tangents[left, 0] > 0.99).all() and (tangents[~left, 0] < -0.99).all()
+    assert (tangents[left, 3] == 1).all() and (tangents[~left, 3] == -1).all()
+    bitangent = tangents[:, 3:4] * np.cross(normals, tangents[:, :3])
+    np.testing.assert_allclose(bitangent, np.tile([0.0, 1.0, 0.0], (len(pos), 1)), atol=1e-12)
+    model = REGISTRY.create("brdf-model", "ward", {"anisotropic": True})
+    scene = load_scene(f"""
+camera: {{position: [0.2, -1.5, 1.8], look_at: [0, 0, 0], fov_deg: 60, resolution: [96, 72]}}
+materials: {{m: {{model: ward, model_params: {{anisotropic: true}},
+               params: {{rho_d: 0.05, rho_s: 0.4, alpha_x: 0.08, alpha_y: 0.4}}}}}}
+objects: [{{shape: mesh, file: {obj}, material: m}}]
+lights: [{{type: point, position: [0.3, 0.8, 1.2], intensity: 3}}]
+""")
+    materials = {"m": mat.uniform("m", model, {"rho_d": 0.05, "rho_s": 0.4, "alpha_x": 0.08, "alpha_y": 0.4})}
+    ref, _ = render_scene(scene, materials)
+    got, _ = draw_gl(gl, scene, materials)
+    rel = relative_errors(got, ref, interior(scene, materials))
+    assert np.sqrt(np.mean(rel**2)) < 1e-3
+
+
+def test_obj_loader_fans_polygons_and_reports_malformed_lines(tmp_path):
+    good = tmp_path / "quad.obj"
+    good.write_text("# a quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf -4 -3 -2 -1\n")
+    pos, uv, nrm, idx = load_obj(str(good))
+    assert idx.shape == (2, 3) and uv is None and nrm is None and len(pos) == 4
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 x\n")
+    with pytest.raises(SbrdfError, match=r"bad.obj:4: malformed OBJ line"):
+        load_obj(str(bad))
+    missing = tmp_path / "missing.obj"
+    missing.write_text("v 0 0 0\nf 1 2 3\n")
+    with pytest.raises(SbrdfError, match="vertex that does not exist"):
+        load_obj(str(missing))
+
+
+def test_transmissive_pane_lit_from_behind(gl):
+    """A two-sided (transmissive) model shows a light behind the pane; an opaque one stays black."""
+    text = """
+camera: {position: [0, -1.2, 1.5], look_at: [0, 0, 0], fov_deg: 50, resolution: [64, 48]}
+materials: {m: {artifact: input}}
+objects: [{shape: plane, size: [2, 2], material: m}]
+lights: [{type: point, position: [0.2, 0.3, -1.0], intensity: 5}]
+"""
+    scene = load_scene(text)
+    kurt = REGISTRY.create("brdf-model", "kurt-transmissive", {"lobes": 1, "transmission_lobes": 1})
+    params = {p.name: p.default for p in kurt.parameters}
+    params.update({k: 0.3 for k in params if k.startswith("m_")})
+    params.update({k: [0.8, 0.8, 0.8] for k in params if k.startswith("k_t")})
+    materials = {"m": mat.uniform("m", kurt, params)}
+    ref, _ = render_scene(scene, materials)
+    got, _ = draw_gl(gl, scene, materials)
+    mask = interior(scene, materials)
+    assert ref[mask].max() > 0
+    rel = relative_errors(got, ref, mask)
+    assert np.sqrt(np.mean(rel**2)) < 1e-3
+    opaque = {"m": mat.uniform("m", REGISTRY.create("brdf-model", "lambert", {}), {"rho_d": 0.3})}
+    assert render_scene(scene, opaque)[0].max() == 0
+
+
+def test_shadows_match_the_reference_away_from_edges(gl, registry):
+    scene = load_scene("""
+camera: {position: [0, -2.2, 2.0], look_at: [0, 0, 0.2], fov_deg: 45, resolution: [96, 72]}
+materials: {m: {model: lambert, params: {rho_d: 0.2}}}
+objects:
+  - {shape: plane, size: [3, 3], material: m}
+  - {shape: sphere, radius: 0.35, material: m, transform: {translate: [0, 0, 0.5]}}
+lights: [{type: point, position: [0.8, 0.5, 2.5], intensity: 6}, {type: directional, direction: [-1, 0, 1], irradiance: 0.4}]
+shadows: true
+""")
+    materials = mat.resolve(scene, None, registry)
+    ref, _ = render_scene(scene, materials)
+    got, _ = draw_gl(gl, scene, materials)
+    unshadowed, _ = render_scene(scene.__class__(**{**scene.__dict__, "shadows": False}), materials)
+    mask = interior(scene, materials)
+    shadowed = mask & (ref.sum(-1) < 0.9 * unshadowed.sum(-1))
+    assert shadowed.sum() > 100  # the sphere casts shadows from both lights
+    rel = relative_errors(got, ref, mask)
+    assert np.mean(rel < 1e-3) > 0.97  # all but the pixels along shadow edges
+
+
+def test_alpha_kill_shows_what_is_behind(gl):
+    scene = load_scene("""
+camera: {position: [0, -1.5, 2], look_at: [0, 0, 0], fov_deg: 50, resolution: [64, 48]}
+materials: {front: {artifact: input}, back: {model: lambert, params: {rho_d: [0, 0.3, 0]}}}
+objects:
+  - {shape: plane, size: [2, 2], material: front, transform: {translate: [0, 0, 0.3]}}
+  - {shape: plane, size: [4, 4], material: back}
+lights: [{type: directional, direction: [0, 0, 1], irradiance: 1}]
+""")
+    lam = REGISTRY.create("brdf-model", "lambert", {})
+    alpha = np.array([[1.0, 0.0], [0.0, 1.0]], np.float32)  # a checkerboard of holes
+    front = mat.SceneMaterial("front", lam, np.full((2, 2, 3), [0.3, 0, 0], np.float32), alpha, "nearest")
+    materials = {"front": front, "back": mat.uniform("back", lam, {"rho_d": [0, 0.3, 0]})}
+    ref, _ = render_scene(scene, materials)
+    got, _ = draw_gl(gl, scene, materials)
+    red, green = (ref[..., 0] > 0).sum(), (ref[..., 1] > 0).sum()
+    assert red > 200 and green > 200
+    mask = interior(scene, materials, margin_uv=0.05, texels=(2, 2))
+    rel = relative_errors(got, ref, mask)
+    assert np.mean(rel < 1e-4) > 0.98
+
+
+# -- hard cases -------------------------------------------------------------------------------------------------------
+
+
+@settings(max_examples=25, deadline=None)
+@given(elev=st.floats(0.0, 1.0), light_elev=st.floats(-0.2, 1.0), exponent=st.floats(1.0, 1e4),
+       cx=st.floats(-1.5, 1.5))
+def test_cpu_shading_is_finite_at_grazing_angles_and_huge_exponents(elev, light_elev, exponent, cx):
+    """Camera and light from the horizon to the zenith, exponents to 10⁴, |C_x| > C_z: finite, non-negative."""
+    cam = [0.0, float(-2.0 * np.cos(elev * np.pi / 2)), float(2.0 * np.sin(elev * np.pi / 2) + 1e-3)]
+    scene = load_scene(f"""
+camera: {{position: {cam}, look_at: [0, 0, 0], up: [1, 0, 0], fov_deg: 30, resolution: [16, 12]}}
+materials: {{m: {{model: lafortune, params: {{rho_d: 0.1, rho_s_1: 2.0, c_xy_1: {cx}, c_z_1: 1.0, exponent_1: {exponent}}}}}}}
+objects: [{{shape: plane, size: [4, 4], material: m}}]
+lights: [{{type: directional, direction: [0, 1, {light_elev}], irradiance: 1}}]
+""")
+    model = REGISTRY.create("brdf-model", "lafortune", {"lobes": 1})
+    materials = {"m": mat.uniform("m", model, {"rho_d": 0.1, "rho_s_1": 2.0, "c_xy_1": cx, "c_z_1": 1.0,
+                                               "exponent_1": exponent})}
+    image, _ = render_scene(scene, materials)
+    assert np.isfinite(image).all() and (image >= 0).all()
+
+
+# -- scene files --------------------------------------------------------------------------------------------------------
+
+
+def test_scene_errors_name_the_line(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("""camera: {position: [0, -2, 2], fov_deg: 400}
+materials: {m: {artifact: input}}
+objects:
+  - {shape: cube, material: m}
+  - {shape: sphere, radius: -1, material: nope}
+  - {shape: mesh, file: missing.obj, material: m}
+lights:
+  - {type: spot, position: [0, 0, 1]}
+  - {type: point, intensity: [1, 2]}
+colour: red
+""")
+    with pytest.raises(SceneError) as e:
+        load_scene(str(path))
+    text = str(e.value)
+    for line, what in ((1, "fov_deg"), (4, "cube"), (5, "radius"), (5, "nope"), (6, "missing.obj"), (8, "spot"),
+                       (9, "position"), (10, "colour")):
+        assert f"bad.yaml:{line}:" in text and what in text, (line, what, text)
+
+
+def test_scene_needs_a_light_and_valid_materials():
+    with pytest.raises(SceneError, match="no light"):
+        load_scene("camera: {}\nobjects: [{shape: plane}]\nmaterials: {sample: {artifact: input}}\n")
+    with pytest.raises(SceneError, match="either artifact"):
+        load_scene("objects: [{shape: plane, material: m}]\nmaterials: {m: {}}\nlights: [{type: directional, "
+                   "direction: [0, 0, 1]}]\n")
+
+
+def test_uniform_material_rejects_unknown_and_out_of_bounds_parameters():
+    lam = REGISTRY.create("brdf-model", "lambert", {})
+    with pytest.raises(SbrdfError, match="unknown parameter"):
+        mat.uniform("m", lam, {"albedo": 0.5})
+    with pytest.raises(SbrdfError, match="outside its bounds"):
+        mat.uniform("m", lam, {"rho_d": -1})
+
+
+def test_tessellated_shapes_agree_with_the_ray_caster():
+    """Vertex attributes of the GPU meshes equal the CPU's analytic surface attributes at the same points."""
+    from sbrdf_render.shapes import intersect
+
+    scene = load_scene("""
+objects:
+  - {shape: sphere, radius: 0.7, segments: [32, 16], transform: {translate: [0.1, 0.2, 0.3], rotate_deg: [20, 0, 40]}}
+  - {shape: cylinder, radius: 0.4, height: 1.2, segments: 24, transform: {scale: 2}}
+materials: {sample: {artifact: input}}
+lights: [{type: directional, direction: [0, 0, 1]}]
+""")
+    for obj in scene.objects:
+        mesh = tessellate(obj)
+        keep = (mesh.uvs[:, 1] > 0.01) & (mesh.uvs[:, 1] < 0.99) & (np.abs(mesh.uvs[:, 0] - 0.5) < 0.499)  # poles, seam
+        target = mesh.positions[keep]
+        origin = target + mesh.normals[keep] * 0.5
+        hits = intersect(obj, origin, -mesh.normals[keep])[0]
+        np.testing.assert_allclose(hits.position, target, atol=1e-9)
+        np.testing.assert_allclose(hits.normal, mesh.normals[keep], atol=1e-9)
+        np.testing.assert_allclose(hits.tangent, mesh.tangents[keep], atol=1e-9)
+        np.testing.assert_allclose(hits.uv, mesh.uvs[keep], atol=1e-9)
+
+
+# -- the Render node in a graph ----------------------------------------------------------------------------------------
+
+
+def test_render_nodes_in_a_graph_write_exr_and_png(gl, tmp_path, write_graph, registry):
+    from sbrdf_core.graph import load_graph
+    from sbrdf_core.io import read_exr
+    from sbrdf_core.runner import Runner
+
+    (tmp_path / "scene.yaml").write_text("""
+camera: {position: [0, -1.5, 1.5], look_at: [0, 0, 0], fov_deg: 45, resolution: [64, 48]}
+objects:
+  - {shape: plane, size: [1.5, 1.5]}
+  - {shape: sphere, radius: 0.3, transform: {translate: [0, 0, 0.3]}}
+lights: [{type: point, position: [1, -1, 2], intensity: 5}]
+""")
+    graph = tmp_path / "g.yaml"
+    graph.write_text(f"""
+name: render
+store: {tmp_path / 'runs'}
+nodes:
+  capture: {{kind: Capture, plugin: synthetic, params: {{texels: [16, 16], poses: 24, model: lambert, seed: 2}}}}
+  register: {{kind: Register, plugin: texel-aligned, in: {{capture: capture}}}}
+  reflectance: {{kind: Reflectance, in: {{stack: register}}}}
+  fit: {{kind: Fit, plugin: lm, in: {{samples: reflectance}}, params: {{model: lambert}}}}
+  gl: {{kind: Render, plugin: gl, in: {{material: fit}}, params: {{scene: scene.yaml, frames: 2}}}}
+  cpu: {{kind: Render, plugin: cpu, in: {{material: fit}}, params: {{scene: scene.yaml}}}}
+""")
+    Runner(registry).run(load_graph(str(graph), registry))
+    images = {}
+    for node in ("gl", "cpu"):
+        out = tmp_path / "runs" / node
+        assert (out / "image.png").exists()
+        images[node] = read_exr(str(out / "image.exr"))
+    assert images["gl"].shape == (48, 64, 3) and images["gl"].max() > 0
+    rel = np.abs(images["gl"] - images["cpu"]).max(-1) / np.maximum(images["cpu"].max(-1), 1e-3 * images["cpu"].max())
+    assert np.median(rel) < 1e-4
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(graph.read_text().replace("scene.yaml}", "nowhere.yaml}"))
+    with pytest.raises(GraphError, match="cannot read scene file"):
+        load_graph(str(bad), registry)
