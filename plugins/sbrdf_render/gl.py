@@ -124,7 +124,7 @@ def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
         """One block per light, unrolled: constant indices (sampler arrays need them) and no loop overhead."""
         lines = []
         for l in range(count):
-            shadow = (f" * shadow_visibility(u_shadow[{shadow_base + l}], u_shadow_mvp[{shadow_base + l}], v_pos)"
+            shadow = (f" * shadow_visibility(u_shadow[{shadow_base + l}], u_shadow_mvp[{shadow_base + l}], v_pos, c)"
                       if features.shadows else "")
             lines += (["    {"] + [ln.replace("[l]", f"[{l}]") for ln in setup] +
                       ["        float c = dot(N, Lw);",
@@ -148,11 +148,12 @@ def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
     return "\n".join(out + body) + "\n"
 
 
-SHADOW_LOOKUP = """float shadow_visibility(sampler2DShadow map, mat4 mvp, vec3 p) {
+SHADOW_LOOKUP = """float shadow_visibility(sampler2DShadow map, mat4 mvp, vec3 p, float c) {
     vec4 q = mvp * vec4(p, 1.0);
     vec3 s = q.xyz / q.w * 0.5 + 0.5;
     if (q.w <= 0.0 || any(lessThan(s, vec3(0.0))) || any(greaterThan(s, vec3(1.0)))) return 1.0;
-    return texture(map, vec3(s.xy, s.z - SHADOW_BIAS));
+    float bias = SHADOW_BIAS * clamp(sqrt(max(1.0 - c * c, 0.0)) / max(c, 1e-3), 1.0, 20.0);  // slope-scaled
+    return texture(map, vec3(s.xy, s.z - bias));
 }
 """
 
@@ -301,7 +302,8 @@ class GLScene:
                 vao.render(moderngl.TRIANGLES)
         ctx.finish()
         wall = (time.perf_counter() - t0) * 1e3
-        gpu = self.query.elapsed / 1e6 if self.query.elapsed else wall
+        elapsed = self.query.elapsed
+        gpu = elapsed / 1e6 if 0 < elapsed < 2**32 - 1 else wall  # llvmpipe may answer UINT_MAX on a first frame
         image = None
         if read:
             W, H = self.scene.camera.resolution
@@ -311,7 +313,8 @@ class GLScene:
 
     def release(self) -> None:
         for obj in reversed(self._res):
-            obj.release()
+            if hasattr(obj, "release"):  # moderngl's Query has no release()
+                obj.release()
         self._res = []
 
 

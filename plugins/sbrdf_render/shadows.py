@@ -1,8 +1,8 @@
 """Shadow maps for the ``gl`` renderer, built only when a scene says ``shadows: true``.
 
-One depth map per light, rendered from the light over the scene's bounding
-sphere: a perspective frustum for a point light (which must lie outside that
-sphere), an orthographic box for a directional light.  The fragment shader
+One depth map per light, fitted to the scene's vertices: a perspective
+frustum from a point light (which must see all geometry within 160°: a cube
+map is not implemented), an orthographic box for a directional light.  The fragment shader
 compares depths with a small slope-independent bias; the CPU reference casts
 exact shadow rays, so the two differ only within a texel of shadow edges.
 """
@@ -14,7 +14,7 @@ import numpy as np
 from sbrdf_core.errors import SbrdfError
 
 SIZE = 2048
-BIAS = 2e-3  # in normalised depth; acne-free on the built-in shapes at 2048²
+BIAS = 2e-3  # normalised depth, scaled up with the slope (tan θ, at most 20×) in the shader
 
 DEPTH_VS = """#version 330
 uniform mat4 u_mvp;
@@ -39,25 +39,42 @@ def _look(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     return m
 
 
-def light_matrix(light, centre: np.ndarray, radius: float) -> np.ndarray:
-    """World -> light clip space covering the sphere (centre, radius)."""
+def light_matrix(light, points: np.ndarray) -> np.ndarray:
+    """World -> light clip space enclosing ``points`` (every vertex of the scene)."""
+    lo, hi = points.min(0), points.max(0)
+    centre = (lo + hi) / 2
     if light.type == "point":
-        d = float(np.linalg.norm(light.vector - centre))
-        if d <= radius * 1.01:
-            raise SbrdfError("gl renderer: shadows from a point light inside the scene's bounding sphere need a cube "
-                             "shadow map, which is not implemented; move the light out or use the cpu renderer")
-        half = np.arcsin(min(radius * 1.01 / d, 0.999))
-        near, far = max(d - radius * 1.01, d * 1e-3), d + radius * 1.01
-        f = 1 / np.tan(half)
+        axis = centre - light.vector
+        if np.linalg.norm(axis) < 1e-9:
+            axis = np.array([0.0, 0.0, -1.0])
+        view = _look(light.vector, light.vector + axis)
+        q = points @ view[:3, :3].T + view[:3, 3]  # light space: looking down −z
+        depth = -q[:, 2]
+        front = depth > 1e-6 * max(1.0, float(depth.max(initial=1.0)))
+        if not front.all():
+            raise SbrdfError("gl renderer: a point light with geometry on all sides needs a cube shadow map, which is "
+                             "not implemented; move the light away from the objects or use the cpu renderer")
+        half = float(np.arctan(np.max(np.hypot(q[:, 0], q[:, 1]) / depth)))
+        if half > np.radians(80):
+            raise SbrdfError(f"gl renderer: a point light sees the scene over {2 * np.degrees(half):.0f}°; one shadow "
+                             "map covers at most 160° (a cube map is not implemented): move the light away or use cpu")
+        near, far = depth.min() * 0.95, depth.max() * 1.05
+        f = 1 / np.tan(half * 1.02)
         proj = np.zeros((4, 4))
         proj[0, 0] = proj[1, 1] = f
         proj[2, 2], proj[2, 3], proj[3, 2] = (far + near) / (near - far), 2 * far * near / (near - far), -1
-        return proj @ _look(light.vector, centre)
-    eye = centre + light.vector * radius * 2
-    r = radius * 1.01
-    proj = np.diag([1 / r, 1 / r, -1 / (2 * r), 1.0])
-    proj[2, 3] = -(radius * 2) / (2 * r)  # maps distance [radius, 3 radius] from the eye to [-1, 1]
-    return proj @ _look(eye, centre)
+        return proj @ view
+    radius = float(np.linalg.norm(hi - lo)) / 2 + 1e-6
+    view = _look(centre + light.vector * radius * 2, centre)
+    q = points @ view[:3, :3].T + view[:3, 3]
+    x0, y0, z0 = q.min(0)
+    x1, y1, z1 = q.max(0)
+    proj = np.eye(4)
+    proj[0, 0], proj[0, 3] = 2 / (x1 - x0 + 1e-9), -(x1 + x0) / (x1 - x0 + 1e-9)
+    proj[1, 1], proj[1, 3] = 2 / (y1 - y0 + 1e-9), -(y1 + y0) / (y1 - y0 + 1e-9)
+    near, far = -z1 - 1e-3 * radius, -z0 + 1e-3 * radius  # depths along −z
+    proj[2, 2], proj[2, 3] = -2 / (far - near), -(far + near) / (far - near)
+    return proj @ view
 
 
 class ShadowMaps:
@@ -65,8 +82,8 @@ class ShadowMaps:
         import moderngl
 
         self.ctx = ctx
-        centre, radius = scene.bounds()
-        self.matrices = [light_matrix(lt, centre, radius).astype("f4") for lt in scene.lights]
+        points = np.concatenate([m.positions for m in meshes.values()])
+        self.matrices = [light_matrix(lt, points).astype("f4") for lt in scene.lights]
         self.prog = ctx.program(vertex_shader=DEPTH_VS, fragment_shader=DEPTH_FS)
         self.vaos, self.buffers, self.maps, self.fbos = [], [], [], []
         for mesh in meshes.values():
