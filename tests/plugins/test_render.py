@@ -202,6 +202,9 @@ shadows: true
     for present in ("v_tangent", "cos(beta)", "vec3[3](", "u_dir_dir[1]", "sampler2DShadow", "discard", "u_alpha"):
         assert present in src3, present
     assert "/ r2" not in src3  # the only point light has no fall-off
+    kurt = REGISTRY.create("brdf-model", "kurt-transmissive", {"lobes": 1, "transmission_lobes": 1})
+    mk = mat.SceneMaterial("m", kurt, np.zeros((1, 1, kurt.size), np.float32), None, "nearest")
+    assert "abs(c)" in fragment_source(mk, scene.features({"m": mk}))  # transmission only where a model transmits
 
 
 def test_anisotropic_frames_follow_uv_handedness_on_a_mirrored_mesh(gl, tmp_path):
