@@ -40,7 +40,8 @@ class MeasuredTableNode(NodeKind):
     doc = "Read a gonioreflectometer transfer-probability table (docs/measured-tables.md) into a 1x1 SampledReflectance."
     output = SampledReflectance
     params = (
-        Param("path", "str", None, "table file (CSV: theta_i, phi_i, theta_o, phi_o, p or bsdf)"),
+        Param("path", "str", None, "table file (CSV: theta_i, phi_i, theta_o, phi_o, p or bsdf), relative to the graph "
+              "file", extra={"path": True}),
         Param("distance_mm", "float", 1e6, "distance of the light/camera positions standing for the directions",
               bounds=(1.0, None), unit="mm"),
     )
