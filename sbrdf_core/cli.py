@@ -150,6 +150,12 @@ def fit_table(fits) -> str:
     return "\n".join(rows)
 
 
+def cmd_bench(args) -> int:
+    from .bench import main as bench
+
+    return bench(args.stages, args.full, not args.no_images, args.log)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="sbrdf", description="Measured surface appearance pipelines.")
     ap.add_argument("-p", dest="plugin", action="append", default=[], metavar="MODULE",
@@ -189,6 +195,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="exitant direction of the spatial image, deg")
     p.add_argument("--tol", type=float, default=15.0, help="angular tolerance of views (b) and (c), deg")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("bench", help="run the benchmarks (quick sizes) and regenerate docs/accuracy-vs-time.md")
+    p.add_argument("stages", nargs="*", help="stages to run (default all): fit quantize separable shadingmap "
+                   "bsdf_tables render envmap")
+    p.add_argument("--full", action="store_true", help="full sizes (about an hour on 2 cores) instead of quick ones")
+    p.add_argument("--no-images", action="store_true", help="do not re-render the documentation's images")
+    p.add_argument("--log", default=None, help="the scripts' output (default runs/bench.log)")
+    p.set_defaults(func=cmd_bench)
 
     args = ap.parse_args(argv)
     try:
