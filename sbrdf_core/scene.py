@@ -445,3 +445,29 @@ def check_scene_param(params) -> list[tuple[str, str]]:
     except SceneError as e:
         return [("scene", "; ".join(str(p) for p in e.problems))]
     return []
+
+
+def scene_fingerprint(path: str) -> str:
+    """Cache-key material for renderers: the scene's text and the size and time of every file it names.
+
+    A changed scene, mesh, environment map or referenced material store re-renders; an unchanged one is cached.
+    """
+    import hashlib
+    import os
+
+    h = hashlib.sha256()
+    try:
+        h.update(Path(path).read_bytes())
+        scene = load_scene(path)
+    except (OSError, SceneError):
+        return h.hexdigest()  # validation reports the problem
+    files = [o.params["file"] for o in scene.objects if o.shape == "mesh"]
+    files += [scene.environment.file] if scene.environment else []
+    files += [str(Path(m.artifact) / "zarr.json") for m in scene.materials.values() if m.artifact not in (None, "input")]
+    for f in files:
+        try:
+            st = os.stat(f)
+            h.update(f"{f}:{st.st_size}:{st.st_mtime_ns}".encode())
+        except OSError:
+            h.update(f"{f}:missing".encode())
+    return h.hexdigest()

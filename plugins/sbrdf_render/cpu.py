@@ -20,7 +20,7 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import check_scene_param, load_scene
+from sbrdf_core.scene import check_scene_param, load_scene, scene_fingerprint
 
 from . import materials as mat
 from .shapes import Hits, intersect, local_frame, tessellate
@@ -129,6 +129,9 @@ class CPURenderer:
         self.registry = registry
 
     check_params = staticmethod(check_scene_param)
+
+    def fingerprint(self) -> str:
+        return scene_fingerprint(self.scene_path)
 
     def render(self, material) -> RenderResult:
         scene = load_scene(self.scene_path)

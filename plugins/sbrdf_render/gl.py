@@ -22,7 +22,7 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import Features, check_scene_param, load_scene
+from sbrdf_core.scene import Features, check_scene_param, load_scene, scene_fingerprint
 
 from . import materials as mat
 from .shapes import tessellate
@@ -329,6 +329,9 @@ class GLRenderer:
         self.registry = registry
 
     check_params = staticmethod(check_scene_param)
+
+    def fingerprint(self) -> str:
+        return scene_fingerprint(self.scene_path)
 
     def render(self, material) -> RenderResult:
         scene = load_scene(self.scene_path)

@@ -440,6 +440,11 @@ nodes:
     assert images["gl"].shape == (48, 64, 3) and images["gl"].max() > 0
     rel = np.abs(images["gl"] - images["cpu"]).max(-1) / np.maximum(images["cpu"].max(-1), 1e-3 * images["cpu"].max())
     assert np.median(rel) < 1e-4
+    scene_file = tmp_path / "scene.yaml"
+    scene_file.write_text(scene_file.read_text().replace("resolution: [64, 48]", "resolution: [32, 24]"))
+    report = Runner(registry).run(load_graph(str(graph), registry))  # an edited scene re-renders; the fit is cached
+    assert read_exr(str(tmp_path / "runs" / "cpu" / "image.exr")).shape == (24, 32, 3)
+    assert report["fit"].status == "cached" and report["cpu"].status == "computed"
     bad = tmp_path / "bad.yaml"
     bad.write_text(graph.read_text().replace("scene.yaml}", "nowhere.yaml}"))
     with pytest.raises(GraphError, match="cannot read scene file"):
