@@ -27,7 +27,8 @@ SYNTHETIC_PARAMS = (
 
 
 FOLDER_PARAMS = (
-    Param("path", "str", doc="the capture folder (holding capture.json and images/)"),
+    Param("path", "str", doc="the capture folder (holding capture.json and images/), relative to the graph file",
+          extra={"path": True}),
     Param("response", "str", "auto", "auto: the manifest's curve, else recover it from brackets; manifest: require it; "
           "recover: always recover; linear: treat pixel values as linear", choices=("auto", "manifest", "recover", "linear")),
     Param("response_method", "str", "cubic", "recovery method: McAllister's cubic in log-log space or OpenCV's Debevec (8-bit)",

@@ -35,7 +35,7 @@ def sbrdf_quantizers():
              Param("c_range", "float", 1.0, "C biased over -1..1 (7 bits) or -2..2 (6 bits, keeps |C| > 1)",
                    choices=(1.0, 2.0)),
              Param("alpha", "str", None, "transparency mask: a PNG of the texel grid (0 = cut away) stored as "
-                   "rho_d's alpha", nullable=True)),
+                   "rho_d's alpha; relative to the graph file", nullable=True, extra={"path": True})),
             summary="McAllister's 8-bit hardware layout: rho_d RGBA8, per lobe rho_s RGB8 and (C_x, C_y, C_z, n') RGBA8",
         ),
         PluginSpec(

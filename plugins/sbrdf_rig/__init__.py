@@ -63,7 +63,8 @@ def sbrdf_devices():
 
 
 GONIO_PARAMS = (
-    Param("path", "str", doc="capture folder written pose by pose (resumed if a run was interrupted)"),
+    Param("path", "str", doc="capture folder written pose by pose (resumed if a run was interrupted), relative to "
+          "the graph file", extra={"path": True}),
     Param("motors", "dict", doc="motor name -> {device: ptu|indexer, params: {port: /dev/ttyUSB0 | sim, ...}, "
           "axes: {joint: driver axis}}; joints pan, tilt, roll, light; axes default ptu {pan: pan_deg, tilt: tilt_deg}, "
           "indexer {light: angle_deg}; port: sim starts the device's pty simulator in-process"),

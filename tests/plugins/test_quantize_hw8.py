@@ -168,7 +168,8 @@ def test_alpha_mask_is_stored_and_kills_texels(registry, tmp_path):
     write_png(str(tmp_path / "alpha.png"), mask)
     tex, scale, bias, dec = encode_decode(McAllister8Quantizer(alpha=str(tmp_path / "alpha.png")), model, params)
     np.testing.assert_array_equal(tex["rho_d"][:, 3], mask[0])
-    assert set(dec) == set(params)  # alpha is a texture property, not a BRDF parameter
+    assert set(dec) == set(params) | {"alpha"}  # alpha rides along for renderers' alpha-kill; not a BRDF parameter
+    np.testing.assert_array_equal(dec["alpha"][..., 0] > 0.5, mask[0] >= 128)
     wi, wo = mirror_pairs([30.0] * 4)
     wi, wo = np.repeat(wi, 4, axis=0), np.repeat(wo, 4, axis=0)
     f = hardware_shade({k: t for k, t in tex.items()}, scale, bias, wi, wo)
