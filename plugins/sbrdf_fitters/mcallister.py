@@ -75,7 +75,7 @@ class McAllisterFitter:
         if model.lobes == 0:
             lobes = []
         elif self.lobe_fit == "line-search":
-            pxx, pyy, pzz, _ = model._lobe_dots({}, wi, wo)
+            pxx, pyy, pzz, _ = model.lobe_dots({}, wi, wo)
             peak = np.max(np.where(use, lum, 0.0), axis=1, keepdims=True)
             keep = use & (lum > np.maximum(self.root_floor * peak, 0.0))
             c, n, _ = line_search_lobe(lum, keep, pxx, pyy, pzz, anisotropic=model.anisotropic,

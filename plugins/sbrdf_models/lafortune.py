@@ -119,8 +119,12 @@ class LafortuneModel(BRDFModel):
                         "c_z": params[f"c_z_{j}"], "exponent": params[f"exponent_{j}"]})
         return out
 
-    def _lobe_dots(self, params, wi, wo):
-        """``(pxx, pyy, pzz)``: ω_i, ω_r component products in the anisotropy frame, (T, S) each."""
+    def lobe_dots(self, params, wi, wo):
+        """``(pxx, pyy, pzz)``: ω_i, ω_r component products in the anisotropy frame, (T, S) each.
+
+        Every lobe is ``x = C_x·pxx + C_y·pyy + C_z·pzz``; fitters that scan lobe shapes (McAllister's
+        luminance lobe fit) reuse these products for all candidates.
+        """
         if self.has_beta:
             b = np.asarray(params["beta"])[:, 0][:, None]
             c, s = np.cos(b), np.sin(b)
@@ -133,7 +137,7 @@ class LafortuneModel(BRDFModel):
     # -- evaluation --------------------------------------------------------------------------
 
     def eval(self, params, wi, wo):
-        pxx, pyy, pzz, _ = self._lobe_dots(params, wi, wo)
+        pxx, pyy, pzz, _ = self.lobe_dots(params, wi, wo)
         f = np.broadcast_to(np.asarray(params["rho_d"])[:, None, :], wi.shape[:2] + (self.channels,)).copy()
         for lobe in self.lobe_list(params):
             x = lobe["c_x"][:, :1] * pxx + lobe["c_y"][:, :1] * pyy + lobe["c_z"][:, :1] * pzz
@@ -146,7 +150,7 @@ class LafortuneModel(BRDFModel):
     def _jacobian(self, params, wi, wo, fit_form):
         """Analytic ∂f/∂x in the natural form or the fit form (log n, no C_z column)."""
         up = above_horizon(wi, wo).astype(float)
-        pxx, pyy, pzz, (ix, iy, ox, oy) = self._lobe_dots(params, wi, wo)
+        pxx, pyy, pzz, (ix, iy, ox, oy) = self.lobe_dots(params, wi, wo)
         cols: list[np.ndarray] = []
         C = self.channels
         eye = np.eye(C)
@@ -370,7 +374,7 @@ def diffuse_percentile(f_r: np.ndarray, valid: np.ndarray, percentile: float) ->
 
 def solve_magnitudes(model: LafortuneModel, params, f_r, valid, wi, wo) -> dict[str, np.ndarray]:
     """ρ_s per lobe by non-negative-clipped linear least squares on ``f_r − ρ_d`` with lobe shapes fixed."""
-    pxx, pyy, pzz, _ = model._lobe_dots(params, wi, wo)
+    pxx, pyy, pzz, _ = model.lobe_dots(params, wi, wo)
     w = (valid & above_horizon(wi, wo)).astype(float)
     basis = []
     for lobe in model.lobe_list(params):
