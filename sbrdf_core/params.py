@@ -9,6 +9,7 @@ its implementation is constructed with.
 from __future__ import annotations
 
 import numbers
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -120,7 +121,12 @@ class Param:
         return value
 
 
+_YAML11_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
+
+
 def _coerce(type_: str, value: Any, name: str) -> Any:
+    if type_ == "float" and isinstance(value, str) and _YAML11_FLOAT.match(value):
+        value = float(value)  # PyYAML (YAML 1.1) reads 1e-3 as a string; YAML 1.2 and users mean a number
     ok = {
         "int": isinstance(value, numbers.Integral) and not isinstance(value, bool),
         "float": isinstance(value, numbers.Real) and not isinstance(value, bool),

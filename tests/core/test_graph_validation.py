@@ -259,3 +259,15 @@ def test_graph_yaml_is_never_executed(write_graph, registry, tmp_path):
         """)
     assert not (tmp_path / "pwned").exists()
     assert err.problems
+
+
+def test_exponent_floats_without_a_dot_are_numbers():
+    """PyYAML (YAML 1.1) reads ``1e-3`` as a string; a float parameter takes it as the number users mean."""
+    from sbrdf_core.params import Param, ParameterError
+
+    assert Param("noise", "float", 0.0).check("1e-3") == 1e-3
+    assert Param("xs", "list", [0.0], item="float").check(["-2.5E+4", 1]) == [-25000.0, 1.0]
+    with pytest.raises(ParameterError, match="should be float"):
+        Param("noise", "float", 0.0).check("1e-3x")
+    with pytest.raises(ParameterError, match="should be str"):
+        Param("name", "str", "").check(1e-3)
