@@ -60,7 +60,9 @@ _OBJECT_COMMON = (
 #: Shape-specific keys.  Built-in shapes are centred at the origin with +z up.
 SHAPES = {
     "plane": (Param("size", "list", [1.0, 1.0], "extent in x and y (u runs along +x, v along +y)", length=2, item="float",
-                    bounds=(1e-9, None)),),
+                    bounds=(1e-9, None)),
+              Param("reflector", "bool", False, "a planar reflector: its specular lobes reflect the other objects "
+                    "(the mirror scene effect, docs/environment-lighting.md)")),
     "sphere": (Param("radius", "float", 0.5, "radius", bounds=(1e-9, None)),
                Param("segments", "list", [128, 64], "GL tessellation in longitude and latitude", length=2, item="int",
                      bounds=(3, 4096))),
@@ -77,6 +79,14 @@ MATERIAL = (
     Param("model_params", "dict", {}, "configuration of that model (e.g. {lobes: 2})"),
     Param("params", "dict", {}, "the model's parameter values (scalars or RGB triples)"),
     Param("filter", "str", "bilinear", "parameter-map lookup", choices=("nearest", "bilinear")),
+    Param("shading_map", "str", None, "'input' (the Render node's input) or a ShadingMap or PowerShadingMap store "
+          "(relative to the scene file), looked up with model: and params: (Kautz et al. 2003, docs/shading-maps.md)",
+          nullable=True),
+    Param("variant", "str", "r", "shading-map lookup (Fig 6): by r, by outgoing radiance, by angle, or a slice as "
+          "texture", choices=("r", "radiance", "angle", "texture")),
+    Param("above_max", "str", "clamp", "shading-map lookups above a_max: clamp to, or scale, the brightest slice",
+          choices=("clamp", "scale")),
+    Param("sigma", "float", 1.0, "σ of Eq 2: the shading-mapped material's shade", bounds=(0.0, None)),
 )
 
 LIGHTS = {
@@ -91,6 +101,7 @@ ENVIRONMENT = (
     Param("file", "str", doc="EXR environment map, relative to the scene file"),
     Param("layout", "str", "latlong", "map layout", choices=("latlong", "cube")),
     Param("intensity", "float", 1.0, "radiance scale", bounds=(0.0, None)),
+    Param("options", "dict", {}, "options of the environment scene effect (docs/environment-lighting.md)"),
 )
 
 DISPLAY = (
@@ -183,6 +194,7 @@ class MaterialRef:
     model_params: dict
     params: dict
     filter: str
+    shading: dict | None = None  # {store, variant, above_max, sigma} for a shading-mapped material
 
 
 @dataclass(frozen=True)
@@ -190,6 +202,7 @@ class Environment:
     file: str
     layout: str
     intensity: float
+    options: dict = field(default_factory=dict)  # for the environment scene effect, validated by it
 
 
 @dataclass(frozen=True)
@@ -340,7 +353,7 @@ class _SceneValidator:
         if doc.get("environment") is not None:
             e = self.params(ENVIRONMENT, doc["environment"], "environment", ("environment",))
             if "file" in e:
-                env = Environment(self.path(e["file"]), e["layout"], e["intensity"])
+                env = Environment(self.path(e["file"]), e["layout"], e["intensity"], e["options"])
         shadows = doc.get("shadows", False)
         if not isinstance(shadows, bool):
             self.problem(f"shadows must be true or false, got {shadows!r}", ("shadows",))
@@ -375,7 +388,12 @@ class _SceneValidator:
                 continue
             if art is not None and art != "input":
                 art = self.path(art)
-            out[str(name)] = MaterialRef(str(name), art, model, m["model_params"], m["params"], m["filter"])
+            shading = None
+            if m["shading_map"] is not None:
+                store = m["shading_map"] if m["shading_map"] == "input" else self.path(m["shading_map"])
+                shading = {"store": store, "variant": m["variant"], "above_max": m["above_max"],
+                           "sigma": m["sigma"]}
+            out[str(name)] = MaterialRef(str(name), art, model, m["model_params"], m["params"], m["filter"], shading)
         return out
 
     def objects(self, raw, materials) -> list[SceneObject]:
@@ -464,6 +482,8 @@ def scene_fingerprint(path: str) -> str:
     files = [o.params["file"] for o in scene.objects if o.shape == "mesh"]
     files += [scene.environment.file] if scene.environment else []
     files += [str(Path(m.artifact) / "zarr.json") for m in scene.materials.values() if m.artifact not in (None, "input")]
+    files += [str(Path(m.shading["store"]) / "zarr.json") for m in scene.materials.values()
+              if m.shading and m.shading["store"] != "input"]
     for f in files:
         try:
             st = os.stat(f)

@@ -148,6 +148,10 @@ def open_artifact(url: str, kind: ArtifactKind | str | tuple | None = None, requ
     except Exception as e:
         raise ArtifactError(f"no artifact at {url}: {e}") from None
     art = Artifact(url, group)
+    if art.kind not in KINDS:  # plugins may declare kinds when they load (sbrdf_shading does)
+        from .registry import default_registry
+
+        default_registry()
     if art.kind not in KINDS:
         raise ArtifactError(f"{url} is not an sbrdf artifact (kind attribute is {art.kind!r})")
     if kind is not None:

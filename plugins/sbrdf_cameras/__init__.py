@@ -8,7 +8,8 @@ The implementation module is imported only when a device is created.
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
-EFFECT_NAMES = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response")
+EFFECT_NAMES = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response",
+                "shadowing", "masking")
 
 VIRTUAL_CAMERA_PARAMS = (
     Param("width", "int", 1024, "image width", bounds=(8, 16384), unit="px"),
@@ -50,6 +51,9 @@ VIRTUAL_CAMERA_PARAMS = (
     Param("row_chunk", "int", 128, "image rows rendered at once (bounds memory)", bounds=(1, 16384)),
     Param("carrier_supersample", "int", 4, "rays per pixel side over the printed carrier (pixel-area integration of the "
           "fiducials; 1 = point sampling)", bounds=(1, 16)),
+    Param("mesostructure", "dict", None, "photograph a height field with per-texel albedo instead of a flat sample: "
+          "{height_mm, albedo, facet} (sbrdf_cameras.mesostructure); effects shadowing/masking act on it",
+          nullable=True),
 )
 
 

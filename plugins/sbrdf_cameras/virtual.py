@@ -33,7 +33,15 @@ effect          what it does
 ``saturation``  the linear signal clips at 1 (the sensor's full well)
 ``response``    an 8/16-bit camera response curve (gamma, sRGB or McAllister's cubic)
                 and quantisation; without it images are linear float32 (EXR)
+``shadowing``   with a ``mesostructure``: points whose ray to the light passes below
+                the height field get no direct light (a ray march per point)
+``masking``     with a ``mesostructure``: each pixel sees the first intersection of
+                its ray with the height field instead of the plane z = 0
 ==============  ==================================================================
+
+**Mesostructure** (``mesostructure`` parameter, :mod:`sbrdf_cameras.mesostructure`):
+the sample becomes a height field (mm) with per-texel albedo, each facet shaded in
+its own frame; without ``shadowing``/``masking`` it costs one normal lookup per pixel.
 
 Signal model: exposure ``S = L · t · sensitivity``; ``S = 1`` is saturation.
 Random effects are seeded per pose (motor error) and per pose and exposure
@@ -50,7 +58,10 @@ import numpy as np
 
 from sbrdf_core.errors import ParameterError
 
-EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response")
+EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response",
+           "shadowing", "masking")
+#: Effects that need a mesostructure to act on.
+MESOSTRUCTURE_EFFECTS = ("shadowing", "masking")
 WHITE_ALBEDO = 0.80
 BLACK_ALBEDO = 0.04
 
@@ -74,10 +85,13 @@ class VirtualCamera:
                  param_maps, carrier_margin_mm, marker_size_mm, markers_per_side, dictionary, intensity, sensitivity,
                  effects, response_curve, response_gamma, response_coefficients, bit_depth, record_response,
                  full_well, read_noise, dark_current, vignetting_power, motor_rotation_deg, motor_light_mm, blur_px,
-                 seed, row_chunk, carrier_supersample=4):
+                 seed, row_chunk, carrier_supersample=4, mesostructure=None):
         unknown = [e for e in effects if e not in EFFECTS]
         if unknown:
             raise ParameterError(f"virtual-camera: unknown effect(s) {unknown}; known effects: {list(EFFECTS)}")
+        needs = [e for e in effects if e in MESOSTRUCTURE_EFFECTS]
+        if needs and mesostructure is None:
+            raise ParameterError(f"virtual-camera: effect(s) {needs} act on a height field; give a mesostructure")
         self.width, self.height = int(width), int(height)
         cx, cy = principal_point if principal_point is not None else ((self.width - 1) / 2, (self.height - 1) / 2)
         self.K = np.array([[focal_px, 0.0, cx], [0.0, focal_px, cy], [0.0, 0.0, 1.0]])
@@ -96,6 +110,11 @@ class VirtualCamera:
         self.motor_rotation_deg, self.motor_light_mm, self.blur_px = motor_rotation_deg, motor_light_mm, blur_px
         self.seed, self.row_chunk = seed, row_chunk
         self.carrier_supersample = int(carrier_supersample)
+        self.mesostructure = None
+        if mesostructure is not None:
+            from .mesostructure import Mesostructure
+
+            self.mesostructure = Mesostructure.from_config(mesostructure, self.texels, self.size_mm)
         if markers_per_side * 4 > self._dictionary_size():
             raise ParameterError(f"virtual-camera: {markers_per_side * 4} markers do not fit {dictionary}")
         if marker_size_mm >= carrier_margin_mm:
@@ -207,6 +226,10 @@ class VirtualCamera:
             settings.update(motor_rotation_deg=self.motor_rotation_deg, motor_light_mm=self.motor_light_mm)
         if "blur" in self.effects:
             settings["blur_px"] = self.blur_px
+        if self.mesostructure is not None:
+            m = self.mesostructure
+            settings["mesostructure"] = {"texels": list(m.texels), "height_range_mm": [m.h_min, m.h_max],
+                                         "mean_albedo": m.albedo.mean(axis=(0, 1)).tolist(), "facet": m.facet}
         return {"device": "virtual-camera", "model": self._model_label(), "texels": list(self.texels),
                 "effects": list(self.effects), "settings": settings, "seed": self.seed}
 
@@ -410,6 +433,8 @@ class VirtualCamera:
             s = np.where(dz != 0, -centre[2] / dz, -1.0)
         hit = s > 0
         X = centre + s[..., None] * d
+        if self.mesostructure is not None:
+            X, hit = self._meso_points(X, hit, centre, d)
         x, y = X[..., 0], X[..., 1]
         sx, sy = self.size_mm
         cw, ch = sx + 2 * self.margin, sy + 2 * self.margin
@@ -423,7 +448,9 @@ class VirtualCamera:
         L = np.zeros(x.shape + (3,), np.float64)
 
         # Material: gather each hit texel's parameters, evaluate the model for all of them at once.
-        if on_sample.any():
+        if on_sample.any() and self.mesostructure is not None:
+            L[on_sample] = self._meso_radiance(X[on_sample], wi[on_sample], wo[on_sample], light)
+        elif on_sample.any():
             maps = self.ground_truth()
             n_u, n_v = self.texels
             u = np.clip(((x[on_sample] + sx / 2) / sx * n_u).astype(np.int64), 0, n_u - 1)
@@ -447,6 +474,41 @@ class VirtualCamera:
             self.effects_ran.add("vignetting")
             L *= (1.0 / np.linalg.norm(self.rays()[r0:r1], axis=-1) ** self.vignetting_power)[..., None]
         return L.astype(np.float32)
+
+    def _meso_points(self, X, hit, centre, d):
+        """Surface points of a mesostructure: above the plane hit, or the first ray hit with ``masking``."""
+        m = self.mesostructure
+        if "masking" in self.effects:
+            self.effects_ran.add("masking")
+            dn = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            flat = dn.reshape(-1, 3)
+            pts, got = m.first_hit(np.broadcast_to(centre, flat.shape), flat)
+            return pts.reshape(X.shape), got.reshape(hit.shape)
+        X = X.copy()
+        X[..., 2] = np.where(hit, m.height_at(X[..., 0], X[..., 1]), 0.0)
+        return X, hit
+
+    def _meso_radiance(self, X, wi, wo, light) -> np.ndarray:
+        """``f_r · cos θ_i' / cos θ_i`` per point: facet BRDF, facet cosine over the plane's (falloff multiplies back)."""
+        m = self.mesostructure
+        v, u = m.texel_index(X[:, 0], X[:, 1])
+        frame = m.facet_frame(v, u)
+        wi_l, wo_l = m.to_local(wi, frame), m.to_local(wo, frame)
+        if m.facet == "lambert":
+            f = m.albedo[v, u] / np.pi
+        else:
+            maps = self.ground_truth()
+            n_u, n_v = self.texels
+            sx, sy = self.size_mm
+            pu = np.clip(((X[:, 0] + sx / 2) / sx * n_u).astype(np.int64), 0, n_u - 1)
+            pv = np.clip(((X[:, 1] + sy / 2) / sy * n_v).astype(np.int64), 0, n_v - 1)
+            f = m.albedo[v, u] * self.model.eval({k: a[pv, pu] for k, a in maps.items()}, wi_l[:, None], wo_l[:, None])[:, 0]
+        lit = (wi_l[:, 2] > 0) & (wo_l[:, 2] > 0) & (wi[:, 2] > 0)
+        if "shadowing" in self.effects:
+            self.effects_ran.add("shadowing")
+            lit &= ~m.shadowed(X, np.broadcast_to(light, X.shape))
+        ratio = np.where(lit, wi_l[:, 2] / np.where(wi[:, 2] > 0, wi[:, 2], 1.0), 0.0)
+        return f * ratio[:, None]
 
     # -- the sensor ---------------------------------------------------------------------
 

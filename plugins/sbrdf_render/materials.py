@@ -28,6 +28,9 @@ class SceneMaterial:
     alpha: np.ndarray | None  # (V, U) in [0, 1]; fragments below 0.5 are killed
     filter: str
     encoded: dict | None = None  # a TextureSet's quantizer name and NumPy textures, scale, bias
+    #: A shading rule of its own instead of f_r · E · cos θ (shading maps): ``radiance(uv, wi, wo, E)`` on
+    #: the CPU; ``glsl()``, ``glsl_radiance(wi, wo, E)``, ``gl_textures(ctx)``, ``gl_uniforms()`` on the GPU.
+    surface: Any = None
 
     @property
     def anisotropic(self) -> bool:
@@ -101,8 +104,13 @@ def resolve(scene, input_material: Material | None, registry) -> dict[str, Scene
     """Every material the scene's objects use, loaded once."""
     used = {o.material for o in scene.objects}
     out = {}
+    from sbrdf_core.nodes.render import InputArtifact
+
     for name in sorted(used):
         ref = scene.materials[name]
+        if isinstance(input_material, InputArtifact) and ref.artifact == "input":
+            raise SbrdfError(f"{scene.file}: material {name!r} is the Render node's input, a "
+                             f"{input_material.artifact.kind}: give it as shading_map: input with model: and params:")
         if ref.artifact == "input":
             if input_material is None:
                 raise SbrdfError(f"{scene.file}: material {name!r} is the Render node's input, but there is none")
@@ -111,5 +119,26 @@ def resolve(scene, input_material: Material | None, registry) -> dict[str, Scene
             out[name] = from_material(name, open_material(registry, ref.artifact), ref.filter)
         else:
             model = registry.create("brdf-model", ref.model, dict(ref.model_params))
-            out[name] = uniform(name, model, ref.params, ref.filter)
+            if ref.shading is not None:
+                shading = dict(ref.shading)
+                if shading["store"] == "input":
+                    if not isinstance(input_material, InputArtifact):
+                        raise SbrdfError(f"{scene.file}: material {name!r} takes its shading map from the Render "
+                                         "node's input, which is not a ShadingMap or PowerShadingMap")
+                    shading["store"] = input_material.artifact.url
+                out[name] = shading_mapped(name, model, ref.params, shading)
+            else:
+                out[name] = uniform(name, model, ref.params, ref.filter)
     return out
+
+
+def shading_mapped(name: str, model, values: dict, shading: dict) -> SceneMaterial:
+    """A shading map looked up with ``model`` (global parameters ``values``) chosen at render time."""
+    try:
+        from sbrdf_shading.surface import ShadingSurface
+    except ImportError as e:  # pragma: no cover - the plugin ships with sbrdf
+        raise SbrdfError(f"material {name!r}: shading maps need the sbrdf_shading plugin ({e})") from None
+    base = uniform(name, model, values, "nearest")
+    base.surface = ShadingSurface.open(shading["store"], model, model.unpack(base.maps.reshape(1, -1).astype(float)),
+                                       shading["variant"], shading["above_max"], shading["sigma"])
+    return base

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import tile_directions
 from sbrdf_core.nodes.render import RenderResult
 
@@ -31,6 +32,10 @@ class PreviewRenderer:
 
     def render(self, material) -> RenderResult:
         import dask.array as da
+
+        if not hasattr(material, "params"):
+            raise SbrdfError(f"preview renders fitted or quantized materials; {material.source} is a "
+                             f"{material.artifact.kind}: render it with the cpu or gl renderer and a scene")
 
         model = material.model
         stacked = da.concatenate([da.asarray(material.params[p.name]) for p in model.parameters], axis=-1)

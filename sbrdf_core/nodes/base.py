@@ -27,17 +27,22 @@ class Port:
     """A typed input of a node kind: which artifact kinds it accepts."""
 
     name: str
-    kinds: tuple[ArtifactKind, ...]
+    kinds: tuple[ArtifactKind | str, ...]
     doc: str = ""
     #: An optional input may be left out of ``in:``; the node then works without it.
     optional: bool = False
 
     def accepts(self, kind: ArtifactKind) -> bool:
-        return any(k.kind == kind.kind for k in self.kinds)
+        return kind.kind in self.names
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Accepted kind names; a kind declared by a plugin may be given by name in ``kinds``."""
+        return tuple(k if isinstance(k, str) else k.kind for k in self.kinds)
 
     @property
     def kind_names(self) -> str:
-        return " or ".join(k.kind for k in self.kinds)
+        return " or ".join(self.names)
 
 
 @dataclass

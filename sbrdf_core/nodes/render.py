@@ -69,6 +69,17 @@ def open_material(registry, url: str) -> Material:
     return load_material(registry, open_artifact(url, (ParamMaps, TextureSet)))
 
 
+@dataclass
+class InputArtifact:
+    """A Render input that is not a BRDF material (a shading map): renderers look it up by its kind."""
+
+    artifact: Any
+
+    @property
+    def source(self) -> str:
+        return self.artifact.url
+
+
 def material_from(ctx: BuildContext, art) -> Material:
     return load_material(ctx.registry, art)
 
@@ -91,13 +102,16 @@ def to_display(image: np.ndarray, exposure: float, gamma: str = "srgb") -> np.nd
 class Render(NodeKind):
     name = "Render"
     doc = "Render a material; writes image.exr (linear) and image.png (display) beside the arrays."
-    inputs = (Port("material", (ParamMaps, TextureSet), "fitted or quantized material"),)
+    #: Shading maps (kinds of the sbrdf_shading plugin) are rendered with a BRDF chosen in the scene.
+    inputs = (Port("material", (ParamMaps, TextureSet, "ShadingMap", "PowerShadingMap"),
+                   "fitted or quantized material, or a shading map"),)
     output = Images
     plugin_category = "renderer"
 
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
-        material = material_from(ctx, ctx.inputs["material"])
+        art = ctx.inputs["material"]
+        material = material_from(ctx, art) if art.kind in (ParamMaps.kind, TextureSet.kind) else InputArtifact(art)
         result: RenderResult = ctx.plugin.render(material)
 
         def finalize(art):
@@ -116,6 +130,7 @@ class Render(NodeKind):
             image = da.from_array(image)
         return Output(
             arrays={"image": image.astype(np.float32)},
-            attrs={"renderer": ctx.spec.name, "material": material.source, "model": material.model.name, **result.attrs},
+            attrs={"renderer": ctx.spec.name, "material": material.source, "input_kind": art.kind,
+                   "model": getattr(getattr(material, "model", None), "name", None), **result.attrs},
             finalize=finalize,
         )
