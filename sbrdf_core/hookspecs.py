@@ -155,6 +155,28 @@ def sbrdf_fitters() -> list[PluginSpec]:
     """
 
 
+@hookspec
+def sbrdf_parameterizations() -> list[PluginSpec]:
+    """Changes of variables of a BRDF into two 2D factor domains (separable BRDFs).
+
+    :returns: specs whose ``impl`` provides
+
+        - ``coords(wi, wo) -> (x, y)``: texture coordinates ``(..., 2)`` in
+          [0, 1]^2 of the first and second factor for directions ``(..., 3)``
+          in the surface frame (+z the normal, +x the primary tangent).
+        - ``directions(x, y) -> (wi, wo)``: the inverse, broadcasting ``x``
+          against ``y``, used to sample a BRDF on the factor grid.
+        - ``wrap``: per factor, per texture axis, whether the axis is periodic.
+        - ``glsl() -> str``: ``void sep_coords(vec3 wi, vec3 wo, out vec2 x,
+          out vec2 y)`` computing the same coordinates per pixel.
+
+    Consulted by the separable-BRDF fitters and the ``separable`` model
+    (``plugins/sbrdf_separable``), never by graphs directly.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
 # ---------------------------------------------------------------------------
 # Quantize
 # ---------------------------------------------------------------------------
@@ -194,10 +216,39 @@ def sbrdf_renderers() -> list[PluginSpec]:
 
 @hookspec
 def sbrdf_scene_effects() -> list[PluginSpec]:
-    """Scene effects (environment lighting, shadows, mirrors, camera noise).
+    """Scene effects (environment lighting, mirrors): radiance the ``cpu`` and ``gl`` renderers add to L.
 
-    :returns: specs whose ``impl`` a renderer consults only when a scene calls
-        for the effect, so that scenes pay only for what they use.
+    :returns: specs whose ``impl`` is a class providing
+
+        - ``wanted(scene) -> bool`` (static): whether the scene calls for the
+          effect (``environment:`` present, a ``reflector: true`` object).  A
+          renderer constructs and runs only wanted effects, so a scene pays
+          for nothing it does not use and its shaders contain no code of
+          effects it does not want.
+        - ``options(scene) -> dict`` (static): the effect's parameter values
+          taken from the scene file, validated against the spec's ``params``
+          when the renderer constructs it (``impl(**values)``).
+        - ``prepare(scene, materials, gl_context=None)``: load data and
+          precompute (maps, buffers); ``materials`` are the scene's resolved
+          materials by name; ``gl_context`` is given by the ``gl`` renderer,
+          which lets the effect precompute on the GPU.
+        - ``cpu_radiance(material, hits, view_dirs, pixels) -> (R, 3)``: the
+          effect's radiance at ``R`` ray hits (``sbrdf_render.shapes.Hits``,
+          world space) of one scene material seen along ``view_dirs``;
+          ``pixels`` are the hits' image pixel indices (per-pixel sequences).
+        - ``glsl(material, exprs) -> (declarations, statements)``: GLSL
+          declared before ``main`` and statements run in ``main`` after the
+          lights, with ``N``, ``T``, ``B`` (world frame), ``V``, ``wo``
+          (surface frame), ``v_pos`` and the accumulated ``vec3 L`` in scope;
+          ``exprs`` maps each model parameter to its GLSL expression.
+        - ``gl_prepare(drawer)`` (the ``GLScene``: context, meshes, programs,
+          textures), ``gl_uniforms(program, first_unit) -> units
+          used``, ``gl_use(first_unit) -> units used`` (bind its textures before a draw),
+          ``gl_frame(drawer)`` (before each frame: extra passes, per-frame
+          uniforms), ``release()``.
+
+    Effects are consulted in registry order; each adds to L independently.
+    Shadows are built into the renderers (``shadows: true``), not an effect.
 
     Call semantics: collected; called once when the registry loads.
     """

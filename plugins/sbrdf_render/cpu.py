@@ -23,6 +23,7 @@ from sbrdf_core.nodes.render import RenderResult
 from sbrdf_core.scene import check_scene_param, load_scene, scene_fingerprint
 
 from . import materials as mat
+from .effects import active_effects, check_covered
 from .shapes import Hits, intersect, local_frame, tessellate
 
 #: Pixels shaded per BRDF evaluation: bounds the temporaries of multi-lobe models at 1080p.
@@ -64,7 +65,7 @@ def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray
     for s in range(0, len(view_dirs), BATCH):
         sl = slice(s, s + BATCH)
         t, b, n = local_frame(hits.normal[sl], hits.tangent[sl])
-        params = model.unpack(material.lookup(hits.uv[sl]))
+        params = model.unpack(material.lookup(hits.uv[sl])) if material.surface is None else {}
         wo = -view_dirs[sl]
         wo_local = np.stack([np.einsum("ij,ij->i", t, wo), np.einsum("ij,ij->i", b, wo), np.einsum("ij,ij->i", n, wo)], 1)
         for k, light in enumerate(lights):
@@ -84,18 +85,25 @@ def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray
             if not lit.any():
                 continue
             wi_local = np.stack([np.einsum("ij,ij->i", t, wi), np.einsum("ij,ij->i", b, wi), cos], 1)
-            f = model.eval({k2: v[lit] for k2, v in params.items()}, wi_local[lit][:, None], wo_local[lit][:, None])[:, 0]
             idx = np.arange(s, min(s + BATCH, len(view_dirs)))[lit]
+            if material.surface is not None:  # its own shading rule (shading maps): radiance from E directly
+                out[idx] += material.surface.radiance(hits.uv[sl][lit], wi_local[lit], wo_local[lit], E[lit])
+                continue
+            f = model.eval({k2: v[lit] for k2, v in params.items()}, wi_local[lit][:, None], wo_local[lit][:, None])[:, 0]
             out[idx] += f * E[lit] * np.abs(cos[lit])[:, None]
     return out
 
 
-def render_scene(scene, materials: dict, meshes: dict | None = None) -> tuple[np.ndarray, dict]:
-    """The scene's linear image ``(H, W, 3)`` float64, and timings; ``materials`` from :func:`materials.resolve`."""
-    if scene.environment is not None:
-        raise SbrdfError(f"{scene.file}: the cpu renderer draws point and directional lights; environment lighting "
-                         "needs the environment scene effect, which is not installed")
+def render_scene(scene, materials: dict, meshes: dict | None = None, effects: list | None = None,
+                 registry=None) -> tuple[np.ndarray, dict]:
+    """The scene's linear image ``(H, W, 3)`` float64, and timings; ``materials`` from :func:`materials.resolve`.
+
+    ``effects``: the scene effects to add (default: those the scene wants, :func:`effects.active_effects`).
+    """
     t0 = time.perf_counter()
+    if effects is None:
+        effects = active_effects(scene, materials, registry)
+    check_covered(scene, effects)
     meshes = {} if meshes is None else meshes
     dirs, origin = scene.camera.rays()
     H, W = dirs.shape[:2]
@@ -114,6 +122,8 @@ def render_scene(scene, materials: dict, meshes: dict | None = None) -> tuple[np
             continue
         sub = Hits(hits.t[sel], hits.position[sel], hits.normal[sel], hits.tangent[sel], hits.uv[sel])
         image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow)
+        for effect in effects:  # environment lighting, mirrors: only what the scene wants
+            image[sel] += effect.cpu_radiance(material, sub, dirs[sel], sel)
     stats = {"cast_s": t_cast, "total_s": time.perf_counter() - t0, "pixels_hit": int((which >= 0).sum())}
     return image.reshape(H, W, 3), stats
 
@@ -136,6 +146,6 @@ class CPURenderer:
     def render(self, material) -> RenderResult:
         scene = load_scene(self.scene_path)
         materials = mat.resolve(scene, material, self.registry)
-        image, stats = render_scene(scene, materials)
+        image, stats = render_scene(scene, materials, registry=self.registry)
         return RenderResult(image, self.exposure if self.exposure is not None else scene.exposure,
                             {"scene": self.scene_path, **stats}, scene.gamma)

@@ -78,10 +78,11 @@ def parameter_exprs(model, samplers: str = "u_params") -> tuple[int, dict[str, s
     return (offset + 3) // 4, exprs
 
 
-def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
-    """The fragment shader for one material under the scene's lights: only the code the scene needs."""
+def fragment_source(material: mat.SceneMaterial, features: Features, effects: tuple = ()) -> str:
+    """The fragment shader for one material under the scene's lights and effects: only the code the scene needs."""
     model = material.model
-    ntex, exprs = parameter_exprs(model, "p")
+    surface = material.surface  # a shading rule of its own (shading maps) replaces f_r · E · cos θ
+    ntex, exprs = parameter_exprs(model, "p") if surface is None else (0, {})
     aniso = material.anisotropic
     two_sided = bool(getattr(model, "two_sided", False))
     NP, ND = features.point_lights, features.directional_lights
@@ -101,8 +102,12 @@ def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
 
         out += [f"uniform sampler2DShadow u_shadow[{NP + ND}];", f"uniform mat4 u_shadow_mvp[{NP + ND}];",
                 f"const float SHADOW_BIAS = {BIAS!r};", SHADOW_LOOKUP]
-    out.append(model.glsl())
-    call = model.glsl_call("wi", "wo", exprs)
+    if surface is None:
+        out.append(model.glsl())
+        radiance = f"{model.glsl_call('wi', 'wo', exprs)} * E * {'abs(c)' if two_sided else 'c'}"
+    else:
+        out.append(surface.glsl())
+        radiance = surface.glsl_radiance("wi", "wo", "E")
     body = ["void main() {"]
     if material.alpha is not None:
         body.append("    if (texture(u_alpha, v_uv).r < 0.5) discard;  // alpha-kill (seed 000 §6.5)")
@@ -118,7 +123,6 @@ def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
              "    vec3 wo = vec3(dot(T, V), dot(B, V), dot(N, V));",
              "    vec3 L = vec3(0.0);"]
     lit = "c != 0.0" if two_sided else "c > 0.0"
-    cosine = "abs(c)" if two_sided else "c"
 
     def light_loop(count, setup, shadow_base):
         """One block per light, unrolled: constant indices (sampler arrays need them) and no loop overhead."""
@@ -130,7 +134,7 @@ def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
                       ["        float c = dot(N, Lw);",
                        f"        if ({lit}) {{",
                        "            vec3 wi = vec3(dot(T, Lw), dot(B, Lw), c);",
-                       f"            L += {call} * E * {cosine}{shadow};",
+                       f"            L += {radiance}{shadow};",
                        "        }", "    }"])
         return lines
 
@@ -144,6 +148,10 @@ def fragment_source(material: mat.SceneMaterial, features: Features) -> str:
         body += light_loop(NP, setup, 0)
     if ND:
         body += light_loop(ND, ["        vec3 Lw = u_dir_dir[l];", "        vec3 E = u_dir_power[l];"], NP)
+    for effect in effects:  # scene effects (environment, mirrors) add their own declarations and terms to L
+        decls, statements = effect.glsl(material, exprs)
+        out.append(decls)
+        body += statements
     body += ["    frag = vec4(L, 1.0);", "}"]
     return "\n".join(out + body) + "\n"
 
@@ -156,6 +164,14 @@ SHADOW_LOOKUP = """float shadow_visibility(sampler2DShadow map, mat4 mvp, vec3 p
     return texture(map, vec3(s.xy, s.z - bias));
 }
 """
+
+
+def clip_planes(camera, meshes: dict) -> tuple[float, float]:
+    """Near and far planes from the vertices' depths along the view (meshes of any size), with a margin."""
+    forward = camera.basis()[2]
+    depth = np.concatenate([(m.positions - camera.position) @ forward for m in meshes.values()])
+    far = float(depth.max(initial=1.0)) * 1.01 + 1e-6
+    return max(far * 1e-5, float(depth.min(initial=0.0)) * 0.99), far
 
 
 # -- drawing ------------------------------------------------------------------------------------------------------------
@@ -175,11 +191,16 @@ class GLScene:
     Build once, :meth:`draw` many times (benchmarks), :meth:`release` at the end.
     """
 
-    def __init__(self, scene, materials: dict[str, mat.SceneMaterial], meshes: dict | None = None):
+    def __init__(self, scene, materials: dict[str, mat.SceneMaterial], meshes: dict | None = None,
+                 effects: list | None = None, registry=None):
         import moderngl
+
+        from .effects import active_effects, check_covered
 
         self.scene, self.materials = scene, materials
         self.ctx = ctx = context()
+        self.effects = active_effects(scene, materials, registry, ctx) if effects is None else list(effects)
+        check_covered(scene, self.effects)
         W, H = scene.camera.resolution
         self._res = []
         self.fbo = self._keep(ctx.framebuffer(color_attachments=[self._keep(ctx.texture((W, H), 4, dtype="f4"))],
@@ -187,7 +208,7 @@ class GLScene:
         self.features = scene.features(materials)
         self.sources, self.programs, self.textures = {}, {}, {}
         for name, m in materials.items():
-            fs = fragment_source(m, self.features)
+            fs = fragment_source(m, self.features, tuple(self.effects))
             vs = VERTEX.format(tangent_in="in vec4 in_tangent;\n" if m.anisotropic else "",
                                tangent_out="out vec4 v_tangent;\n" if m.anisotropic else "",
                                tangent_copy="v_tangent = in_tangent;\n    " if m.anisotropic else "")
@@ -220,6 +241,9 @@ class GLScene:
 
             self.shadow = ShadowMaps(ctx, scene, meshes)
             self._res.append(self.shadow)
+        for effect in self.effects:
+            effect.gl_prepare(self)
+            self._res.append(effect)
         self.query = self._keep(ctx.query(time=True))
         self._set_uniforms()
 
@@ -228,9 +252,12 @@ class GLScene:
         return obj
 
     def _upload_material(self, m: mat.SceneMaterial) -> list:
+        """``[(sampler uniform, texture)]`` of one material, in texture-unit order."""
         import moderngl
 
         ctx = self.ctx
+        if m.surface is not None:
+            return [(name, self._keep(t)) for name, t in m.surface.gl_textures(ctx)]
         V, U, K = m.maps.shape
         ntex = (K + 3) // 4
         padded = np.zeros((V, U, ntex * 4), np.float32)
@@ -241,20 +268,16 @@ class GLScene:
             t = self._keep(ctx.texture((U, V), 4, np.ascontiguousarray(padded[..., 4 * k:4 * k + 4]).tobytes(), dtype="f4"))
             t.filter = filt
             t.repeat_x = t.repeat_y = True
-            texs.append(t)
+            texs.append((f"u_params_{k}", t))
         if m.alpha is not None:
             t = self._keep(ctx.texture((U, V), 1, np.ascontiguousarray(m.alpha, np.float32).tobytes(), dtype="f4"))
             t.filter = filt
-            texs.append(t)
+            texs.append(("u_alpha", t))
         return texs
 
     def _set_uniforms(self) -> None:
         scene = self.scene
-        centre, radius = scene.bounds()
-        dist = np.linalg.norm(scene.camera.position - centre)
-        far = dist + radius * 1.01 + 1e-6
-        near = max(far * 1e-5, dist - radius * 1.01)
-        view, proj = scene.camera.matrices(near, far)
+        view, proj = scene.camera.matrices(*clip_planes(scene.camera, self.meshes))
         mvp = (proj @ view).astype("f4")
         points = [lt for lt in scene.lights if lt.type == "point"]
         dirs = [lt for lt in scene.lights if lt.type == "directional"]
@@ -270,14 +293,18 @@ class GLScene:
                 prog["u_dir_dir"].write(np.array([lt.vector for lt in dirs], "f4").tobytes())
                 prog["u_dir_power"].write(np.array([lt.power for lt in dirs], "f4").tobytes())
             unit = 0
-            for k in range(len(self.textures[name]) - (self.materials[name].alpha is not None)):
-                prog[f"u_params_{k}"].value = unit
+            for uniform, _ in self.textures[name]:
+                prog[uniform].value = unit
                 unit += 1
-            if self.materials[name].alpha is not None:
-                prog["u_alpha"].value = unit
-                unit += 1
+            surface = self.materials[name].surface
+            for uniform, value in (surface.gl_uniforms() if surface is not None else {}).items():
+                if uniform in prog:  # the compiler drops what the variant does not use
+                    prog[uniform].write(np.asarray(value, "f4").tobytes())
             if self.shadow is not None:
                 self.shadow.set_uniforms(prog, unit)
+                unit += len(self.shadow.maps)
+            for effect in self.effects:
+                unit += effect.gl_uniforms(prog, unit)
 
     def draw(self, read: bool = True) -> Frame:
         import moderngl
@@ -286,6 +313,8 @@ class GLScene:
         t0 = time.perf_counter()
         if self.shadow is not None:
             self.shadow.render()
+        for effect in self.effects:
+            effect.gl_frame(self)
         self.fbo.use()
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
@@ -294,11 +323,14 @@ class GLScene:
             self.fbo.clear(*bg, 0.0, depth=1.0)
             for name, vao in self.vaos:
                 unit = 0
-                for t in self.textures[name]:
+                for _, t in self.textures[name]:
                     t.use(unit)
                     unit += 1
                 if self.shadow is not None:
                     self.shadow.use(unit)
+                    unit += len(self.shadow.maps)
+                for effect in self.effects:
+                    unit += effect.gl_use(unit)
                 vao.render(moderngl.TRIANGLES)
         ctx.finish()
         wall = (time.perf_counter() - t0) * 1e3
@@ -336,14 +368,15 @@ class GLRenderer:
     def render(self, material) -> RenderResult:
         scene = load_scene(self.scene_path)
         materials = mat.resolve(scene, material, self.registry)
-        if scene.environment is not None:
-            raise SbrdfError(f"{scene.file}: environment lighting needs the environment scene effect, which is not "
-                             "installed")
         if self.pipeline == "geforce4":
-            from .gf4 import GF4Scene as Drawer
+            if scene.environment is not None:
+                raise SbrdfError(f"{scene.file}: the geforce4 pipeline draws point and directional lights only; "
+                                 "use pipeline: float for environment lighting")
+            from .gf4 import GF4Scene
+
+            drawer = GF4Scene(scene, materials)
         else:
-            Drawer = GLScene
-        drawer = Drawer(scene, materials)
+            drawer = GLScene(scene, materials, registry=self.registry)
         try:
             frames = [drawer.draw(read=(i == self.frames - 1)) for i in range(self.frames)]
         finally:

@@ -451,3 +451,20 @@ nodes:
     bad.write_text(graph.read_text().replace("scene.yaml}", "nowhere.yaml}"))
     with pytest.raises(GraphError, match="cannot read scene file"):
         load_graph(str(bad), registry)
+
+
+def test_large_meshes_are_not_clipped(gl, tmp_path):
+    """Clip planes come from the vertices, so a mesh far larger than the unit sphere is drawn whole."""
+    obj = tmp_path / "floor.obj"
+    obj.write_text("v -20 -20 0\nv 20 -20 0\nv 20 20 0\nv -20 20 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n")
+    scene = load_scene(f"""
+camera: {{position: [0, -8, 3], look_at: [0, 6, 0], fov_deg: 60, resolution: [64, 48]}}
+materials: {{m: {{model: lambert, params: {{rho_d: 0.2}}}}}}
+objects: [{{shape: mesh, file: {obj}, material: m}}]
+lights: [{{type: directional, direction: [0, 0, 1], irradiance: 1}}]
+""")
+    materials = {"m": mat.uniform("m", REGISTRY.create("brdf-model", "lambert", {}), {"rho_d": 0.2})}
+    ref, _ = render_scene(scene, materials)
+    got, _ = draw_gl(gl, scene, materials)
+    assert (ref.sum(-1) > 0).mean() > 0.4
+    assert abs((got.sum(-1) > 0).mean() - (ref.sum(-1) > 0).mean()) < 0.02
