@@ -33,6 +33,8 @@ IMAGES = (
     ("demo.yaml", "scene", "demo-scene.png"),
     ("demo.yaml", "render", "demo-preview.png"),
     ("sbrdf-render.yaml", "gl", "sbrdf-gl.png"),
+    ("sbrdf-render.yaml", "gl_environment", "sbrdf-environment.png"),
+    ("shading-map.yaml", "render_gl", "shading-map-render.png"),
     ("measured-table.yaml", "render_gl", "pane-gl.png"),
 )
 
