@@ -28,6 +28,7 @@ CATEGORIES = {
     "renderer": "sbrdf_renderers",
     "brdf-model": "sbrdf_brdf_models",
     "scene-effect": "sbrdf_scene_effects",
+    "parameterization": "sbrdf_parameterizations",
 }
 
 

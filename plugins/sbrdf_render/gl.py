@@ -273,6 +273,12 @@ class GLScene:
             t = self._keep(ctx.texture((U, V), 1, np.ascontiguousarray(m.alpha, np.float32).tobytes(), dtype="f4"))
             t.filter = filt
             texs.append(("u_alpha", t))
+        # Material-wide textures a model declares for its own GLSL (separable factors); it filters them itself.
+        for uniform, array in (getattr(m.model, "gl_textures", lambda: {})() or {}).items():
+            a = np.ascontiguousarray(array, np.float32)
+            t = self._keep(ctx.texture((a.shape[1], a.shape[0]), a.shape[2], a.tobytes(), dtype="f4"))
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            texs.append((uniform, t))
         return texs
 
     def _set_uniforms(self) -> None:

@@ -75,7 +75,7 @@ def test_hook_with_unknown_argument_is_rejected():
 def test_disable_by_name_but_not_essential(monkeypatch):
     reg = Registry(disabled=["render"])
     assert reg.names("renderer") == []
-    monkeypatch.setenv("SBRDF_DISABLE_PLUGINS", "fitters,tables,sbrdf_core.nodes")
+    monkeypatch.setenv("SBRDF_DISABLE_PLUGINS", "fitters,tables,separable,sbrdf_core.nodes")
     reg = Registry()
     assert reg.names("fitter") == [] and "Fit" in reg.node_kinds
 
