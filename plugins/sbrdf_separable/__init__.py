@@ -13,8 +13,8 @@ from .model import PARAMS as SEPARABLE_PARAMS
 from .parameterizations import MAP_PARAM
 
 _COMMON = (
-    Param("factors", "str", REQUIRED, "path of the SeparableFactors store to write (local; relative to the working "
-          "directory); the fitted model reads it from there"),
+    Param("factors", "str", REQUIRED, "path of the SeparableFactors store to write (local; relative to the graph file); "
+          "the fitted model reads it from there", extra={"path": True}),
     Param("parameterization", "str", "gram-schmidt", "change of variables (a parameterization plugin)",
           extra={"plugin_category": "parameterization"}),
     MAP_PARAM,
