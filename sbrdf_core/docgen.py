@@ -113,7 +113,9 @@ def scene_reference() -> str:
     for kind, params in sc.LIGHTS.items():
         out += [f"`type: {kind}`:", "", param_table(params)]
     out += ["## `environment`", "", param_table(sc.ENVIRONMENT), "## `display`", "", param_table(sc.DISPLAY),
-            "## Other keys", "", "`shadows` (bool, default false), `background` (a number or an RGB triple).", ""]
+            "## Other keys", "", "`shadows` (bool, default false), `background` (a number or an RGB triple), "
+            "`effects` (scene-effect name -> its options, for effects that plugins add, e.g. "
+            "`{ambient: {radiance: 0.1}}`).", ""]
     return "\n".join(out) + "\n"
 
 

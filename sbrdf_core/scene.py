@@ -110,7 +110,7 @@ DISPLAY = (
     Param("gamma", "str", "srgb", "display transfer of the PNG", choices=("srgb", "2.2")),
 )
 
-TOP_KEYS = ("camera", "materials", "objects", "lights", "environment", "shadows", "display", "background")
+TOP_KEYS = ("camera", "materials", "objects", "lights", "environment", "shadows", "display", "background", "effects")
 
 
 class SceneError(SbrdfError):
@@ -238,6 +238,7 @@ class Scene:
     exposure: float | None = None
     gamma: str = "srgb"
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    effects: dict[str, dict] = field(default_factory=dict)  # scene-effect name -> options, for plugins' effects
 
     def features(self, materials: dict[str, Any] | None = None) -> Features:
         """The effects this scene needs; ``materials`` (name -> resolved material) adds per-material flags."""
@@ -365,12 +366,17 @@ class _SceneValidator:
         except (ValueError, TypeError, AssertionError):
             self.problem(f"background must be a number or an RGB triple, got {doc.get('background')!r}", ("background",))
             background = np.zeros(3)
+        effects = doc.get("effects") or {}
+        if not isinstance(effects, dict) or not all(isinstance(v, (dict, type(None))) for v in effects.values()):
+            self.problem(f"effects must map scene-effect names to their options, e.g. {{ambient: {{radiance: 0.1}}}}, "
+                         f"got {doc.get('effects')!r}", ("effects",))
+            effects = {}
         if not lights and env is None:
             self.problem("the scene has no light: add lights: or environment:", ())
         if self.problems:
             raise SceneError(sorted(self.problems, key=lambda p: (p.line or 0, p.message)))
         return Scene(self.file, camera, tuple(objects), materials, tuple(lights), env, shadows,
-                     display["exposure"], display["gamma"], background)
+                     display["exposure"], display["gamma"], background, {str(k): dict(v or {}) for k, v in effects.items()})
 
     def materials(self, raw) -> dict[str, MaterialRef]:
         out = {}

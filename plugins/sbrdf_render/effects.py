@@ -37,3 +37,7 @@ def check_covered(scene, effects) -> None:
                                                                        for e in effects):
         raise SbrdfError(f"{scene.file}: reflector: true needs the mirror scene effect (plugin sbrdf_envmap), which "
                          "is not installed")
+    missing = sorted(set(scene.effects) - {getattr(e, "name", "") for e in effects})
+    if missing:
+        raise SbrdfError(f"{scene.file}: effects: no installed scene effect provides {missing} (see `sbrdf plugins "
+                         "--category scene-effect`)")

@@ -65,7 +65,7 @@ def sbrdf_devices():
 GONIO_PARAMS = (
     Param("path", "str", doc="capture folder written pose by pose (resumed if a run was interrupted), relative to "
           "the graph file", extra={"path": True}),
-    Param("motors", "dict", doc="motor name -> {device: ptu|indexer, params: {port: /dev/ttyUSB0 | sim, ...}, "
+    Param("motors", "dict", doc="motor name -> {device: ptu|indexer|<any device plugin>, params: {port: /dev/ttyUSB0 | sim, ...}, "
           "axes: {joint: driver axis}}; joints pan, tilt, roll, light; axes default ptu {pan: pan_deg, tilt: tilt_deg}, "
           "indexer {light: angle_deg}; port: sim starts the device's pty simulator in-process"),
     Param("camera", "dict", {"device": "virtual-camera", "params": {}}, "camera device {device, params}"),

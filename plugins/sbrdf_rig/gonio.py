@@ -71,7 +71,8 @@ JOINTS = ("pan", "tilt", "roll", "light")
 SIM_PORT = "sim"
 #: Joint -> driver axis when a motor's ``axes`` is omitted.
 DEFAULT_AXES = {"ptu": {"pan": "pan_deg", "tilt": "tilt_deg"}, "indexer": {"light": "angle_deg"}}
-#: Device plugin name -> simulator class (in :mod:`sbrdf_rig.sim`) for ``port: sim``.
+#: Device plugin name -> simulator class (in :mod:`sbrdf_rig.sim`) for ``port: sim``.  Other drivers name
+#: theirs in a ``simulator = "package.module:Class"`` class attribute (constructed with no arguments).
 SIMULATORS = {"ptu": "SimulatedPTU", "indexer": "SimulatedIndexer"}
 
 PLANNER_KEYS = {"theta_d_deg", "isotropic", "source", "step_deg", "max_theta_i_deg", "max_theta_r_deg"}
@@ -250,10 +251,12 @@ class GonioCapture:
             values, problems = resolve(spec.params, m.values, f"gonio motors.{m.name} (device {m.device!r})")
             if problems:
                 raise ParameterError("; ".join(msg for _, msg in problems))
-            if values.get("port") == SIM_PORT and m.device not in SIMULATORS:
+            driver = registry.load(spec)
+            if values.get("port") == SIM_PORT and m.device not in SIMULATORS and not getattr(driver, "simulator", None):
                 raise ParameterError(f"gonio: motors.{m.name}: port: {SIM_PORT} needs a simulator, and device "
-                                     f"{m.device!r} has none (simulated devices: {sorted(SIMULATORS)})")
-            axes = getattr(registry.load(spec), "axes", ())
+                                     f"{m.device!r} has none (simulated devices: {sorted(SIMULATORS)}, or a driver "
+                                     "class with a simulator attribute)")
+            axes = getattr(driver, "axes", ())
             bad = sorted(a for a in m.axes.values() if a not in axes)
             if bad:
                 raise ParameterError(f"gonio: motors.{m.name}.axes: {m.device!r} has no axis {bad}; its axes are {list(axes)}")
@@ -452,15 +455,19 @@ class GonioCapture:
 
     def _connect(self) -> None:
         """Start ``port: sim`` simulators and open every driver (no motion: drivers only configure and query)."""
+        from sbrdf_core.registry import import_path
+
         from . import sim as sims
 
         try:
             for m in self.motors:
                 values = dict(m.values)
-                if values.get("port") == SIM_PORT:
-                    m.simulator = self._simulator(getattr(sims, SIMULATORS[m.device]), m.device, values).start()
-                    values["port"] = m.simulator.port
                 spec = self.registry.get("device", m.device)
+                if values.get("port") == SIM_PORT:
+                    cls = (getattr(sims, SIMULATORS[m.device]) if m.device in SIMULATORS
+                           else import_path(self.registry.load(spec).simulator))
+                    m.simulator = self._simulator(cls, m.device, values).start()
+                    values["port"] = m.simulator.port
                 try:
                     m.driver = self.registry.load(spec)(**values)
                 except DeviceError as e:
