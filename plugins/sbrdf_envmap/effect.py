@@ -127,6 +127,33 @@ class EnvironmentEffect:
                                                                    prefilter.mip_sizes(self.prefiltered_size))}
             self.mip = prefilter.mip_levels(pre)
 
+    # -- materials with a shading rule of their own (shading maps, seed 002 Eq 3) ------------------------------------
+
+    #: Cube-face size of the directional lights standing for the environment (6·S² of them).
+    SURFACE_SIZE = 4
+
+    def surface_lights(self) -> tuple[np.ndarray, np.ndarray]:
+        """World directions ``(D, 3)`` and ``L_i dω`` ``(D, 3)``: the environment as D directional lights."""
+        level = next(lv for lv in self.levels if lv.shape[1] == min(self.SURFACE_SIZE, self.levels[0].shape[1]))
+        dirs, solid = cubemap.face_directions(level.shape[1])
+        return dirs.reshape(-1, 3), (level * solid[..., None]).reshape(-1, 3)
+
+    def _surface_radiance(self, material, hits, view_dirs: np.ndarray) -> np.ndarray:
+        """Eq 3 as a sum over the environment's directional lights, each through the material's own shading rule."""
+        from sbrdf_render.shapes import local_frame
+
+        t, b, n = local_frame(hits.normal, hits.tangent)
+        wo_w = -view_dirs
+        wo = np.stack([np.einsum("ij,ij->i", t, wo_w), np.einsum("ij,ij->i", b, wo_w), np.einsum("ij,ij->i", n, wo_w)], 1)
+        out = np.zeros((len(wo), 3))
+        for d, radiance in zip(*self.surface_lights()):
+            c = n @ d
+            lit = (c > 0) & (wo[:, 2] > 0)
+            if lit.any():
+                wi = np.stack([t[lit] @ d, b[lit] @ d, c[lit]], 1)
+                out[lit] += material.surface.radiance(hits.uv[lit], wi, wo[lit], np.broadcast_to(radiance, wi.shape))
+        return out
+
     @property
     def levels(self) -> list[np.ndarray]:
         return self.maps["levels"]
@@ -141,8 +168,7 @@ class EnvironmentEffect:
         from sbrdf_render.shapes import local_frame
 
         if getattr(material, "surface", None) is not None:
-            raise SbrdfError(f"environment lighting: material {material.name!r} is shaded by a shading map, which the "
-                             "environment effect cannot light")
+            return self._surface_radiance(material, hits, view_dirs)
         model = material.model
         n = hits.normal / np.linalg.norm(hits.normal, axis=1, keepdims=True)
         if material.anisotropic:
@@ -250,6 +276,18 @@ class EnvironmentEffect:
         """Declarations and the statements (in ``main``, after the lights) that add the environment to ``L``."""
         from .glsl import fragment_code
 
+        surface = getattr(material, "surface", None)
+        if surface is not None:  # the environment as directional lights through the material's own rule
+            D = len(self.surface_lights()[0])
+            loop = ["    for (int k = 0; k < ENV_LIGHTS; ++k) {",
+                    "        vec3 d = u_env_light_dir[k];",
+                    "        float c = dot(N, d);",
+                    "        if (c > 0.0 && wo.z > 0.0) {",
+                    "            vec3 wi = vec3(dot(T, d), dot(B, d), c);",
+                    f"            L += {surface.glsl_radiance('wi', 'wo', 'u_env_light_radiance[k]')};",
+                    "        }", "    }"]
+            return (f"const int ENV_LIGHTS = {D};\nuniform vec3 u_env_light_dir[{D}];\n"
+                    f"uniform vec3 u_env_light_radiance[{D}];\n", loop)
         return fragment_code(self, material, exprs)
 
     def gl_prepare(self, drawer) -> None:
@@ -258,6 +296,11 @@ class EnvironmentEffect:
         self._gl = GLResources(self, drawer.ctx)
 
     def gl_uniforms(self, prog, first_unit: int) -> int:
+        if "u_env_light_dir" in prog:  # a shading-mapped material: lights only, no textures of ours
+            dirs, radiance = self.surface_lights()
+            prog["u_env_light_dir"].write(dirs.astype("f4").tobytes())
+            prog["u_env_light_radiance"].write(radiance.astype("f4").tobytes())
+            return 0
         return self._gl.uniforms(prog, first_unit)
 
     def gl_use(self, first_unit: int) -> int:

@@ -91,3 +91,24 @@ def test_a_shading_map_input_needs_a_shading_material(registry):
     scene = load_scene(SCENE)
     with pytest.raises(SbrdfError, match="shading_map: input"):
         mat.resolve(scene, InputArtifact(Art()), registry)
+
+
+def test_shading_maps_under_environment_lighting(gl, registry):
+    """Eq 3: the environment as directional lights, each through the shading map; cpu and gl agree, and a brighter
+    sky gives proportionally more light (the map's lookups are below a_max here)."""
+    from pathlib import Path
+
+    sky = Path(__file__).resolve().parents[2] / "scenes" / "envmap_sky.exr"
+    text = SCENE.replace("lights: [", f"environment: {{file: {sky}, intensity: INTENSITY}}\nlights: [") \
+        .replace("{type: point, position: [0.6, -0.4, 1.5], intensity: 3}, ", "")
+    data = stack(np.random.default_rng(2))
+    images = {}
+    for intensity in (0.05, 0.1):
+        scene = load_scene(text.replace("INTENSITY", str(intensity)))
+        materials = {"m": material(registry, data, 10.0)}
+        ref, _ = render_scene(scene, materials, registry=registry)
+        got, _ = draw_gl(gl, scene, materials)
+        rel = relative_errors(got, ref, interior(scene, materials), floor=1e-2)
+        assert ref.max() > 0 and np.sqrt(np.mean(rel**2)) < 5e-3
+        images[intensity] = ref
+    assert images[0.1].sum() > images[0.05].sum() * 1.2  # the sky adds light on top of the directional light
