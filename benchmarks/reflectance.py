@@ -68,24 +68,30 @@ LAF_POSES = 24
 
 
 class PeakRSS:
-    """Samples this process's RSS plus its children's every 50 ms (psutil)."""
+    """Samples this process's RSS plus its children's every 50 ms (psutil).
+
+    ``peak`` is the peak of the sum; ``peak_main`` and ``peak_children`` the peaks of
+    this process (client, and a LocalCluster's scheduler) and of the children (workers)
+    alone, printed to stderr to show which side grows.
+    """
 
     def __init__(self):
         import psutil
 
         self.proc = psutil.Process()
-        self.peak = 0
+        self.peak = self.peak_main = self.peak_children = 0
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
 
     def _sample(self) -> int:
-        total = self.proc.memory_info().rss
+        main, children = self.proc.memory_info().rss, 0
         for c in self.proc.children(recursive=True):
             try:
-                total += c.memory_info().rss
+                children += c.memory_info().rss
             except Exception:
                 pass
-        return total
+        self.peak_main, self.peak_children = max(self.peak_main, main), max(self.peak_children, children)
+        return main + children
 
     def _run(self):
         while not self._stop.is_set():
@@ -146,7 +152,8 @@ def timed_run(g: Path, scheduler) -> tuple[float, float]:
         rep = runner.run(gr, only=["reflectance"])
     seconds = rep["register"].wall_s + rep["reflectance"].wall_s
     print(f"  register {rep['register'].wall_s:.1f} s, reflectance {rep['reflectance'].wall_s:.1f} s, "
-          f"peak RSS {mem.peak / 2**20:.0f} MB", file=sys.stderr, flush=True)
+          f"peak RSS {mem.peak / 2**20:.0f} MB (this process {mem.peak_main / 2**20:.0f} MB, "
+          f"children {mem.peak_children / 2**20:.0f} MB)", file=sys.stderr, flush=True)
     return seconds, mem.peak / 2**20
 
 

@@ -65,13 +65,16 @@ class Capture(NodeKind):
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
+        from dask import delayed
 
         source = ctx.plugin
         desc: CaptureDescription = source.describe()
         P, H, W = desc.n_poses, desc.height, desc.width
         index = da.arange(P, chunks=1)
+        # The source holds the whole manifest (O(poses)); as one graph key it reaches a
+        # worker once, where a plain argument is copied into every pose's task (O(poses²)).
         packed = da.map_blocks(
-            _read_block, index, source,
+            _read_block, index, delayed(source, pure=True, traverse=False),
             new_axis=[1, 2, 3], chunks=((1,) * P, (H,), (W,), (4,)), dtype=np.float32,
             name=f"capture-read-{ctx.node}",
         )

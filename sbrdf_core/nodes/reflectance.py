@@ -72,6 +72,7 @@ class Reflectance(NodeKind):
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
+        from dask import delayed
 
         stack = ctx.inputs["stack"]
         texels = tuple(stack.attrs["texels"])
@@ -80,8 +81,10 @@ class Reflectance(NodeKind):
         light_pos, camera_pos = stack.read("light_pos"), stack.read("camera_pos")
         radiance, valid = stack.array("radiance"), stack.array("valid")
         P, V, U = valid.shape
+        # One graph key each (O(poses)), not a copy in every block's task.
+        light_key, camera_key = delayed(light_pos, pure=True), delayed(camera_pos, pure=True)
         packed = da.map_blocks(
-            _block, radiance, valid[..., None], light_pos, camera_pos, texels, size_mm, intensity, ctx.params["min_cos"],
+            _block, radiance, valid[..., None], light_key, camera_key, texels, size_mm, intensity, ctx.params["min_cos"],
             dtype=np.float32, chunks=radiance.chunks[:3] + ((4,),), name=f"reflectance-{ctx.node}",
         )
         t = texel_tile((V, U), P, channels=4, tile=ctx.params["tile"])

@@ -68,6 +68,7 @@ class Register(NodeKind):
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
+        from dask import delayed
 
         capture = ctx.inputs["capture"]
         reg: Registration = ctx.plugin.register(capture)
@@ -75,8 +76,12 @@ class Register(NodeKind):
         ids = np.asarray(reg.pose_ids, dtype=np.int64)
         images = capture.array("images")[ids].rechunk({0: 1})
         valid = capture.array("valid")[ids].rechunk({0: 1})[..., None]  # align dims with images
+        # The plugin and the Registration (per-pose geometry, O(poses)) are one graph key
+        # each, fetched once per worker; as plain arguments every pose's task would carry
+        # a copy, and a worker's queued tasks would hold O(poses²) bytes.
+        shared = lambda obj: delayed(obj, pure=True, traverse=False)  # noqa: E731
         packed = da.map_blocks(
-            _resample_block, images, valid, ctx.plugin, reg,
+            _resample_block, images, valid, shared(ctx.plugin), shared(reg),
             chunks=((1,) * len(ids), (V,), (U,), (4,)), dtype=np.float32,
             name=f"register-resample-{ctx.node}",
         )
