@@ -206,7 +206,7 @@ def write_docs(results, pre, line, res, device, ref_desc):
         f"reference (`progressive`, {ref_desc} samples per strategy; its noise, from a second run with half "
         f"the samples: {noise}). Time: the fastest of 5 frames, wall time (draw + glFinish; the minimum is the frame least disturbed by the other processes). Methods: "
         "[environment-lighting.md](environment-lighting.md). Table 4.1's layout: one row per sample count.",
-        f"Machine: {machine()}; device {device}. CPU shared with other developers: times are indicative. "
+        f"Machine: {machine()}; device {device}. "
         f"Date: {date}.",
         "",
         "![error against time per frame](img/envmap-error-time.png)",

@@ -370,8 +370,7 @@ def write_docs(results: dict, triangles: int, rel: tuple, device: str, main_line
         "on llvmpipe the draw-to-`glFinish` wall time, because llvmpipe's time queries close when the commands "
         "are queued, before rasterisation (they report a 1080p frame at ~10 ms that takes ~400 ms)"
         + (" (`--quick`: fewer frames, a smaller mesh)." if quick else "."),
-        f"Device: {device}. Machine: {machine()}; the 2 cores are shared with other developers' work, so "
-        f"llvmpipe's figures are noisy and low. Date: {date}.",
+        f"Device: {device}. Machine: {machine()}. Date: {date}.",
         "",
         "![frames per second against lights](img/render-fps.png)",
         "",
@@ -388,9 +387,8 @@ def write_docs(results: dict, triangles: int, rel: tuple, device: str, main_line
         "Reading it: every cell here draws the whole 250k-triangle mesh, so on llvmpipe (the CPU rasteriser) a "
         "large fixed cost of vertex processing, triangle setup and clearing a float target sits under the "
         "shading cost; at 1080p the SBRDF cells cost more than the baselines and the emulation's 2 × lobes × "
-        "lights passes cost the most, as the passes of Table 6.2 did. With the 2 cores shared by other "
-        "developers (load average 6–8 during the run) differences between neighbouring cells are within the "
-        "noise; the round-robin medians keep the noise from favouring one cell. The text's GeForce 4 figures "
+        "lights passes cost the most, as the passes of Table 6.2 did. Other load on the machine (the load average above) "
+        "adds noise between neighbouring cells; the round-robin medians keep it from favouring one cell. The text's GeForce 4 figures "
         "(50.7 fps for 1 lobe, 1 light down to 7.6 fps for 3 × 3, at 800×600 with a quarter of the scene in "
         "view) are a 2002 GPU's; a lent GPU runs this benchmark unchanged. The gl–cpu difference is the "
         "tessellation (sphere facets against the analytic sphere, interpolated vertex normals) and float32 "
@@ -433,7 +431,7 @@ def main(argv=None):
                  f"fps_1080p_3lobe_3light={hd[('float', 3, 3)]:.4g} device={device}")
     if args.docs:
         write_docs(results, triangles, rel, device, main_line, args.quick)
-    print(f"total {time.perf_counter() - t0:.0f} s; CPU shared with other developers (figures are contended)")
+    print(f"total {time.perf_counter() - t0:.0f} s")
     print(main_line)
 
 

@@ -15,7 +15,8 @@ def machine() -> str:
     import psutil
 
     return (f"{platform.node() or 'host'}: {os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.0f} GiB, "
-            f"{platform.processor() or platform.machine()}, Python {platform.python_version()}")
+            f"{platform.processor() or platform.machine()}, Python {platform.python_version()}, "
+            f"1-minute load average {os.getloadavg()[0]:.1f}")
 
 
 def replace_section(name: str, section: str, path: Path = REPORT) -> None:

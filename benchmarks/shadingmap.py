@@ -26,7 +26,7 @@ on), as BRDF·cos for a unit light.
 Sizes: full = 512×512 texels, 512×512 image; ``--quick`` = 128×128 texels,
 128×128 image (well under a minute).  ``--docs`` rewrites the shading-maps
 section of docs/accuracy-vs-time.md and docs/img/shading-map*.png.  The
-machine is shared with other developers: wall times are contended.
+machine line states the load average.
 """
 
 from __future__ import annotations
@@ -171,7 +171,7 @@ def write_docs(res: dict, line: str, texels, image) -> None:
         "texel-aligned from straight above with the light at 10 elevations (0°–81°, self-shadowing on), "
         "linearized into N = 8 slices and compressed to k_s r^K per texel and channel "
         "([shading-maps.md](shading-maps.md)). NumPy, one process. "
-        f"Machine: {machine()} (shared with other developers: times are contended). "
+        f"Machine: {machine()}. "
         f"Date: {datetime.date.today()}.",
         "",
         "![shading map and the four lookups](img/shading-map.png)",
