@@ -18,11 +18,10 @@ import time
 
 import numpy as np
 
-from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import check_scene_param, load_scene, scene_fingerprint
 
 from . import materials as mat
+from .base import SceneRenderer
 from .effects import active_effects, check_covered
 from .shapes import Hits, intersect, local_frame, tessellate
 
@@ -128,24 +127,10 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
     return image.reshape(H, W, 3), stats
 
 
-class CPURenderer:
+class CPURenderer(SceneRenderer):
     """``Render`` plugin ``cpu``: one scene file, rendered by :func:`render_scene`."""
 
-    def __init__(self, scene: str, exposure: float | None = None):
-        self.scene_path, self.exposure = scene, exposure
-        self.registry = None
-
-    def bind(self, registry) -> None:
-        self.registry = registry
-
-    check_params = staticmethod(check_scene_param)
-
-    def fingerprint(self) -> str:
-        return scene_fingerprint(self.scene_path)
-
     def render(self, material) -> RenderResult:
-        scene = load_scene(self.scene_path)
-        materials = mat.resolve(scene, material, self.registry)
+        scene, materials = self.load(material)
         image, stats = render_scene(scene, materials, registry=self.registry)
-        return RenderResult(image, self.exposure if self.exposure is not None else scene.exposure,
-                            {"scene": self.scene_path, **stats}, scene.gamma)
+        return self.result(scene, image, stats)

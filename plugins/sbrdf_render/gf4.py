@@ -38,7 +38,7 @@ import numpy as np
 from sbrdf_core.errors import SbrdfError
 
 from . import materials as mat
-from .gl import Frame, clip_planes, context
+from .gl import Drawer, Frame, clip_planes, context
 from .shapes import tessellate
 
 #: Texture units: the same in both passes' programs.
@@ -156,7 +156,7 @@ def hardware_textures(m: mat.SceneMaterial) -> dict:
     return {"textures": textures, "scale": dict(e.scale), "bias": dict(e.bias)}
 
 
-class GF4Scene:
+class GF4Scene(Drawer):
     """A scene uploaded for the two-pass GeForce 4 path: same interface as :class:`~sbrdf_render.gl.GLScene`."""
 
     def __init__(self, scene, materials: dict[str, mat.SceneMaterial], meshes: dict | None = None):
@@ -216,10 +216,6 @@ class GF4Scene:
         self.meshes = meshes
         self.query = self._keep(ctx.query(time=True))
         self._set_uniforms()
-
-    def _keep(self, obj):
-        self._res.append(obj)
-        return obj
 
     def _upload(self, hw: dict, m: mat.SceneMaterial) -> dict:
         """RGBA8/RGB8 normalised textures per lobe (a lobe-less material gets a zero ρ_s), with C's decode."""
@@ -318,20 +314,6 @@ class GF4Scene:
         ctx.disable(moderngl.BLEND)
         ctx.depth_func = "<"
         self.frame.depth_mask = self.pbuffer.depth_mask = True
-        ctx.finish()
-        wall = (time.perf_counter() - t0) * 1e3
-        elapsed = self.query.elapsed
-        gpu = elapsed / 1e6 if 0 < elapsed < 2**32 - 1 else wall  # llvmpipe may answer UINT_MAX on a first frame
-        image = None
-        if read:
-            W, H = self.scene.camera.resolution
-            raw = np.frombuffer(self.frame.read(components=3, dtype="f4"), dtype=np.float32).reshape(H, W, 3)
-            image = raw[::-1].copy()  # GL's row 0 is the bottom
+        image, gpu, wall = self._finish(self.frame, t0, read)
         return Frame(image, gpu, wall, {"triangles": self.triangles, "passes": passes,
                                         "lobes": self.max_lobes, "lights": len(self.scene.lights)})
-
-    def release(self) -> None:
-        for obj in reversed(self._res):
-            if hasattr(obj, "release"):  # moderngl's Query has no release()
-                obj.release()
-        self._res = []

@@ -22,9 +22,10 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import Features, check_scene_param, load_scene, scene_fingerprint
+from sbrdf_core.scene import Features
 
 from . import materials as mat
+from .base import SceneRenderer
 from .shapes import tessellate
 
 _CONTEXT = None
@@ -185,7 +186,37 @@ class Frame:
     stats: dict = field(default_factory=dict)
 
 
-class GLScene:
+class Drawer:
+    """What the GL drawers (:class:`GLScene`, :class:`~sbrdf_render.gf4.GF4Scene`) share: resources released
+    together, and the end of a frame (timing and read-back)."""
+
+    _res: list
+
+    def _keep(self, obj):
+        self._res.append(obj)
+        return obj
+
+    def _finish(self, target, t0: float, read: bool) -> tuple[np.ndarray | None, float, float]:
+        """Wait for the frame; its image from ``target`` (row 0 at the top) if ``read``, GPU and wall ms."""
+        self.ctx.finish()
+        wall = (time.perf_counter() - t0) * 1e3
+        elapsed = self.query.elapsed
+        gpu = elapsed / 1e6 if 0 < elapsed < 2**32 - 1 else wall  # llvmpipe may answer UINT_MAX on a first frame
+        image = None
+        if read:
+            W, H = self.scene.camera.resolution
+            raw = np.frombuffer(target.read(components=3, dtype="f4"), dtype=np.float32).reshape(H, W, 3)
+            image = raw[::-1].copy()  # GL's row 0 is the bottom
+        return image, gpu, wall
+
+    def release(self) -> None:
+        for obj in reversed(self._res):
+            if hasattr(obj, "release"):  # moderngl's Query has no release()
+                obj.release()
+        self._res = []
+
+
+class GLScene(Drawer):
     """A scene uploaded to the GPU: meshes, textures and one program per material.
 
     Build once, :meth:`draw` many times (benchmarks), :meth:`release` at the end.
@@ -246,10 +277,6 @@ class GLScene:
             self._res.append(effect)
         self.query = self._keep(ctx.query(time=True))
         self._set_uniforms()
-
-    def _keep(self, obj):
-        self._res.append(obj)
-        return obj
 
     def _upload_material(self, m: mat.SceneMaterial) -> list:
         """``[(sampler uniform, texture)]`` of one material, in texture-unit order."""
@@ -338,42 +365,19 @@ class GLScene:
                 for effect in self.effects:
                     unit += effect.gl_use(unit)
                 vao.render(moderngl.TRIANGLES)
-        ctx.finish()
-        wall = (time.perf_counter() - t0) * 1e3
-        elapsed = self.query.elapsed
-        gpu = elapsed / 1e6 if 0 < elapsed < 2**32 - 1 else wall  # llvmpipe may answer UINT_MAX on a first frame
-        image = None
-        if read:
-            W, H = self.scene.camera.resolution
-            raw = np.frombuffer(self.fbo.read(components=3, dtype="f4"), dtype=np.float32).reshape(H, W, 3)
-            image = raw[::-1].copy()  # GL's row 0 is the bottom
+        image, gpu, wall = self._finish(self.fbo, t0, read)
         return Frame(image, gpu, wall, {"triangles": self.triangles})
 
-    def release(self) -> None:
-        for obj in reversed(self._res):
-            if hasattr(obj, "release"):  # moderngl's Query has no release()
-                obj.release()
-        self._res = []
 
-
-class GLRenderer:
+class GLRenderer(SceneRenderer):
     """``Render`` plugin ``gl``: the scene file drawn by :class:`GLScene` (or the GeForce 4 emulation)."""
 
     def __init__(self, scene: str, exposure: float | None = None, pipeline: str = "float", frames: int = 1):
-        self.scene_path, self.exposure, self.pipeline, self.frames = scene, exposure, pipeline, frames
-        self.registry = None
-
-    def bind(self, registry) -> None:
-        self.registry = registry
-
-    check_params = staticmethod(check_scene_param)
-
-    def fingerprint(self) -> str:
-        return scene_fingerprint(self.scene_path)
+        super().__init__(scene, exposure)
+        self.pipeline, self.frames = pipeline, frames
 
     def render(self, material) -> RenderResult:
-        scene = load_scene(self.scene_path)
-        materials = mat.resolve(scene, material, self.registry)
+        scene, materials = self.load(material)
         if self.pipeline == "geforce4":
             if scene.environment is not None:
                 raise SbrdfError(f"{scene.file}: the geforce4 pipeline draws point and directional lights only; "
@@ -388,7 +392,6 @@ class GLRenderer:
         finally:
             drawer.release()
         gpu = [f.gpu_ms for f in frames]
-        attrs = {"scene": self.scene_path, "device": device_name(), "pipeline": self.pipeline,
-                 "gpu_ms": gpu, "gpu_ms_median": float(np.median(gpu)), "triangles": frames[-1].stats["triangles"]}
-        return RenderResult(frames[-1].image, self.exposure if self.exposure is not None else scene.exposure, attrs,
-                            scene.gamma)
+        return self.result(scene, frames[-1].image, {
+            "device": device_name(), "pipeline": self.pipeline, "gpu_ms": gpu, "gpu_ms_median": float(np.median(gpu)),
+            "triangles": frames[-1].stats["triangles"]})
