@@ -79,3 +79,17 @@ def assert_stores_equal(a, b) -> None:
     for key in A:
         assert A[key].dtype == B[key].dtype, key
         assert np.array_equal(A[key], B[key], equal_nan=A[key].dtype.kind == "f"), f"{key} differs"
+
+
+@pytest.fixture(scope="session")
+def gl():
+    """The ``gl`` renderer module; skips where no OpenGL 3.3 context can be made through EGL."""
+    pytest.importorskip("moderngl")
+    from sbrdf_core.errors import SbrdfError
+    from sbrdf_render import gl as glmod
+
+    try:
+        glmod.context()
+    except SbrdfError as e:
+        pytest.skip(str(e))
+    return glmod

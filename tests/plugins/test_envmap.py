@@ -23,18 +23,6 @@ GLOSSY = "{rho_d: 0.0, rho_s_1: 1.0, c_xy_1: -1.0, c_z_1: 1.0, exponent_1: %g}"
 
 
 @pytest.fixture(scope="module")
-def gl():
-    pytest.importorskip("moderngl")
-    from sbrdf_render import gl as glmod
-
-    try:
-        glmod.context()
-    except SbrdfError as e:
-        pytest.skip(str(e))
-    return glmod
-
-
-@pytest.fixture(scope="module")
 def env_files(tmp_path_factory):
     d = tmp_path_factory.mktemp("env")
     write_exr(str(d / "white.exr"), np.ones((8, 16, 3), np.float32))

@@ -15,18 +15,6 @@ from sbrdf_render.cpu import render_scene
 REGISTRY = default_registry()
 
 
-@pytest.fixture(scope="module")
-def gl():
-    pytest.importorskip("moderngl")
-    from sbrdf_render import gl as glmod
-
-    try:
-        glmod.context()
-    except SbrdfError as e:
-        pytest.skip(str(e))
-    return glmod
-
-
 def mirror_scene(exponent=200.0, reflector="true", extra="", res=(48, 36)):
     return load_scene(f"""
 camera: {{position: [0.0, -2.5, 1.2], look_at: [0.0, 0.0, 0.3], fov_deg: 40, resolution: [{res[0]}, {res[1]}]}}

@@ -234,20 +234,7 @@ def ambient_scene(model: str = "lambert", ambient: bool = True, shape: str = "pl
             + ("effects: {ambient: {radiance: [0.5, 0.4, 0.3]}}\n" if ambient else ""))
 
 
-@pytest.fixture(scope="module")
-def gl_renderer():
-    pytest.importorskip("moderngl")
-    from sbrdf_core.errors import SbrdfError
-    from sbrdf_render import gl as glmod
-
-    try:
-        glmod.context()
-    except SbrdfError as e:
-        pytest.skip(str(e))
-    return glmod
-
-
-def render_both(gl_renderer, registry, text: str):
+def render_both(gl, registry, text: str):
     """(cpu image, gl image, the gl shader sources, hits, hit object per pixel, rays) of a scene as YAML text."""
     from sbrdf_core.scene import load_scene
     from sbrdf_render import materials as mat
@@ -256,7 +243,7 @@ def render_both(gl_renderer, registry, text: str):
     scene = load_scene(text)
     materials = mat.resolve(scene, None, registry)
     cpu, _ = render_scene(scene, materials, registry=registry)
-    drawer = gl_renderer.GLScene(scene, materials, registry=registry)
+    drawer = gl.GLScene(scene, materials, registry=registry)
     try:
         gpu = drawer.draw().image.astype(np.float64)
         shader = "\n".join(drawer.sources["m"])
@@ -267,10 +254,10 @@ def render_both(gl_renderer, registry, text: str):
     return cpu, gpu, shader, hits, which.reshape(gpu.shape[:2]), dirs.reshape(-1, 3)
 
 
-def test_ambient_on_a_lambertian_plane_adds_pi_a_rho_d_on_both_renderers(gl_renderer, registry):
+def test_ambient_on_a_lambertian_plane_adds_pi_a_rho_d_on_both_renderers(gl, registry):
     """For a Lambertian surface the one-sample sky is exact: L_ambient = π A ρ_d at every pixel."""
-    cpu0, gpu0, shader0, *_ = render_both(gl_renderer, registry, ambient_scene(ambient=False))
-    cpu, gpu, shader, _, which, _ = render_both(gl_renderer, registry, ambient_scene())
+    cpu0, gpu0, shader0, *_ = render_both(gl, registry, ambient_scene(ambient=False))
+    cpu, gpu, shader, _, which, _ = render_both(gl, registry, ambient_scene())
     assert (which >= 0).all()
     expect = np.pi * np.array([0.5, 0.4, 0.3]) * np.array([0.25, 0.15, 0.05])
     np.testing.assert_allclose(cpu - cpu0, np.broadcast_to(expect, cpu.shape), rtol=1e-6)
@@ -279,14 +266,14 @@ def test_ambient_on_a_lambertian_plane_adds_pi_a_rho_d_on_both_renderers(gl_rend
 
 
 @pytest.mark.parametrize("shape", ["plane", "sphere"])
-def test_ambient_glsl_matches_numpy_on_minnaert(gl_renderer, registry, shape):
+def test_ambient_glsl_matches_numpy_on_minnaert(gl, registry, shape):
     """GLSL term against numpy term against the closed form π A ρ_d (cos θ_o)^(k−1) (wi = n), pixel by pixel.
 
     The plane has exact normals on both renderers; the sphere is tessellated for gl (interpolated normals), so
     there gl is compared with the reference as the renderer tests do, on the interior and by relative error.
     """
-    cpu0, gpu0, *_ = render_both(gl_renderer, registry, ambient_scene("minnaert", ambient=False, shape=shape))
-    cpu, gpu, _, hits, which, dirs = render_both(gl_renderer, registry, ambient_scene("minnaert", shape=shape))
+    cpu0, gpu0, *_ = render_both(gl, registry, ambient_scene("minnaert", ambient=False, shape=shape))
+    cpu, gpu, _, hits, which, dirs = render_both(gl, registry, ambient_scene("minnaert", shape=shape))
     hit = which.ravel() >= 0
     cos_o = np.einsum("ij,ij->i", hits.normal[hit], -dirs[hit]) / np.linalg.norm(hits.normal[hit], axis=1)
     expect = np.pi * np.array([0.5, 0.4, 0.3]) * np.array([0.2, 0.1, 0.05]) * (np.clip(cos_o, 1e-3, 1) ** -0.3)[:, None]

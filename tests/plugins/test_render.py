@@ -18,18 +18,6 @@ from sbrdf_render.shapes import load_obj, tessellate, vertex_frames
 from .test_models import CONFIGS, REGISTRY
 
 
-@pytest.fixture(scope="module")
-def gl():
-    pytest.importorskip("moderngl")
-    from sbrdf_render import gl as glmod
-
-    try:
-        glmod.context()
-    except SbrdfError as e:
-        pytest.skip(str(e))
-    return glmod
-
-
 def draw_gl(gl, scene, materials):
     s = gl.GLScene(scene, materials)
     try:

@@ -23,18 +23,6 @@ LIGHT = np.array([0.0, 1.0, 0.35]) / np.linalg.norm([0.0, 1.0, 0.35])
 IRRADIANCE = 2.0
 
 
-@pytest.fixture(scope="module")
-def gl():
-    pytest.importorskip("moderngl")
-    from sbrdf_render import gl as glmod
-
-    try:
-        glmod.context()
-    except SbrdfError as e:
-        pytest.skip(str(e))
-    return glmod
-
-
 def plane_scene(lights: int = 1, resolution=(96, 72)):
     light = (f"  - {{type: directional, direction: {LIGHT.tolist()}, irradiance: {IRRADIANCE}}}\n") * lights
     return load_scene(f"""

@@ -22,18 +22,6 @@ lights: [{type: point, position: [0.6, -0.4, 1.5], intensity: 3}, {type: directi
 """
 
 
-@pytest.fixture(scope="module")
-def gl():
-    pytest.importorskip("moderngl")
-    from sbrdf_render import gl as glmod
-
-    try:
-        glmod.context()
-    except SbrdfError as e:
-        pytest.skip(str(e))
-    return glmod
-
-
 def stack(rng, N=8, V=16, U=16):
     """A shading map whose slice t has average t·a_max/(N−1), with per-texel variation (as Eq 1 produces)."""
     a_max = 0.8
