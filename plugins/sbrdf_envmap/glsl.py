@@ -28,6 +28,67 @@ def _vec2_array(name: str, pts: np.ndarray) -> str:
     return f"const vec2 {name}[{len(pts)}] = vec2[](" + ", ".join(f"vec2({float(a)!r}, {float(b)!r})" for a, b in pts) + ");"
 
 
+def pattern_decls(P: str, p: str, effect) -> str:
+    """Constants of the deterministic patterns (ring, two lines) and the ratio of Eq 4.25, under prefix ``P``/``p``.
+
+    The environment (``ENV``/``env``) and the planar mirror (``MIR``/``mir``) sample lobes the same way and
+    differ only in where L_i comes from (:func:`cosine_ring_loop`, :func:`beckmann_loop`).
+    """
+    K = effect.samples
+    return "\n".join([
+        f"const int {P}_K = {K};", f"const float {P}_XI_BORDER = {effect.xi_border!r};",
+        f"const float {P}_LINE_THRESHOLD = {effect.line_threshold!r};",
+        _vec2_array(f"{P}_RING", sampling.pattern("ring", K, effect.ring_radius)),
+        _vec2_array(f"{P}_LINE_B", sampling.pattern("line-b", K, effect.ring_radius)),
+        _vec2_array(f"{P}_LINE_T", sampling.pattern("line-t", K, effect.ring_radius)),
+        f"vec3 {p}_ratio(vec3 num, vec3 den) {{",
+        "    return vec3(den.x > 0.0 ? num.x / den.x : 0.0, den.y > 0.0 ? num.y / den.y : 0.0, "
+        "den.z > 0.0 ? num.z / den.z : 0.0);",
+        "}",
+    ])
+
+
+def cosine_ring_loop(P: str, p: str, acc: tuple[str, str], lookup: str) -> str:
+    """The ring about a cosine lobe's peak ``a`` (tangents ``tu``, ``tv``, half-angle ``tt``, exponent ``n``):
+    Eq 4.25's sums and their ratio.  ``lookup`` is L_i at the world direction ``w``."""
+    return f"""    vec3 num = vec3(0.0), den = vec3(0.0);
+    for (int k = 0; k < {P}_K; ++k) {{
+        float th = (1.0 - {P}_RING[k].x) * tt, ph = 2.0 * {P}_PI * {P}_RING[k].y;
+        vec3 w = sin(th) * (cos(ph) * tu + sin(ph) * tv) + cos(th) * a;
+        float c = dot(w, N);
+        if (c <= 0.0) continue;  // below the horizon: dropped from both sums
+        float g = pow(max(cos(th), 0.0), n);
+        vec3 f = rho * g;
+        float p = (n + 1.0) / (2.0 * {P}_PI) * g;
+        vec3 Li = {lookup};
+        num += {acc[0]}; den += {acc[1]};
+    }}
+    return {p}_ratio(num, den);"""
+
+
+def beckmann_loop(P: str, acc: tuple[str, str], call: str, rho_d: str, lookup: str) -> str:
+    """Eq 4.25's sums over a Beckmann lobe's pattern (``pat``, slopes ``mx``, ``my``; Mühlbacher §4.4.3).
+    ``lookup`` is L_i at the world direction ``w``."""
+    return f"""            vec3 num = vec3(0.0), den = vec3(0.0);
+            for (int k = 0; k < {P}_K; ++k) {{
+                vec2 xi = pat == 1 ? {P}_LINE_B[k] : (pat == 2 ? {P}_LINE_T[k] : {P}_RING[k]);
+                float ph = atan(my * sin(2.0 * {P}_PI * xi.y), mx * cos(2.0 * {P}_PI * xi.y));
+                float A = cos(ph) * cos(ph) / (mx * mx) + sin(ph) * sin(ph) / (my * my);
+                float th = (1.0 - xi.x) * atan(sqrt(-log({P}_XI_BORDER) / A));
+                vec3 h = vec3(sin(th) * cos(ph), sin(th) * sin(ph), cos(th));
+                float oh = dot(wo, h);
+                vec3 wi = 2.0 * oh * h - wo;
+                if (oh <= 0.0 || wi.z <= 0.0) continue;
+                float c = wi.z;
+                vec3 f = {call} - {rho_d};
+                float cth = cos(th);
+                float p = exp(-tan(th) * tan(th) * A) / (4.0 * {P}_PI * mx * my * cth * cth * cth * oh);
+                vec3 w = T * wi.x + B * wi.y + N * wi.z;
+                vec3 Li = {lookup};
+                num += {acc[0]}; den += {acc[1]};
+            }}"""
+
+
 def _textures(effect) -> list[tuple[str, str, int]]:
     """(uniform name, map key, face size) of the atlases a method reads."""
     m = effect.method
@@ -46,9 +107,6 @@ def fragment_code(effect, material, exprs: dict) -> tuple[str, list[str]]:
         raise SbrdfError("environment method 'mc' is the cpu renderer's reference; the gl renderer converges to it "
                          "with method: progressive (frames: N)")
     model = material.model
-    if getattr(material, "surface", None) is not None:
-        raise SbrdfError(f"environment lighting: material {material.name!r} is shaded by a shading map, which the "
-                         "environment effect cannot light")
     kind = lobes.kind(model, effect.method) if effect.method != "progressive" else None
     decls = [COMMON, cubemap.GLSL, lobes.GLSL]
     decls += [f"uniform sampler2D {u};" for u, _, _ in _textures(effect)]
@@ -102,14 +160,8 @@ def fragment_code(effect, material, exprs: dict) -> tuple[str, list[str]]:
 
 
 def _sampling_decls(effect, size: float, top: float) -> list[str]:
-    K = effect.samples
     acc = ESTIMATORS[effect.estimator]
-    lines = [f"const int ENV_K = {K};", f"const float ENV_XI_BORDER = {effect.xi_border!r};",
-             _vec2_array("ENV_RING", sampling.pattern("ring", K, effect.ring_radius)),
-             _vec2_array("ENV_LINE_B", sampling.pattern("line-b", K, effect.ring_radius)),
-             _vec2_array("ENV_LINE_T", sampling.pattern("line-t", K, effect.ring_radius)),
-             f"const float ENV_LINE_THRESHOLD = {effect.line_threshold!r};",
-             f"""
+    lines = [pattern_decls("ENV", "env", effect), f"""
 float env_lod(float tu, float tv, vec3 d) {{  // Eqs 4.14-4.17
     float amax = {float(sampling.MAX_FOOTPRINT_ANGLE)!r};
     float area = ENV_PI * tan(min(tu, amax)) * tan(min(tv, amax)) / float(ENV_K);
@@ -118,26 +170,11 @@ float env_lod(float tu, float tv, vec3 d) {{  // Eqs 4.14-4.17
     float pixels = area / pow(max(cb, 1e-6), 3.0) * {size * size / 4!r};
     return clamp(0.5 * log2(max(pixels, 1e-30)), 0.0, {top!r});
 }}
-vec3 env_ratio(vec3 num, vec3 den) {{
-    return vec3(den.x > 0.0 ? num.x / den.x : 0.0, den.y > 0.0 ? num.y / den.y : 0.0, den.z > 0.0 ? num.z / den.z : 0.0);
-}}
 vec3 env_sample_cosine(vec3 rho, vec3 a, float n, vec3 N) {{  // ring about the peak
     float tt = acos(pow(ENV_XI_BORDER, 1.0 / (n + 1.0)));
     vec3 tu = normalize(cross(abs(a.z) < 0.9 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0), a));
     vec3 tv = cross(a, tu);
-    vec3 num = vec3(0.0), den = vec3(0.0);
-    for (int k = 0; k < ENV_K; ++k) {{
-        float th = (1.0 - ENV_RING[k].x) * tt, ph = 2.0 * ENV_PI * ENV_RING[k].y;
-        vec3 w = sin(th) * (cos(ph) * tu + sin(ph) * tv) + cos(th) * a;
-        float c = dot(w, N);
-        if (c <= 0.0) continue;  // below the horizon: dropped from both sums
-        float g = pow(max(cos(th), 0.0), n);
-        vec3 f = rho * g;
-        float p = (n + 1.0) / (2.0 * ENV_PI) * g;
-        vec3 Li = atlas_lod(u_env_src, w, env_lod(tt, tt, w), {size!r}, {top!r});
-        num += {acc[0]}; den += {acc[1]};
-    }}
-    return env_ratio(num, den);
+{cosine_ring_loop("ENV", "env", acc, f"atlas_lod(u_env_src, w, env_lod(tt, tt, w), {size!r}, {top!r})")}
 }}
 """]
     return lines
@@ -146,7 +183,8 @@ vec3 env_sample_cosine(vec3 rho, vec3 a, float n, vec3 N) {{  // ring about the 
 def _beckmann_block(effect, mx: str, my: str, call: str, rho_d: str) -> list[str]:
     acc = ESTIMATORS[effect.estimator]
     size, top = float(effect.size), float(np.log2(effect.size))
-    return [ln for ln in f"""        {{
+    lookup = f"atlas_lod(u_env_src, w, env_lod(au, av, w), {size!r}, {top!r})"
+    return f"""        {{
             float mx = {mx}, my = {my};
             float r = my / mx;
             int pat = r > ENV_LINE_THRESHOLD ? 1 : (r < 1.0 / ENV_LINE_THRESHOLD ? 2 : 0);
@@ -156,26 +194,9 @@ def _beckmann_block(effect, mx: str, my: str, call: str, rho_d: str) -> list[str
             vec3 hu = vec3(sin(tu), 0.0, cos(tu)), hv = vec3(0.0, sin(tv), cos(tv));
             vec3 wu = 2.0 * dot(wo, hu) * hu - wo, wv = 2.0 * dot(wo, hv) * hv - wo;
             float au = acos(clamp(dot(wc, wu), -1.0, 1.0)), av = acos(clamp(dot(wc, wv), -1.0, 1.0));
-            vec3 num = vec3(0.0), den = vec3(0.0);
-            for (int k = 0; k < ENV_K; ++k) {{
-                vec2 xi = pat == 1 ? ENV_LINE_B[k] : (pat == 2 ? ENV_LINE_T[k] : ENV_RING[k]);
-                float ph = atan(my * sin(2.0 * ENV_PI * xi.y), mx * cos(2.0 * ENV_PI * xi.y));
-                float A = cos(ph) * cos(ph) / (mx * mx) + sin(ph) * sin(ph) / (my * my);
-                float th = (1.0 - xi.x) * atan(sqrt(-log(ENV_XI_BORDER) / A));
-                vec3 h = vec3(sin(th) * cos(ph), sin(th) * sin(ph), cos(th));
-                float oh = dot(wo, h);
-                vec3 wi = 2.0 * oh * h - wo;
-                if (oh <= 0.0 || wi.z <= 0.0) continue;
-                float c = wi.z;
-                vec3 f = {call} - {rho_d};
-                float ct = cos(th);
-                float p = exp(-tan(th) * tan(th) * A) / (4.0 * ENV_PI * mx * my * ct * ct * ct * oh);
-                vec3 w = T * wi.x + B * wi.y + N * wi.z;
-                vec3 Li = atlas_lod(u_env_src, w, env_lod(au, av, w), {size!r}, {top!r});
-                num += {acc[0]}; den += {acc[1]};
-            }}
+{beckmann_loop("ENV", acc, call, rho_d, lookup)}
             L += env_ratio(num, den);
-        }}""".split("\n")]
+        }}""".split("\n")
 
 
 def _progressive_decls(effect) -> list[str]:

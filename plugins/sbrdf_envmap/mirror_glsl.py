@@ -6,8 +6,8 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 
-from . import lobes, sampling
-from .glsl import ESTIMATORS, _vec2_array
+from . import lobes
+from .glsl import ESTIMATORS, beckmann_loop, cosine_ring_loop, pattern_decls
 
 PASS_VS = """#version 330
 uniform mat4 u_mvp;
@@ -64,19 +64,13 @@ def fragment_code(effect, material, exprs) -> tuple[str, list[str]]:
     model = material.model
     kind = lobes.kind(model, "sampling")
     W, H = effect.scene.camera.resolution
-    K = effect.samples
     acc = ESTIMATORS[effect.estimator]
     decls = [f"""
 const float MIR_PI = 3.14159265358979;
-const int MIR_K = {K};
-const float MIR_XI_BORDER = {effect.xi_border!r};
 const vec2 MIR_RES = vec2({float(W)!r}, {float(H)!r});
 const float MIR_TOP = {float(np.log2(max(W, H)))!r};
 const float MIR_FAR = {effect.far!r};
-const float MIR_LINE_THRESHOLD = {effect.line_threshold!r};
-{_vec2_array("MIR_RING", sampling.pattern("ring", K, effect.ring_radius))}
-{_vec2_array("MIR_LINE_B", sampling.pattern("line-b", K, effect.ring_radius))}
-{_vec2_array("MIR_LINE_T", sampling.pattern("line-t", K, effect.ring_radius))}
+{pattern_decls("MIR", "mir", effect)}
 uniform sampler2D u_mir_rad;
 uniform sampler2D u_mir_pos;
 uniform sampler2D u_mir_nrm;
@@ -106,28 +100,13 @@ float mir_lod(vec3 P, vec3 e0, vec3 e1, vec3 e2, vec3 e3) {{  // ellipse through
     float b = 0.5 * length((mir_project(P, e1) - mir_project(P, e3)) * MIR_RES);
     return clamp(0.5 * log2(max(MIR_PI * a * b / float(MIR_K), 1e-30)), 0.0, MIR_TOP);
 }}
-vec3 mir_ratio(vec3 num, vec3 den) {{
-    return vec3(den.x > 0.0 ? num.x / den.x : 0.0, den.y > 0.0 ? num.y / den.y : 0.0, den.z > 0.0 ? num.z / den.z : 0.0);
-}}
 vec3 mir_sample_cosine(vec3 rho, vec3 a, float n, vec3 N, vec3 P) {{
     float tt = acos(pow(MIR_XI_BORDER, 1.0 / (n + 1.0)));
     vec3 tu = normalize(cross(abs(a.z) < 0.9 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0), a));
     vec3 tv = cross(a, tu);
     float st = sin(tt), ct = cos(tt);
     float lod = mir_lod(P, st * tu + ct * a, st * tv + ct * a, -st * tu + ct * a, -st * tv + ct * a);
-    vec3 num = vec3(0.0), den = vec3(0.0);
-    for (int k = 0; k < MIR_K; ++k) {{
-        float th = (1.0 - MIR_RING[k].x) * tt, ph = 2.0 * MIR_PI * MIR_RING[k].y;
-        vec3 w = sin(th) * (cos(ph) * tu + sin(ph) * tv) + cos(th) * a;
-        float c = dot(w, N);
-        if (c <= 0.0) continue;
-        float g = pow(max(cos(th), 0.0), n);
-        vec3 f = rho * g;
-        float p = (n + 1.0) / (2.0 * MIR_PI) * g;
-        vec3 Li = mir_fetch(mir_project(P, w), lod);
-        num += {acc[0]}; den += {acc[1]};
-    }}
-    return mir_ratio(num, den);
+{cosine_ring_loop("MIR", "mir", acc, "mir_fetch(mir_project(P, w), lod)")}
 }}
 """]
     body = ["    if (wo.z > 0.0) {  // planar reflector (sbrdf_envmap.mirror)"]
@@ -154,23 +133,7 @@ vec3 mir_sample_cosine(vec3 rho, vec3 a, float n, vec3 N, vec3 P) {{
                 ext[e] = T * wl.x + B * wl.y + N * wl.z;
             }}
             float lod = mir_lod(v_pos, ext[0], ext[1], ext[2], ext[3]);
-            vec3 num = vec3(0.0), den = vec3(0.0);
-            for (int k = 0; k < MIR_K; ++k) {{
-                vec2 xi = pat == 1 ? MIR_LINE_B[k] : (pat == 2 ? MIR_LINE_T[k] : MIR_RING[k]);
-                float ph = atan(my * sin(2.0 * MIR_PI * xi.y), mx * cos(2.0 * MIR_PI * xi.y));
-                float A = cos(ph) * cos(ph) / (mx * mx) + sin(ph) * sin(ph) / (my * my);
-                float th = (1.0 - xi.x) * atan(sqrt(-log(MIR_XI_BORDER) / A));
-                vec3 h = vec3(sin(th) * cos(ph), sin(th) * sin(ph), cos(th));
-                float oh = dot(wo, h);
-                vec3 wi = 2.0 * oh * h - wo;
-                if (oh <= 0.0 || wi.z <= 0.0) continue;
-                float c = wi.z;
-                vec3 f = {call} - {exprs['rho_d']};
-                float cth = cos(th);
-                float p = exp(-tan(th) * tan(th) * A) / (4.0 * MIR_PI * mx * my * cth * cth * cth * oh);
-                vec3 Li = mir_fetch(mir_project(v_pos, T * wi.x + B * wi.y + N * wi.z), lod);
-                num += {acc[0]}; den += {acc[1]};
-            }}
+{beckmann_loop("MIR", acc, call, exprs['rho_d'], "mir_fetch(mir_project(v_pos, w), lod)")}
             L += mir_ratio(num, den);
         }}"""]
     body.append("    }")
