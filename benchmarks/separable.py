@@ -52,24 +52,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from report import machine, replace_section  # noqa: E402
 
-CLAMP = 5.0
+from sbrdf_separable.error import CLAMP, STUDY, study_brdf  # noqa: E402  (the §5.2 study's BRDFs)
+
 PARAMS = ["gram-schmidt", "rusinkiewicz", "standard", "elevation-azimuth"]
-MATERIALS = {
-    "ward": ("ward", {"anisotropic": True}, {"rho_d": [1 / np.pi, 0, 0], "rho_s": [0.3] * 3, "alpha_x": [0.21],
-                                             "alpha_y": [0.048]}),
-    "copper": ("cook-torrance", {"distribution": "beckmann"}, {"rho_d": [0, 0, 0], "f0": [0.95, 0.64, 0.54],
-                                                               "alpha": [0.3]}),
-    "velvet": ("velvet", {}, {"rho_d": [0.05, 0.02, 0.02], "rho_s": [0.8, 0.3, 0.3], "sigma": [0.35]}),
-}
-
-
-def brdf(name):
-    from sbrdf_core.registry import default_registry
-    from sbrdf_separable.sources import model_function
-
-    model, cfg, params = MATERIALS[name]
-    f = model_function(default_registry().create("brdf-model", model, cfg), params)
-    return lambda wi, wo: np.clip(f(wi, wo), 0.0, CLAMP)
 
 
 def rms(fn, fac) -> float:
@@ -97,8 +82,8 @@ def terms_study(K, max_terms=8):
     from sbrdf_separable.decompose import nd, parameterization, svd
 
     out = {}
-    for m in MATERIALS:
-        fn = brdf(m)
+    for m in STUDY:
+        fn = study_brdf(m)
         for p in PARAMS:
             P = parameterization(p)
             S = svd(fn, P, K, terms=max_terms, clamp_max=CLAMP)
@@ -112,7 +97,7 @@ def terms_study(K, max_terms=8):
 def size_study(sizes, svd_max):
     from sbrdf_separable.decompose import nd, parameterization, svd
 
-    fn, P = brdf("ward"), parameterization("gram-schmidt")
+    fn, P = study_brdf("ward"), parameterization("gram-schmidt")
     rows = []
     for K in sizes:
         e_nd = rms(fn, nd(fn, P, K, clamp_max=CLAMP))
@@ -141,7 +126,7 @@ def nd_partial(fn, P, K, fraction):
 def cost_study(sizes, quick):
     from sbrdf_separable.decompose import matrix_mb, nd, parameterization, svd
 
-    fn, P = brdf("ward"), parameterization("gram-schmidt")
+    fn, P = study_brdf("ward"), parameterization("gram-schmidt")
     rows = []
     for K in sizes:
         part = {64: 8, 128: 64}.get(K, 1) if quick else 1
@@ -174,7 +159,7 @@ def write_docs(terms, K_terms, sizes, costs, line, quick):
     docs = ROOT / "docs"
     (docs / "img").mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
-    for ax, m in zip(axes, MATERIALS):
+    for ax, m in zip(axes, STUDY):
         for p in PARAMS:
             e = terms[m, p]["svd"]
             ax.plot(range(1, len(e) + 1), e, "o-", ms=3, label=p)
@@ -202,7 +187,7 @@ def write_docs(terms, K_terms, sizes, costs, line, quick):
     head = "| BRDF | parameterization | ND 1 | SVD 1 | SVD 2 | SVD 4 | SVD 8 |\n|---|---|---|---|---|---|---|\n"
     table = head + "".join(
         f"| {m} | {p} | {f(terms[m, p]['nd1'])} | " + " | ".join(f(terms[m, p]['svd'][k - 1]) for k in (1, 2, 4, 8))
-        + " |\n" for m in MATERIALS for p in PARAMS)
+        + " |\n" for m in STUDY for p in PARAMS)
     size_table = "| K | ND 1 term | SVD 1 term |\n|---|---|---|\n" + "".join(
         f"| {K} | {f(a)} | {f(b)} |\n" for K, a, b in sizes)
     cost_table = ("| K | ND wall s | ND CPU s | ND peak MB | SVD wall s | SVD CPU s | SVD peak MB | matrix MB (3 × float32) |\n"
@@ -258,7 +243,7 @@ def main(argv=None):
     # the headline errors at K = 32 (the text's sampling)
     from sbrdf_separable.decompose import nd, parameterization, svd
 
-    fn, P = brdf("ward"), parameterization("gram-schmidt")
+    fn, P = study_brdf("ward"), parameterization("gram-schmidt")
     S = svd(fn, P, 32, terms=4, clamp_max=CLAMP)
     nd1, svd1, svd4 = rms(fn, nd(fn, P, 32, clamp_max=CLAMP)), rms(fn, S.truncated(1)), rms(fn, S)
     c128 = next(r for r in costs if r[0] == 128)

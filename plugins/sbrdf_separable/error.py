@@ -16,6 +16,27 @@ from sbrdf_core.brdf import luminance_weights
 from sbrdf_core.brdf_checks import hemisphere_directions
 
 PAIRS = 8000
+#: §6.1's range limit; the study compares every approximation against the BRDF limited the same way.
+CLAMP = 5.0
+#: The study's BRDFs (§5.2): the text's anisotropic Ward, a copper-like Cook–Torrance, a velvet.
+STUDY = {
+    "ward": ("ward", {"anisotropic": True}, {"rho_d": [1 / np.pi, 0, 0], "rho_s": [0.3] * 3, "alpha_x": [0.21],
+                                             "alpha_y": [0.048]}),
+    "copper": ("cook-torrance", {"distribution": "beckmann"}, {"rho_d": [0, 0, 0], "f0": [0.95, 0.64, 0.54],
+                                                               "alpha": [0.3]}),
+    "velvet": ("velvet", {}, {"rho_d": [0.05, 0.02, 0.02], "rho_s": [0.8, 0.3, 0.3], "sigma": [0.35]}),
+}
+
+
+def study_brdf(name: str, registry=None):
+    """One of :data:`STUDY` as ``f(wi, wo) -> (..., 3)``, limited to [0, :data:`CLAMP`]."""
+    from sbrdf_core.registry import default_registry
+
+    from .sources import model_function
+
+    model, cfg, params = STUDY[name]
+    f = model_function((registry or default_registry()).create("brdf-model", model, cfg), params)
+    return lambda wi, wo: np.clip(f(wi, wo), 0.0, CLAMP)
 
 
 def mc_pairs(n: int = PAIRS, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

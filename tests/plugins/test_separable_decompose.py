@@ -11,26 +11,11 @@ from hypothesis import given, settings, strategies as st
 from sbrdf_core.brdf_checks import hemisphere_directions
 from sbrdf_core.registry import Registry
 from sbrdf_separable.decompose import GridSampler, nd, parameterization, svd
-from sbrdf_separable.error import factors_function, radiance_rms
+from sbrdf_separable.error import CLAMP, STUDY, factors_function, radiance_rms, study_brdf
 from sbrdf_separable.sources import ScatteredBRDF, model_function
 
 REGISTRY = Registry()
 PARAMS = ["gram-schmidt", "rusinkiewicz", "standard", "elevation-azimuth"]
-CLAMP = 5.0  # §6.1's range limit; the study compares against the BRDF limited the same way
-
-MATERIALS = {  # the study's BRDFs: the text's Ward, a copper-like Cook-Torrance, a velvet
-    "ward": ("ward", {"anisotropic": True}, {"rho_d": [1 / np.pi, 0, 0], "rho_s": [0.3] * 3, "alpha_x": [0.21],
-                                             "alpha_y": [0.048]}),
-    "copper": ("cook-torrance", {"distribution": "beckmann"}, {"rho_d": [0, 0, 0], "f0": [0.95, 0.64, 0.54],
-                                                               "alpha": [0.3]}),
-    "velvet": ("velvet", {}, {"rho_d": [0.05, 0.02, 0.02], "rho_s": [0.8, 0.3, 0.3], "sigma": [0.35]}),
-}
-
-
-def brdf(name):
-    model, cfg, params = MATERIALS[name]
-    f = model_function(REGISTRY.create("brdf-model", model, cfg), params)
-    return lambda wi, wo: np.clip(f(wi, wo), 0.0, CLAMP)
 
 
 def grid_error(fn, param, fac):
@@ -45,8 +30,8 @@ def grid_error(fn, param, fac):
 def study16():
     """§5.2 at K = 16: MC radiance RMS per (material, parameterization) for SVD with 1..4 terms and 1-term ND."""
     out = {}
-    for m in MATERIALS:
-        fn = brdf(m)
+    for m in STUDY:
+        fn = study_brdf(m, REGISTRY)
         for p in PARAMS:
             P = parameterization(p)
             S = svd(fn, P, 16, terms=4, clamp_max=CLAMP)
@@ -130,23 +115,23 @@ def test_one_term_nd_is_close_to_one_term_svd(study16):
     """Fig 6 (Gram–Schmidt, Ward): 1-term ND within 25 % of 1-term SVD; no worse than 2x for the others."""
     r = study16["ward", "gram-schmidt"]
     assert 0.75 < r["nd1"] / r["svd"][0] < 1.25
-    for m in MATERIALS:
+    for m in STUDY:
         r = study16[m, "gram-schmidt"]
         assert r["nd1"] < 2.0 * r["svd"][0]
 
 
 def test_error_falls_with_texture_size():
-    fn, P = brdf("ward"), parameterization("gram-schmidt")
+    fn, P = study_brdf("ward", REGISTRY), parameterization("gram-schmidt")
     for method in (nd, svd):
         e8, e24 = (radiance_rms(fn, factors_function(method(fn, P, k, clamp_max=CLAMP))) for k in (8, 24))
         assert e24 < 0.8 * e8, (method.__name__, e8, e24)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("material", list(MATERIALS))
+@pytest.mark.parametrize("material", list(STUDY))
 def test_svd_radiance_error_falls_with_terms_at_the_texts_size(material):
     """The text's setting, 32 samples per dimension: 8 terms beat 1 in every parameterization."""
-    fn = brdf(material)
+    fn = study_brdf(material, REGISTRY)
     for p in PARAMS:
         S = svd(fn, parameterization(p), 32, terms=8, clamp_max=CLAMP)
         e1, e8 = (radiance_rms(fn, factors_function(S.truncated(k))) for k in (1, 8))
@@ -156,7 +141,7 @@ def test_svd_radiance_error_falls_with_terms_at_the_texts_size(material):
 def test_singular_configuration_is_smooth_in_gram_schmidt_and_jumps_in_rusinkiewicz():
     """The fitted models at mirror pairs (h = n) perturbed by 1e-9: Gram–Schmidt's value is stable,
     Rusinkiewicz's depends on the direction of the perturbation (§5.1's instability)."""
-    fn = brdf("ward")
+    fn = study_brdf("ward", REGISTRY)
     rng = np.random.default_rng(3)
     t = np.radians(35.0)
     wi0, wo0 = np.array([np.sin(t), 0, np.cos(t)]), np.array([-np.sin(t), 0, np.cos(t)])
@@ -185,7 +170,7 @@ def peak_bytes(call):
 
 
 def test_nd_memory_is_the_factors_not_the_matrix():
-    fn, P, K = brdf("copper"), parameterization("gram-schmidt"), 24
+    fn, P, K = study_brdf("copper", REGISTRY), parameterization("gram-schmidt"), 24
     matrix = 3 * K**4 * 4  # float32, three channels
     nd(fn, P, 4, terms=2), svd(fn, P, 4)  # imports (scipy.ndimage, ARPACK) are not the algorithm's memory
     nd_peak = peak_bytes(lambda: nd(fn, P, K, terms=1, block_pairs=K * K))
@@ -219,8 +204,8 @@ def test_factors_stay_finite_on_nan_zero_and_huge_input(scale, nan_fraction, met
 
 
 def test_clamp_limits_the_range_before_decomposing():
-    fn, P = brdf("ward"), parameterization("gram-schmidt")
-    raw = model_function(REGISTRY.create("brdf-model", "ward", {"anisotropic": True}), MATERIALS["ward"][2])
+    fn, P = study_brdf("ward", REGISTRY), parameterization("gram-schmidt")
+    raw = model_function(REGISTRY.create("brdf-model", "ward", {"anisotropic": True}), STUDY["ward"][2])
     s = GridSampler(raw, P, 12, clamp_max=2.0)
     M, _ = s.block(0, s.n)
     assert M.max() <= 2.0 and M.min() >= 0.0
@@ -230,7 +215,7 @@ def test_clamp_limits_the_range_before_decomposing():
 
 def test_scattered_samples_decompose_like_the_analytic_brdf():
     """A measured material (scattered samples, some NaN) interpolated onto the grid gives nearly the analytic ND."""
-    fn, P = brdf("copper"), parameterization("gram-schmidt")
+    fn, P = study_brdf("copper", REGISTRY), parameterization("gram-schmidt")
     rng = np.random.default_rng(4)
     wi, wo = hemisphere_directions(rng, (20000,)), hemisphere_directions(rng, (20000,))
     f = fn(wi, wo)
