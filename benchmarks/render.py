@@ -53,7 +53,7 @@ from sbrdf_core.scene import load_scene  # noqa: E402
 from sbrdf_render import materials as mat  # noqa: E402
 from sbrdf_render.cpu import cast, render_scene  # noqa: E402
 from sbrdf_render.gf4 import GF4Scene  # noqa: E402
-from sbrdf_render.gl import GLScene, context  # noqa: E402
+from sbrdf_render.gl import Drawer, Frame, GLScene, clip_planes, context  # noqa: E402
 
 REGISTRY = Registry()
 BASELINES = ("no light, no tex", "light, no tex", "no light, tex", "light, tex")
@@ -64,7 +64,7 @@ LIGHT_POSITIONS = ([1.5, -1.5, 1.6], [-1.6, -0.8, 1.4], [0.2, 1.8, 1.8])
 
 
 def terrain_obj(path: Path, n: int) -> int:
-    """An n×n-vertex height field inside the unit sphere (the scene bounds guess meshes at radius 1), with uvs."""
+    """An n×n-vertex height field over [-0.68, 0.68]², with uvs."""
     s = np.linspace(-0.68, 0.68, n)
     x, y = np.meshgrid(s, s)
     z = 0.08 * np.sin(7 * x) * np.cos(5 * y) + 0.05 * np.sin(11 * x + 3 * y) + 0.03 * np.cos(17 * y - 2 * x)
@@ -141,20 +141,18 @@ def frame_ms(drawer) -> float:
     return f.wall_ms if software_rasteriser() else f.gpu_ms
 
 
-class Baseline:
+class Baseline(Drawer):
     """Table 6.1's comparison shaders on the same mesh: optional per-pixel lights, optional RGB8 texture."""
 
     def __init__(self, scene, mesh, lit: bool, textured: bool):
         import moderngl
 
+        self.scene = scene
         ctx = self.ctx = context()
         W, H = scene.camera.resolution
         self._res = []
-        keep = self._res.append
-        color = ctx.texture((W, H), 4, dtype="f4")
-        depth = ctx.depth_texture((W, H))
-        self.fbo = ctx.framebuffer([color], depth)
-        keep(color), keep(depth), keep(self.fbo)
+        keep = self._keep
+        self.fbo = keep(ctx.framebuffer([keep(ctx.texture((W, H), 4, dtype="f4"))], keep(ctx.depth_texture((W, H)))))
         n = len(scene.lights) if lit else 0
         fs = ["#version 330", "in vec3 v_pos;", "in vec3 v_normal;", "in vec2 v_uv;", "out vec4 frag;",
               "uniform vec3 u_eye;"]
@@ -184,10 +182,7 @@ void main() { v_pos = in_pos; v_normal = in_normal; v_uv = in_uv; gl_Position = 
 """
         self.prog = ctx.program(vertex_shader=vs, fragment_shader="\n".join(fs) + "\n")
         keep(self.prog)
-        centre, radius = scene.bounds()
-        dist = np.linalg.norm(scene.camera.position - centre)
-        far = dist + radius * 1.01
-        view, proj = scene.camera.matrices(max(far * 1e-5, dist - radius * 1.01), far)
+        view, proj = scene.camera.matrices(*clip_planes(scene.camera, {0: mesh}))
         self.prog["u_mvp"].write((proj @ view).astype("f4").T.tobytes())
         if "u_eye" in self.prog:
             self.prog["u_eye"].value = tuple(float(x) for x in scene.camera.position)
@@ -207,12 +202,10 @@ void main() { v_pos = in_pos; v_normal = in_normal; v_uv = in_uv; gl_Position = 
         layout = [(vbo, "3f 3f 2f", "in_pos", "in_normal", "in_uv")]
         self.vao = ctx.vertex_array(self.prog, layout, ibo, skip_errors=True)
         keep(vbo), keep(ibo), keep(self.vao)
-        self.query = ctx.query(time=True)
+        self.query = keep(ctx.query(time=True))
 
     def draw(self, read: bool = False):
         import moderngl
-
-        from sbrdf_render.gl import Frame
 
         t0 = time.perf_counter()
         self.fbo.use()
@@ -223,14 +216,8 @@ void main() { v_pos = in_pos; v_normal = in_normal; v_uv = in_uv; gl_Position = 
             if self.tex is not None:
                 self.tex.use(0)
             self.vao.render(moderngl.TRIANGLES)
-        self.ctx.finish()
-        wall = (time.perf_counter() - t0) * 1e3
-        e = self.query.elapsed
-        return Frame(None, e / 1e6 if 0 < e < 2**32 - 1 else wall, wall)
-
-    def release(self):
-        for obj in reversed(self._res):
-            obj.release()
+        image, gpu, wall = self._finish(self.fbo, t0, read)
+        return Frame(image, gpu, wall)
 
 
 def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> dict:
