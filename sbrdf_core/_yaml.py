@@ -6,9 +6,12 @@ Graphs are data: only PyYAML's safe constructors run, and duplicate keys
 
 from __future__ import annotations
 
+from pathlib import Path as _FilePath
 from typing import Any
 
 import yaml
+
+from .errors import Problem
 
 Path = tuple[Any, ...]
 
@@ -56,3 +59,15 @@ def _convert(node: yaml.Node, path: Path, loc: Located, ctor: yaml.SafeLoader) -
     if isinstance(node, yaml.SequenceNode):
         return [_convert(v, path + (i,), loc, ctor) for i, v in enumerate(node.value)]
     return ctor.construct_object(node, deep=True)
+
+
+def syntax_problem(error: yaml.YAMLError, file: str) -> Problem:
+    """A YAML syntax error as a :class:`~sbrdf_core.errors.Problem` at its line."""
+    mark = getattr(error, "problem_mark", None)
+    return Problem(f"YAML syntax error: {getattr(error, 'problem', None) or error}", file,
+                   mark.line + 1 if mark is not None else None)
+
+
+def relative_to(base: _FilePath, value: str) -> str:
+    """A file named in a YAML document, resolved from the document's folder unless absolute or a URL."""
+    return value if "://" in value or _FilePath(value).is_absolute() else str(base / value)

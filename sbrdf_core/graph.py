@@ -94,9 +94,7 @@ class _Validator:
         try:
             doc, self.loc = _yaml.load(self.text)
         except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            line = mark.line + 1 if mark is not None else None
-            raise GraphError([Problem(f"YAML syntax error: {getattr(e, 'problem', None) or e}", self.file, line)]) from None
+            raise GraphError([_yaml.syntax_problem(e, self.file)]) from None
         for path, line in self.loc.duplicates:
             what = "node" if len(path) == 2 and path[0] == "nodes" else "key"
             self.problem(f"duplicate {what} {path[-1]!r} (first defined on line {self.loc.lines.get(path)})", line=line)
@@ -241,8 +239,8 @@ class _Validator:
             self.problem(msg, path + (key,) if key is not None else path)
         for p in declared:  # file parameters declared with extra={"path": True} are relative to the graph file
             v = values.get(p.name)
-            if p.extra.get("path") and isinstance(v, str) and "://" not in v and not Path(v).is_absolute():
-                values[p.name] = str(self.base / v)
+            if p.extra.get("path") and isinstance(v, str):
+                values[p.name] = _yaml.relative_to(self.base, v)
         # Parameters that name another plugin, and parameters that are that plugin's parameters.
         for p in declared:
             category = p.extra.get("plugin_category")

@@ -322,17 +322,14 @@ class _SceneValidator:
         return values
 
     def path(self, value: str) -> str:
-        return value if "://" in value or Path(value).is_absolute() else str(self.base / value)
+        return _yaml.relative_to(self.base, value)
 
     def run(self) -> Scene:
         try:
             doc, self.loc = _yaml.load(self.text)
         except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            raise SceneError([Problem(f"YAML syntax error: {getattr(e, 'problem', None) or e}", self.file,
-                                      mark.line + 1 if mark is not None else None)]) from None
+            raise SceneError([_yaml.syntax_problem(e, self.file)]) from None
         if not isinstance(doc, dict):
-            self.loc = _yaml.Located()
             raise SceneError([Problem("a scene must be a mapping with 'camera', 'objects' and 'lights'", self.file, 1)])
         for path, line in self.loc.duplicates:
             self.problems.append(Problem(f"duplicate key {path[-1]!r}", self.file, line))
