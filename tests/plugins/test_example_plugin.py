@@ -8,6 +8,8 @@ and the ``ambient`` scene effect (cpu and gl against a closed form and each othe
 
 from __future__ import annotations
 
+import functools
+
 import subprocess
 import sys
 from pathlib import Path
@@ -73,21 +75,11 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "examples" / "sbrdf-exa
 
 
 @pytest.fixture
-def turntable_sim():
-    """Start simulators for a test: ``sim = turntable_sim(faults=[...])``; all stop at teardown."""
+def turntable_sim(start_simulator):
+    """Start turntable simulators for a test: ``sim = turntable_sim(faults=[...])``; all stop at teardown."""
     from sbrdf_example.turntable_sim import SimulatedTurntable
 
-    started = []
-
-    def start(**kwargs):
-        sim = SimulatedTurntable(**kwargs).start()
-        started.append(sim)
-        return sim
-
-    yield start
-    for sim in started:
-        sim.stop()
-        assert sim.error is None, f"simulator thread failed: {sim.error!r}"
+    return functools.partial(start_simulator, SimulatedTurntable)
 
 
 def turntable(registry, sim, **params):
