@@ -22,6 +22,7 @@ only created after its chunk was written whole.
 from __future__ import annotations
 
 import math
+import re
 import threading
 from collections import OrderedDict
 from collections.abc import Mapping
@@ -191,6 +192,9 @@ def chunk_key(index: tuple[int, ...]) -> str:
     return ".".join(map(str, index)) or "0"
 
 
+_CHUNK_KEY = re.compile(r"\d+(\.\d+)*")
+
+
 def _marker_name(name: str) -> str:
     return f"{MARKERS}/{name.replace('/', '.')}"
 
@@ -220,6 +224,8 @@ class ArtifactWriter:
         """Create the group and arrays (or keep a partial one); return done chunk keys per array."""
         state = self.state()
         if state == "partial":
+            for leftover in (p for p in self.fs.find(self.root) if p.endswith(".partial")):
+                self.fs.rm(leftover)  # a killed writer's temporary file; its chunk is rewritten
             return {name: self.done(name) for name in layouts}
         if state in ("stale", "complete"):
             self.fs.rm(self.root, recursive=True)
@@ -233,13 +239,16 @@ class ArtifactWriter:
 
     def done(self, name: str) -> set[str]:
         """Chunk keys (``"i.j.k"``) whose marker exists.  Only existence counts: a
-        marker torn by a killed writer still proves its data chunk was complete."""
+        marker torn by a killed writer still proves its data chunk was complete.  A
+        killed writer can also leave zarr's temporary ``<key>.<uuid>.partial`` file
+        behind; it proves nothing and is not a chunk key."""
         path = join(self.root, _marker_name(name), "c")
         try:
             found = self.fs.find(path)
         except FileNotFoundError:
             return set()
-        return {p[len(path) + 1:].replace("/", ".") for p in found}
+        keys = (p[len(path) + 1:].replace("/", ".") for p in found)
+        return {k for k in keys if _CHUNK_KEY.fullmatch(k)}
 
     def mark_complete(self, layouts: Mapping[str, ArrayLayout], attrs: Mapping[str, Any]) -> None:
         """Set ``complete`` only after checking every chunk's marker exists."""

@@ -7,7 +7,7 @@ import pytest
 
 from sbrdf_core.artifacts import ParamMaps
 from sbrdf_core.errors import ArtifactError
-from sbrdf_core.store import ArrayLayout, ArtifactWriter, open_artifact, texel_tile, write_chunk
+from sbrdf_core.store import MARKERS, ArrayLayout, ArtifactWriter, open_artifact, texel_tile, write_chunk
 
 
 def test_never_complete_until_every_chunk_is_written(tmp_path):
@@ -33,6 +33,27 @@ def test_never_complete_until_every_chunk_is_written(tmp_path):
     assert art.complete and art.names() == ["rms"] and art.attrs["summary"] == 1
     # a different token (changed parameters) starts over
     assert ArtifactWriter(url, ParamMaps, "other").state() == "stale"
+
+
+def test_a_killed_writers_temporary_marker_file_is_not_a_chunk(tmp_path):
+    """zarr writes ``<key>.<uuid>.partial`` and renames it; SIGKILL between the two
+    leaves the temporary file, which once counted as a ninth chunk of eight."""
+    url = str(tmp_path / "a")
+    lay = {"rms": ArrayLayout((4,), (2,), "float32")}
+    w = ArtifactWriter(url, ParamMaps, "t")
+    w.prepare(lay, {})
+    write_chunk(np.ones(2), url, "rms", "t", (0,), (slice(0, 2),))
+    markers = tmp_path / "a" / MARKERS / "rms" / "c"
+    assert (markers / "0").exists()
+    (markers / "1.0123456789abcdef.partial").write_bytes(b"\x01")
+    assert w.done("rms") == {"0"}
+    assert ArtifactWriter(url, ParamMaps, "t").prepare(lay, {}) == {"rms": {"0"}}
+    assert not list((tmp_path / "a").rglob("*.partial")), "resuming leaves no temporary file behind"
+    with pytest.raises(ArtifactError, match="1 chunks of 'rms' were not written"):
+        w.mark_complete(lay, {})
+    write_chunk(np.ones(2), url, "rms", "t", (1,), (slice(2, 4),))
+    w.mark_complete(lay, {})
+    assert open_artifact(url).complete
 
 
 def test_chunk_shape_mismatch_is_refused(tmp_path):
