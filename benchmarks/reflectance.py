@@ -15,9 +15,11 @@ Reflectance are timed (the runner's node wall times) on
 ``cluster``  a ``distributed.LocalCluster`` (2 worker processes, 1 thread each).
 
 ``mb_per_s`` = CaptureSet MB / (Register + Reflectance seconds), threads run.
-``peak_rss_mb`` = peak resident set of this process plus its children (cluster
-workers), sampled every 50 ms during the timed nodes; the larger of the two runs.
-With ``--quick`` the threaded run is also done at half the size, so the two
+``peak_rss_mb`` = peak resident set of the process running Register +
+Reflectance plus its children (cluster workers), sampled every 50 ms; the
+larger of the two runs.  Each run is a fresh process, as ``sbrdf run`` is, so
+the memory this script used to make the capture does not count.  With
+``--quick`` the threaded run is also done at half the size, so the two
 peaks show whether memory grows with the scan (it must not: the stack is
 stored in texel tiles and the transpose streams one tile of all poses at a time).
 ``registration_rms_texel`` = mean homography RMS (mm) / texel size (mm).
@@ -138,23 +140,52 @@ nodes:
     return path
 
 
-def timed_run(g: Path, scheduler) -> tuple[float, float]:
+def timed_run(g: Path, scheduler: str) -> tuple[float, float]:
+    """Run the graph in fresh processes, as ``sbrdf run`` would: first the capture
+    node alone (untimed), then Register + Reflectance, timed and with their peak
+    RSS sampled.  A fresh process keeps this script's own leftovers (the virtual
+    capture it just made) out of the figure."""
+    import json
+    import subprocess
+
+    def child(*nodes: str) -> dict:
+        cmd = [sys.executable, __file__, "--child", str(g), "--scheduler", scheduler, *[f"--node={n}" for n in nodes]]
+        out = subprocess.run(cmd, stdout=subprocess.PIPE, check=True, text=True).stdout
+        return json.loads(out.strip().splitlines()[-1])
+
+    t0 = time.perf_counter()
+    child("capture")
+    print(f"  {scheduler}: capture node (folder -> CaptureSet, untimed) {time.perf_counter() - t0:.1f} s",
+          file=sys.stderr, flush=True)
+    r = child("reflectance")
+    print(f"  register {r['register_s']:.1f} s, reflectance {r['reflectance_s']:.1f} s, peak RSS {r['peak']:.0f} MB "
+          f"(runner process {r['peak_main']:.0f} MB, workers {r['peak_children']:.0f} MB)", file=sys.stderr, flush=True)
+    return r["register_s"] + r["reflectance_s"], r["peak"]
+
+
+def child_run(g: str, scheduler: str, nodes: list[str]) -> None:
+    """``--child``: run ``nodes`` of graph ``g`` on ``threads`` or a 2-worker LocalCluster; print JSON figures."""
+    import contextlib
+    import json
+
     from sbrdf_core.graph import load_graph
     from sbrdf_core.runner import Runner
 
-    runner = Runner(scheduler=scheduler)
-    gr = load_graph(str(g), runner.registry)
-    t0 = time.perf_counter()
-    runner.run(gr, only=["capture"])  # untimed: the CaptureSet
-    print(f"  {scheduler if isinstance(scheduler, str) else 'cluster'}: capture node (folder -> CaptureSet, untimed) "
-          f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
-    with PeakRSS() as mem:
-        rep = runner.run(gr, only=["reflectance"])
-    seconds = rep["register"].wall_s + rep["reflectance"].wall_s
-    print(f"  register {rep['register'].wall_s:.1f} s, reflectance {rep['reflectance'].wall_s:.1f} s, "
-          f"peak RSS {mem.peak / 2**20:.0f} MB (this process {mem.peak_main / 2**20:.0f} MB, "
-          f"children {mem.peak_children / 2**20:.0f} MB)", file=sys.stderr, flush=True)
-    return seconds, mem.peak / 2**20
+    with contextlib.ExitStack() as stack:
+        target = scheduler
+        if scheduler == "cluster":
+            from distributed import Client, LocalCluster
+
+            lc = stack.enter_context(LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                                  dashboard_address=None))
+            target = stack.enter_context(Client(lc))
+        runner = Runner(scheduler=target)
+        gr = load_graph(g, runner.registry)
+        with PeakRSS() as mem:
+            rep = runner.run(gr, only=nodes)
+    walls = {f"{n.node}_s": n.wall_s for n in rep.nodes}
+    print(json.dumps({**walls, "peak": mem.peak / 2**20, "peak_main": mem.peak_main / 2**20,
+                      "peak_children": mem.peak_children / 2**20}))
 
 
 def summarise(store: Path) -> tuple[float, float, float]:
@@ -189,12 +220,8 @@ def one(tmp: Path, gb: float, cluster: bool) -> dict:
           f"valid {out['valid']:.2f}", flush=True)
     shutil.rmtree(store, ignore_errors=True)
     if cluster:
-        from distributed import Client, LocalCluster
-
         store = tmp / f"store-{gb:g}-cluster"
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
-                Client(lc) as client:
-            secs, peak = timed_run(graph(tmp / "gc.yaml", folder, store), client)
+        secs, peak = timed_run(graph(tmp / "gc.yaml", folder, store), "cluster")
         rms, err, _ = summarise(store)
         out.update(cluster_s=secs, cluster_peak=peak, cluster_err=err)
         print(f"cluster (2 workers): {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS (all processes) "
@@ -253,7 +280,12 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="0.1 GB, plus a half-size threads run for the memory check")
     ap.add_argument("--tmpdir", default=None)
     ap.add_argument("--no-cluster", action="store_true", help="skip the LocalCluster run")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--scheduler", help=argparse.SUPPRESS)
+    ap.add_argument("--node", action="append", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.child:
+        return child_run(args.child, args.scheduler, args.node)
     gb = args.gb if args.gb is not None else (0.1 if args.quick else 2.0)
     tmp = Path(tempfile.mkdtemp(prefix="sbrdf-reflectance-", dir=args.tmpdir))
     try:

@@ -62,6 +62,10 @@ def join(url: str, *parts: str) -> str:
 # ---------------------------------------------------------------------------
 
 
+#: Smallest automatic texel tile (see texel_tile).
+MIN_TILE = 8
+
+
 def pose_major_chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
     """One pose per chunk: how captures arrive and how registration reads them."""
     return (1, *shape[1:])
@@ -73,13 +77,17 @@ def texel_tile(texels_vu: tuple[int, int], poses: int, channels: int = 3, itemsi
 
     Fitting needs every sample of a texel at once, so sampled reflectance is
     stored tile-major.  The tile is the largest power of two in [32, 128]
-    (DESIGN.md) whose chunk stays under ``target_bytes``, and never larger than
-    the grid; an explicit ``tile`` wins.
+    (DESIGN.md) whose chunk stays under ``target_bytes``; past 1024 samples
+    per texel (4 channels) even 32² would not, and the tile keeps halving down
+    to 8², so that a chunk, and the memory a worker needs to transpose or fit
+    one, stays bounded however many poses a scan has (a fixed 32² tile of 8000
+    poses would be a 131 MB chunk).  Never larger than the grid; an explicit
+    ``tile`` wins.
     """
     if tile is None:
         per_texel = max(poses, 1) * channels * itemsize
         tile = 128
-        while tile > 32 and tile * tile * per_texel > target_bytes:
+        while tile > MIN_TILE and tile * tile * per_texel > target_bytes:
             tile //= 2
     return max(1, min(tile, max(texels_vu)))
 

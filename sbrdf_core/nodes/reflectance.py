@@ -64,7 +64,7 @@ class Reflectance(NodeKind):
     inputs = (Port("stack", (RegisteredStack,), "registered radiance"),)
     output = SampledReflectance
     params = (
-        Param("tile", "int", None, "edge of the texel tile stored per chunk; default picks 32..128 for ~16 MiB chunks",
+        Param("tile", "int", None, "edge of the texel tile stored per chunk; default picks 32..128 for ~16 MiB chunks (down to 8 past ~1000 poses)",
               bounds=(1, 4096), nullable=True),
         Param("min_cos", "float", 0.02, "samples lit or seen with cos θ below this are invalid (grazing)", bounds=(0.0, 1.0)),
     )

@@ -74,7 +74,9 @@ def test_wrong_kind_is_refused(tmp_path):
         open_artifact(str(tmp_path / "nothing"))
 
 
-@pytest.mark.parametrize("poses, expected", [(10, 128), (2000, 32), (8000, 32), (200, 64)])
+@pytest.mark.parametrize("poses, expected", [(10, 128), (200, 64), (1024, 32), (1025, 16), (2000, 16), (4097, 8), (8000, 8)])
 def test_texel_tile_keeps_all_poses_of_a_tile_in_one_chunk(poses, expected):
     assert texel_tile((512, 512), poses, channels=4) == expected
     assert texel_tile((20, 24), poses) <= 24
+    # the chunk, and a worker's memory for it, stays bounded however many poses
+    assert expected**2 * poses * 4 * 4 <= 16 * 2**20
