@@ -24,6 +24,7 @@ decide which effects (and which shader code) the scene needs.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -265,13 +266,30 @@ class Scene:
                  "cylinder": float(np.hypot(o.params.get("radius", 1.0), o.params.get("height", 1.0) / 2))}.get(o.shape)
             scale = np.cbrt(abs(np.linalg.det(o.matrix[:3, :3])))
             centre = o.matrix[:3, 3]
-            if r is None:  # meshes: their vertices are known only once loaded; use a generous guess
-                r = o.params.get("_radius", 1.0)
+            if r is None:  # a mesh: the farthest of its vertices from its own origin
+                r = obj_vertex_radius(str(o.params["file"]))
             pts.append((centre, r * scale))
         if not pts:
             return np.zeros(3), 1.0
         centre = np.mean([c for c, _ in pts], axis=0)
         return centre, float(max(np.linalg.norm(c - centre) + r for c, r in pts))
+
+
+@functools.lru_cache(maxsize=64)
+def obj_vertex_radius(path: str) -> float:
+    """Largest distance of an OBJ file's ``v`` vertices from its origin: a mesh's bounding sphere.
+
+    Only the vertex lines are read (renderers parse the whole file with their own
+    loader); an unreadable or vertex-less file gives 1, and the renderer that
+    loads it reports the error with its line.
+    """
+    try:
+        with open(path) as f:
+            rows = [line.split()[1:4] for line in f if line.startswith("v ")]
+        v = np.asarray(rows, dtype=float)
+    except (OSError, ValueError):
+        return 1.0
+    return float(np.sqrt((v**2).sum(axis=1)).max()) if v.ndim == 2 and len(v) else 1.0
 
 
 def transform_matrix(translate, rotate_deg, scale) -> np.ndarray:

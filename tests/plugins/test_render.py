@@ -456,6 +456,16 @@ lights: [{{type: directional, direction: [0, 0, 1], irradiance: 1}}]
     got, _ = draw_gl(gl, scene, materials)
     assert (ref.sum(-1) > 0).mean() > 0.4
     assert abs((got.sum(-1) > 0).mean() - (ref.sum(-1) > 0).mean()) < 0.02
+    # the scene's bounding sphere (mirror pass, shadow maps) covers the mesh's vertices, scale included
+    scaled = load_scene(f"""
+camera: {{position: [0, -8, 3], look_at: [0, 6, 0], fov_deg: 60, resolution: [64, 48]}}
+materials: {{m: {{model: lambert, params: {{rho_d: 0.2}}}}}}
+objects: [{{shape: mesh, file: {obj}, material: m, transform: {{translate: [1, 2, 0], scale: 2}}}}]
+lights: [{{type: directional, direction: [0, 0, 1], irradiance: 1}}]
+""")
+    centre, radius = scaled.bounds()
+    np.testing.assert_allclose(centre, [1, 2, 0])
+    assert radius == pytest.approx(2 * 20 * np.sqrt(2))
 
 
 def test_separable_model_renders_with_its_factor_textures(gl):
