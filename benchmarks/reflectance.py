@@ -43,7 +43,7 @@ How to run
 ----------
 ::
 
-    python benchmarks/reflectance.py [--gb 2] [--quick] [--tmpdir DIR] [--no-cluster]
+    python benchmarks/reflectance.py [--gb 2] [--quick] [--tmpdir DIR] [--no-cluster] [--scan DIR]
 
 Full size is 2 GB (``--gb 8`` also works: disk ≈ 2x the GB for the folder plus
 the stores); ``--quick`` is 0.1 GB (about a minute on 2 cores).  Progress to
@@ -110,11 +110,16 @@ class PeakRSS:
         self.peak = max(self.peak, self._sample())
 
 
-def make_capture(folder: Path, gb: float) -> tuple[int, float]:
+def poses_for(gb: float) -> int:
+    """Poses whose float32 RGB photographs make ``gb`` GB."""
+    return max(4, int(round(gb * 1e9 / (W * H * 3 * 4))))
+
+
+def make_capture(folder: Path, gb: float) -> int:
     from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
     from sbrdf_core.registry import default_registry
 
-    P = max(4, int(round(gb * 1e9 / (W * H * 3 * 4))))
+    P = poses_for(gb)
     reg = default_registry()
     cam = reg.create("device", "virtual-camera", {"width": W, "height": H, "focal_px": FOCAL, "texels": [64, 64],
                                                   "model": "lambert", "intensity": 1.5e5, "motor_light_mm": 0.0,
@@ -126,7 +131,7 @@ def make_capture(folder: Path, gb: float) -> tuple[int, float]:
     capture_to_folder(cam, folder, light, R, t, [[1.0]] * P, durable=False, image_format="png",
                       progress=lambda d, n: print(f"\rcapture {d}/{n}", end="", file=sys.stderr) if d % 20 == 0 else None)
     print(f"\rvirtual capture: {P} poses in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return P, cam.intensity
+    return P
 
 
 def graph(path: Path, folder: Path, store: Path) -> Path:
@@ -206,9 +211,14 @@ def summarise(store: Path) -> tuple[float, float, float]:
     return rms_texel, worst, n_valid / max(n, 1)
 
 
-def one(tmp: Path, gb: float, cluster: bool) -> dict:
-    folder = tmp / f"scan-{gb:g}"
-    P, _ = make_capture(folder, gb)
+def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None) -> dict:
+    folder = scan or tmp / f"scan-{gb:g}"
+    P = poses_for(gb)
+    if scan is not None and (scan / "capture.json").exists() and len(os.listdir(scan / "images")) == P:
+        print(f"virtual capture: {P} poses kept in {scan}", file=sys.stderr)
+    else:
+        shutil.rmtree(folder, ignore_errors=True)
+        make_capture(folder, gb)
     mb = P * W * H * 3 * 4 / 1e6
     out = {"P": P, "mb": mb}
     store = tmp / f"store-{gb:g}-threads"
@@ -227,7 +237,8 @@ def one(tmp: Path, gb: float, cluster: bool) -> dict:
         print(f"cluster (2 workers): {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS (all processes) "
               f"{peak:.0f} MB; lambert max err {err:.4f}", flush=True)
         shutil.rmtree(store, ignore_errors=True)
-    shutil.rmtree(folder, ignore_errors=True)
+    if scan is None:
+        shutil.rmtree(folder, ignore_errors=True)
     return out
 
 
@@ -280,6 +291,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="0.1 GB, plus a half-size threads run for the memory check")
     ap.add_argument("--tmpdir", default=None)
     ap.add_argument("--no-cluster", action="store_true", help="skip the LocalCluster run")
+    ap.add_argument("--scan", type=Path, default=None,
+                    help="keep the virtual capture in this folder and reuse it on the next run of the same size")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--scheduler", help=argparse.SUPPRESS)
     ap.add_argument("--node", action="append", help=argparse.SUPPRESS)
@@ -292,7 +305,7 @@ def main() -> None:
         if args.quick:
             half = one(tmp, gb / 2, cluster=False)
             print(f"memory check: peak RSS {half['threads_peak']:.0f} MB at {gb / 2:g} GB", flush=True)
-        r = one(tmp, gb, cluster=not args.no_cluster)
+        r = one(tmp, gb, cluster=not args.no_cluster, scan=args.scan)
         peak = max(r["threads_peak"], r.get("cluster_peak", 0.0))
         err = max(r["lambert_err"], r.get("cluster_err", 0.0))
         lf = lafortune(tmp)

@@ -58,6 +58,10 @@ from sbrdf_core.nodes.register import Registration
 BICUBIC_RADIUS = 2
 
 
+#: Poses whose markers are detected and measured per dask compute (see ``register``).
+MEASURE_BATCH = 256
+
+
 @dataclass
 class PoseFit:
     """What detection measured for one pose (``ok`` false: ``reason`` says why)."""
@@ -172,7 +176,11 @@ class ArucoRegistration:
         tasks = [dask.delayed(_measure_pose, pure=True)(i, images[i], valids[i], fid, K, dist, R_nom[i], t_nom[i],
                                                         self._detector_settings())
                  for i in range(P)]
-        fits: list[PoseFit] = list(dask.compute(*tasks))
+        # In batches: one compute of every pose held all their task specs and results in
+        # flight at once, and the client's memory grew with the scan.
+        fits: list[PoseFit] = []
+        for lo in range(0, P, MEASURE_BATCH):
+            fits.extend(dask.compute(*tasks[lo:lo + MEASURE_BATCH]))
         return self._assemble(capture, fits, K, dist, light_nom, R_nom, t_nom)
 
     def _detector_settings(self) -> dict:

@@ -64,6 +64,11 @@ class Output:
         beside the arrays).  The artifact is marked complete after it.
     sequential
         Compute chunks one at a time, in order, in this process (hardware).
+    streamed
+        Chunks with different first chunk indices share no computation (pose
+        blocks, rows of texel tiles): the runner submits them a few such groups
+        at a time (:mod:`sbrdf_core.streaming`), so its memory does not grow
+        with the number of chunks.
     """
 
     arrays: dict[str, da.Array]
@@ -71,6 +76,7 @@ class Output:
     attrs: dict[str, Any] = field(default_factory=dict)
     finalize: Callable[[Artifact], Mapping[str, Any]] | None = None
     sequential: bool = False
+    streamed: bool = False
 
 
 @dataclass

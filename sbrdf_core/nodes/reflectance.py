@@ -97,4 +97,5 @@ class Reflectance(NodeKind):
                 "camera_pos": da.from_array(camera_pos),
             },
             attrs={"texels": list(texels), "size_mm": list(size_mm), "light": stack.attrs.get("light", {}), "tile": t},
+            streamed=True,  # rows of tiles share no work: the runner submits a few at a time
         )

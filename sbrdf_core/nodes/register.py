@@ -103,6 +103,7 @@ class Register(NodeKind):
                 "rms_mm": small(np.asarray(reg.rms_mm, float)),
             },
             chunks={"radiance": (k, t, t, 3), "valid": (k, t, t)},
+            streamed=True,  # pose blocks share no work: the runner submits a few at a time
             attrs={
                 "texels": [int(U), int(V)],
                 "size_mm": [float(s) for s in reg.size_mm],
