@@ -20,12 +20,11 @@ identical.
 from __future__ import annotations
 
 import getpass
-import itertools
 import platform
 import socket
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
@@ -38,8 +37,6 @@ from .graph import Graph, Node
 from .nodes.base import BuildContext, Output
 from .registry import Registry, default_registry
 from .store import ArrayLayout, ArtifactWriter, open_artifact, write_chunk
-from . import streaming
-from .streaming import WindowedGraph, first_axis_groups
 
 #: progress(node, done, total) is called after every chunk written.
 ProgressFn = Callable[[str, int, int], None]
@@ -180,7 +177,7 @@ class Runner:
         rep.status = "resumed" if n_done else "computed"
         rep.chunks_total = sum(lay.nchunks for lay in layouts.values())
         rep.chunks_resumed = n_done
-        self._execute(node.name, tasks, rep.chunks_total, n_done, sequential=out.sequential, streamed=out.streamed)
+        self._execute(node.name, tasks, rep.chunks_total, n_done, sequential=out.sequential)
         rep.chunks_written = len(tasks)
         extra: dict[str, Any] = {}
         if out.finalize is not None:
@@ -245,8 +242,7 @@ class Runner:
                 tasks.append((index, write(blocks[index], url, name, token, index, region)))
         return tasks, n_done
 
-    def _execute(self, node: str, tasks: list, total: int, already: int, sequential: bool = False,
-                 streamed: bool = False) -> None:
+    def _execute(self, node: str, tasks: list, total: int, already: int, sequential: bool = False) -> None:
         if not tasks:
             return
         bar = self._bar(node, total, already)
@@ -254,18 +250,13 @@ class Runner:
             if sequential:
                 # Hardware: in this process, in order of the first (pose) axis; the
                 # chunks of one pose are computed together so the pose is taken once.
-                for group in first_axis_groups(tasks):
-                    self._execute_local(group, bar, scheduler="sync")
-            elif streamed:
-                graph = WindowedGraph(first_axis_groups(tasks))
-                if self._is_distributed():
-                    self._execute_distributed(node, ((lambda c, k=keys, g=sub: c.get(g, k, sync=False))
-                                                     for keys, sub in graph.windows()), bar)
-                else:
-                    for keys, sub in graph.windows():
-                        self._execute_local_graph(sub, keys, bar)
+                by_pose: dict[int, list] = {}
+                for index, task in tasks:
+                    by_pose.setdefault(index[0] if index else 0, []).append(task)
+                for pose in sorted(by_pose):
+                    self._execute_local(by_pose[pose], bar, scheduler="sync")
             elif self._is_distributed():
-                self._execute_distributed(node, iter([lambda c: c.compute([t for _, t in tasks])]), bar)
+                self._execute_distributed(node, [t for _, t in tasks], bar)
             else:
                 self._execute_local([t for _, t in tasks], bar, self.scheduler)
         except SbrdfError:
@@ -288,65 +279,30 @@ class Runner:
         with Callback(posttask=posttask):
             dask.compute(*tasks, scheduler=scheduler, num_workers=self.num_workers, optimize_graph=False)
 
-    def _execute_local_graph(self, dsk: dict, keys: list, bar) -> None:
-        """One window of a streamed node on the local scheduler."""
-        from dask.base import get_scheduler
-        from dask.callbacks import Callback
-
-        wanted = set(keys)
-
-        def posttask(key, result, dsk, state, worker_id):
-            if key in wanted:
-                bar(1)
-
-        with Callback(posttask=posttask):
-            get_scheduler(scheduler=self.scheduler)(dsk, keys, num_workers=self.num_workers)
-
     def _is_distributed(self) -> bool:
         s = self.scheduler
         return not isinstance(s, str) or "://" in s
 
-    def _execute_distributed(self, node: str, submissions: Iterator[Callable[[Any], list]], bar) -> None:
-        """Run ``submissions`` (each: client -> futures), ``streaming.WINDOWS_IN_FLIGHT`` at a time."""
+    def _execute_distributed(self, node: str, tasks: list, bar) -> None:
         from distributed import Client, as_completed
 
         if self._client is None:
             self._client = Client(self.scheduler) if isinstance(self.scheduler, str) else self.scheduler
         client = self._client
-        pending: dict = {}  # future -> its submission
-        left: dict[int, int] = {}  # submission -> futures not yet done
-        seq = as_completed([], with_results=False)
-        ids = itertools.count()
-
-        def fill():
-            while len(left) < streaming.WINDOWS_IN_FLIGHT:
-                submit = next(submissions, None)
-                if submit is None:
-                    return
-                futures, n = submit(client), next(ids)
-                if not futures:
-                    continue
-                pending.update(dict.fromkeys(futures, n))
-                left[n] = len(futures)
-                seq.update(futures)
-
-        fill()
+        futures = client.compute(tasks)
+        pending = set(futures)
+        seq = as_completed(futures, with_results=False)
         no_workers_since = None
         while pending:
             batch = seq.next_batch(block=False)
             for f in batch:
-                n = pending.pop(f)
-                left[n] -= 1
-                if not left[n]:
-                    del left[n]
+                pending.discard(f)
                 if f.status == "error":
                     client.cancel(list(pending))
                     exc = f.exception()
                     raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
                 bar(1)
-            if batch:
-                fill()
-            else:
+            if not batch:
                 if client.scheduler_info().get("workers"):
                     no_workers_since = None
                 else:
@@ -401,8 +357,14 @@ def _regularise(out: Output) -> tuple[dict, dict[str, ArrayLayout]]:
         if any(c and (any(x != k for x in c[:-1]) or c[-1] > k) for c, k in zip(arr.chunks, chunks)):
             arr = arr.rechunk(chunks)
         fill = float("nan") if np.dtype(arr.dtype).kind == "f" else 0
+        inner = out.inner_chunks.get(name)
+        if inner is not None:  # a shard holds whole inner chunks: round a whole-axis chunk up
+            inner = tuple(max(1, min(i, c)) for i, c in zip(inner, chunks))
+            if any(c % i and c < s for c, i, s in zip(chunks, inner, arr.shape)):
+                raise RunError(f"output {name!r}: chunks {chunks} are not multiples of inner chunks {inner}")
+            chunks = tuple(-(-c // i) * i for c, i in zip(chunks, inner))
         arrays[name] = arr
-        layouts[name] = ArrayLayout(tuple(arr.shape), chunks, np.dtype(arr.dtype).name, fill)
+        layouts[name] = ArrayLayout(tuple(arr.shape), chunks, np.dtype(arr.dtype).name, fill, inner)
     return arrays, layouts
 
 

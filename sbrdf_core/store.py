@@ -180,12 +180,19 @@ def open_artifact(url: str, kind: ArtifactKind | str | tuple | None = None, requ
 
 @dataclass(frozen=True)
 class ArrayLayout:
-    """Shape, chunking and dtype of one output array."""
+    """Shape, chunking and dtype of one output array.
+
+    ``chunks`` is what one task writes (and one done marker covers).  With
+    ``inner``, each of those is a zarr *shard* of ``inner``-sized chunks that
+    readers fetch on their own: a writer can produce a whole pose block in one
+    task while a reader takes one texel tile of it.
+    """
 
     shape: tuple[int, ...]
     chunks: tuple[int, ...]
     dtype: str
     fill_value: Any = 0
+    inner: tuple[int, ...] | None = None
 
     @property
     def grid(self) -> tuple[int, ...]:
@@ -239,7 +246,8 @@ class ArtifactWriter:
             self.fs.rm(self.root, recursive=True)
         group = zarr.open_group(store=self.url, mode="w")
         for name, lay in layouts.items():
-            group.create_array(name, shape=lay.shape, chunks=lay.chunks, dtype=lay.dtype, fill_value=lay.fill_value)
+            group.create_array(name, shape=lay.shape, chunks=lay.inner or lay.chunks, shards=lay.chunks if lay.inner else None,
+                               dtype=lay.dtype, fill_value=lay.fill_value)
             grid = lay.grid or (1,)
             group.create_array(_marker_name(name), shape=grid, chunks=(1,) * len(grid), dtype="uint8", fill_value=0)
         group.attrs.update({**attrs, "kind": self.kind.kind, "version": self.kind.version, "token": self.token, "complete": False})

@@ -55,7 +55,11 @@ class Output:
         Output name -> lazy dask array.  Stored chunks equal the dask chunks
         unless ``chunks`` says otherwise (the runner rechunks lazily).
     chunks
-        Optional zarr chunk shape per array.
+        Optional zarr chunk shape per array: what one task writes.
+    inner_chunks
+        Optional smaller chunk shape per array that readers fetch: each written
+        chunk is then a zarr shard of these (Register writes a pose block whole;
+        Reflectance reads one texel tile of it).
     attrs
         JSON attributes known at build time (e.g. model name, texel grid).
     finalize
@@ -64,19 +68,14 @@ class Output:
         beside the arrays).  The artifact is marked complete after it.
     sequential
         Compute chunks one at a time, in order, in this process (hardware).
-    streamed
-        Chunks with different first chunk indices share no computation (pose
-        blocks, rows of texel tiles): the runner submits them a few such groups
-        at a time (:mod:`sbrdf_core.streaming`), so its memory does not grow
-        with the number of chunks.
     """
 
     arrays: dict[str, da.Array]
     chunks: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    inner_chunks: dict[str, tuple[int, ...]] = field(default_factory=dict)
     attrs: dict[str, Any] = field(default_factory=dict)
     finalize: Callable[[Artifact], Mapping[str, Any]] | None = None
     sequential: bool = False
-    streamed: bool = False
 
 
 @dataclass

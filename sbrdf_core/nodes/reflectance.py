@@ -10,9 +10,11 @@ Samples lit or seen at grazing angles (cos θ < ``min_cos``), non-finite or
 masked by registration are marked invalid and stored as 0, never NaN.
 
 The result is stored with all poses of a texel tile in one chunk because
-fitting needs every sample of a texel at once; the pose-major -> tile-major
-transpose is the pipeline's one big shuffle, done by dask's rechunk so the
-scan is never loaded whole.
+fitting needs every sample of a texel at once.  The pose-major -> tile-major
+transpose is the pipeline's one big shuffle: one task per tile reads that
+tile's chunk from every pose-block shard of the stack (zarr sharding, see
+``register.pose_block``), so a task holds one tile of all poses, never the
+scan, and the graph has one task per tile whatever the number of poses.
 """
 
 from __future__ import annotations
@@ -52,10 +54,17 @@ def reflectance_block(radiance: np.ndarray, valid: np.ndarray, light_pos: np.nda
     return out
 
 
-def _block(radiance, valid, light_pos, camera_pos, texels, size_mm, intensity, min_cos, block_info=None):
-    (lo, hi), rows, cols = block_info[0]["array-location"][:3]
-    return reflectance_block(radiance, valid[..., 0], light_pos[lo:hi], camera_pos[lo:hi], texels, size_mm, intensity, min_cos,
-                             rows, cols)
+def _tile(grid: np.ndarray, radiance, valid, light_pos: np.ndarray, camera_pos: np.ndarray, texels, size_mm, intensity,
+          min_cos, block_info=None) -> np.ndarray:
+    """Kernel: one texel tile -> ``(t, t, P, 4)``, all its poses read from the stack's zarr arrays.
+
+    This is the transpose: the tile's chunk of every pose-block shard is read, and
+    nothing else, so a task holds one tile of all poses (never the scan).
+    """
+    (v0, v1), (u0, u1) = block_info[None]["array-location"][:2]
+    out = reflectance_block(radiance[:, v0:v1, u0:u1], valid[:, v0:v1, u0:u1], light_pos, camera_pos, texels, size_mm,
+                            intensity, min_cos, (v0, v1), (u0, u1))
+    return out.transpose(1, 2, 0, 3)
 
 
 class Reflectance(NodeKind):
@@ -79,16 +88,16 @@ class Reflectance(NodeKind):
         size_mm = tuple(stack.attrs["size_mm"])
         intensity = float(stack.attrs.get("light", {}).get("intensity", 1.0))
         light_pos, camera_pos = stack.read("light_pos"), stack.read("camera_pos")
-        radiance, valid = stack.array("radiance"), stack.array("valid")
-        P, V, U = valid.shape
-        # One graph key each (O(poses)), not a copy in every block's task.
-        light_key, camera_key = delayed(light_pos, pure=True), delayed(camera_pos, pure=True)
-        packed = da.map_blocks(
-            _block, radiance, valid[..., None], light_key, camera_key, texels, size_mm, intensity, ctx.params["min_cos"],
-            dtype=np.float32, chunks=radiance.chunks[:3] + ((4,),), name=f"reflectance-{ctx.node}",
-        )
+        P, V, U = stack.zarr_array("valid").shape
         t = texel_tile((V, U), P, channels=4, tile=ctx.params["tile"])
-        tiled = packed.rechunk((P, t, t, 4)).transpose(1, 2, 0, 3)  # (V, U, P, 4)
+        # One graph key each (O(poses)), not a copy in every tile's task.
+        shared = lambda obj: delayed(obj, pure=True, traverse=False)  # noqa: E731
+        grid = da.zeros((V, U), chunks=t, dtype=np.uint8)
+        tiled = da.map_blocks(
+            _tile, grid, shared(stack.zarr_array("radiance")), shared(stack.zarr_array("valid")), shared(light_pos),
+            shared(camera_pos), texels, size_mm, intensity, ctx.params["min_cos"],
+            new_axis=[2, 3], chunks=grid.chunks + ((P,), (4,)), dtype=np.float32, name=f"reflectance-{ctx.node}",
+        )  # (V, U, P, 4)
         return Output(
             arrays={
                 "f_r": tiled[..., :3],
@@ -97,5 +106,4 @@ class Reflectance(NodeKind):
                 "camera_pos": da.from_array(camera_pos),
             },
             attrs={"texels": list(texels), "size_mm": list(size_mm), "light": stack.attrs.get("light", {}), "tile": t},
-            streamed=True,  # rows of tiles share no work: the runner submits a few at a time
         )

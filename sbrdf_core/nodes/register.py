@@ -31,30 +31,35 @@ class Registration:
     extra: dict = field(default_factory=dict)
 
 
-def _resample_block(images: np.ndarray, valid: np.ndarray, plugin, registration: Registration, block_info=None) -> np.ndarray:
-    """Kernel: one accepted pose -> ``(1, V, U, 4)`` texel radiance + validity."""
-    i = block_info[0]["chunk-location"][0]
-    texels, ok = plugin.resample(images[0], valid[0, ..., 0], int(registration.pose_ids[i]), registration)
+def _resample_poses(index: np.ndarray, images, valid, plugin, registration: Registration) -> np.ndarray:
+    """Kernel: one pose block -> ``(k, V, U, 4)`` texel radiance + validity.
+
+    ``index`` holds the block's positions in the accepted poses; each photograph
+    is read from the capture's zarr arrays and resampled in turn, so a task holds
+    one photograph and its block's output, never the block's photographs.
+    """
     U, V = registration.texels
-    out = np.zeros((1, V, U, 4), np.float32)
-    out[0, ..., :3] = texels
-    out[0, ..., 3] = ok
+    out = np.zeros((len(index), V, U, 4), np.float32)
+    for j, k in enumerate(index):
+        pose = int(registration.pose_ids[k])
+        texels, ok = plugin.resample(images[pose], valid[pose], pose, registration)
+        out[j, ..., :3] = texels
+        out[j, ..., 3] = ok
     return out
 
 
-def pose_block(texels_vu: tuple[int, int], poses: int, tile: int, target_bytes: int = 1 << 20,
-               gather_bytes: int = 64 << 20) -> int:
-    """Poses per stored stack chunk: enough for ~``target_bytes`` chunks, at most ``gather_bytes`` of poses per write.
+def pose_block(texels_vu: tuple[int, int], poses: int, gather_bytes: int = 32 << 20, min_blocks: int = 8) -> int:
+    """Poses per Register task and per stored shard: at most ``gather_bytes`` of resampled poses.
 
-    A texel tile of one pose is small (32² texels: 12 KB) and every chunk costs a
-    file, a done marker and a task or more; at a few hundred poses that per-chunk
-    cost, not the pixels, dominates Register and Reflectance (measured: 27 poses
-    at 32² tiles, one pose per chunk, were 4–7× slower than at 128² tiles).  One
-    write gathers ``k`` resampled poses (``V·U·16`` bytes each), so ``k`` is capped
-    by ``gather_bytes``: memory stays bounded whatever the number of poses.
+    One task resamples ``k`` poses into ``(k, V, U, 4)`` float32 (``V·U·16`` bytes
+    a pose) and writes them as one zarr shard of texel-tile chunks, so memory
+    per task is bounded whatever the number of poses, and the graph has one task
+    per block, not per pose and tile (a 2170-pose scan in 16² tiles of pose
+    blocks was 63 000 tasks, ~95 MB in the client).  At least ``min_blocks``
+    blocks keep every core busy on small scans.
     """
     V, U = texels_vu
-    k = min(target_bytes // max(tile * tile * 3 * 4, 1), gather_bytes // max(V * U * 16, 1))
+    k = min(gather_bytes // max(V * U * 16, 1), -(-poses // min_blocks))
     return int(max(1, min(poses, k)))
 
 
@@ -74,24 +79,23 @@ class Register(NodeKind):
         reg: Registration = ctx.plugin.register(capture)
         U, V = reg.texels
         ids = np.asarray(reg.pose_ids, dtype=np.int64)
-        images = capture.array("images")[ids].rechunk({0: 1})
-        valid = capture.array("valid")[ids].rechunk({0: 1})[..., None]  # align dims with images
-        # The plugin and the Registration (per-pose geometry, O(poses)) are one graph key
-        # each, fetched once per worker; as plain arguments every pose's task would carry
-        # a copy, and a worker's queued tasks would hold O(poses²) bytes.
+        # The plugin, the Registration (per-pose geometry, O(poses)) and the capture's
+        # arrays are one graph key each, fetched once per worker; as plain arguments
+        # every task would carry a copy, and a worker's queued tasks O(poses²) bytes.
         shared = lambda obj: delayed(obj, pure=True, traverse=False)  # noqa: E731
+        k = pose_block((V, U), len(ids))
+        index = da.arange(len(ids), chunks=k)
         packed = da.map_blocks(
-            _resample_block, images, valid, shared(ctx.plugin), shared(reg),
-            chunks=((1,) * len(ids), (V,), (U,), (4,)), dtype=np.float32,
-            name=f"register-resample-{ctx.node}",
+            _resample_poses, index, shared(capture.zarr_array("images")),
+            shared(capture.zarr_array("valid")), shared(ctx.plugin), shared(reg),
+            new_axis=[1, 2, 3], chunks=(index.chunks[0], (V,), (U,), (4,)),
+            dtype=np.float32, name=f"register-resample-{ctx.node}",
         )
         small = lambda a: da.from_array(np.asarray(a))  # noqa: E731
-        # Stored pose-major in blocks of k poses (pose_block), split into the texel tiles
-        # Reflectance stores all poses of: its pose-major -> tile-major transpose then
-        # reads whole chunks, each exactly once, and holds one tile of all poses at a
-        # time (never the scan).
+        # Stored pose-major, one shard per pose block (one task writes it whole),
+        # made of the texel-tile chunks Reflectance stores all poses of: its
+        # pose-major -> tile-major transpose reads one tile of every shard at a time.
         t = texel_tile((V, U), len(ids), channels=4)
-        k = pose_block((V, U), len(ids), t)
         return Output(
             arrays={
                 "radiance": packed[..., :3],
@@ -102,8 +106,8 @@ class Register(NodeKind):
                 "homography": small(np.asarray(reg.homography, float)),
                 "rms_mm": small(np.asarray(reg.rms_mm, float)),
             },
-            chunks={"radiance": (k, t, t, 3), "valid": (k, t, t)},
-            streamed=True,  # pose blocks share no work: the runner submits a few at a time
+            chunks={"radiance": (k, V, U, 3), "valid": (k, V, U)},
+            inner_chunks={"radiance": (k, t, t, 3), "valid": (k, t, t)},
             attrs={
                 "texels": [int(U), int(V)],
                 "size_mm": [float(s) for s in reg.size_mm],

@@ -69,28 +69,6 @@ def test_incomplete_artifact_is_not_consumed(write_graph, registry, tmp_path):
         open_artifact(str(store / "reflectance"))
 
 
-def test_streamed_nodes_run_window_by_window_with_identical_results(write_graph, registry, tmp_path, monkeypatch):
-    """Register and Reflectance (``Output(streamed=True)``) submit a few groups of chunks
-    at a time (sbrdf_core.streaming), each window culled from the node's graph; the
-    stores equal a run that submits each node whole."""
-    from dask.callbacks import Callback
-
-    from sbrdf_core import streaming
-
-    def graphs_run(name: str) -> list[int]:
-        sizes: list[int] = []
-        with Callback(start=lambda dsk: sizes.append(len(dsk))):
-            run(write_graph, registry, tmp_path / name, f"{name}.yaml")
-        return sizes
-
-    whole = graphs_run("whole")  # 12 poses, 3x3 reflectance tiles: one window per node
-    monkeypatch.setattr(streaming, "WINDOW_TASKS", 4)  # a window per group
-    windowed = graphs_run("windowed")
-    assert len(windowed) >= len(whole) + 2, (whole, windowed)  # reflectance: 3 rows of tiles, 3 windows
-    assert min(windowed) < min(whole)
-    assert_stores_equal(tmp_path / "whole", tmp_path / "windowed")
-
-
 def test_resume_after_sigkill_gives_identical_result(write_graph, registry, tmp_path):
     slow = {"poses": 40, "pose_delay_s": 0.1}
     graph = write_graph(graph_yaml(tmp_path / "killed", slow), "killed.yaml")
