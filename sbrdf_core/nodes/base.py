@@ -22,6 +22,19 @@ if TYPE_CHECKING:
     from ..store import Artifact
 
 
+def shared(obj: Any):
+    """``obj`` as one graph key, fetched once per worker by the tasks that take it.
+
+    A per-pose object (a capture manifest, a Registration, every pose's light
+    position) passed as a plain task argument is copied into every task; on a
+    distributed cluster each copy is pickled on its own, so queued tasks hold
+    O(poses²) bytes (tests/core/test_runner_memory.py).
+    """
+    from dask import delayed
+
+    return delayed(obj, pure=True, traverse=False)
+
+
 @dataclass(frozen=True)
 class Port:
     """A typed input of a node kind: which artifact kinds it accepts."""

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..artifacts import CaptureSet
-from .base import BuildContext, NodeKind, Output
+from .base import BuildContext, NodeKind, Output, shared
 
 
 @dataclass
@@ -65,7 +65,6 @@ class Capture(NodeKind):
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
-        from dask import delayed
 
         source = ctx.plugin
         desc: CaptureDescription = source.describe()
@@ -74,7 +73,7 @@ class Capture(NodeKind):
         # The source holds the whole manifest (O(poses)); as one graph key it reaches a
         # worker once, where a plain argument is copied into every pose's task (O(poses²)).
         packed = da.map_blocks(
-            _read_block, index, delayed(source, pure=True, traverse=False),
+            _read_block, index, shared(source),
             new_axis=[1, 2, 3], chunks=((1,) * P, (H,), (W,), (4,)), dtype=np.float32,
             name=f"capture-read-{ctx.node}",
         )

@@ -25,7 +25,7 @@ from ..artifacts import RegisteredStack, SampledReflectance
 from ..geometry import directions_to, texel_centres
 from ..params import Param
 from ..store import texel_tile
-from .base import BuildContext, NodeKind, Output, Port
+from .base import BuildContext, NodeKind, Output, Port, shared
 
 
 def reflectance_block(radiance: np.ndarray, valid: np.ndarray, light_pos: np.ndarray, camera_pos: np.ndarray,
@@ -81,7 +81,6 @@ class Reflectance(NodeKind):
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
-        from dask import delayed
 
         stack = ctx.inputs["stack"]
         texels = tuple(stack.attrs["texels"])
@@ -91,7 +90,6 @@ class Reflectance(NodeKind):
         P, V, U = stack.zarr_array("valid").shape
         t = texel_tile((V, U), P, channels=4, tile=ctx.params["tile"])
         # One graph key each (O(poses)), not a copy in every tile's task.
-        shared = lambda obj: delayed(obj, pure=True, traverse=False)  # noqa: E731
         grid = da.zeros((V, U), chunks=t, dtype=np.uint8)
         tiled = da.map_blocks(
             _tile, grid, shared(stack.zarr_array("radiance")), shared(stack.zarr_array("valid")), shared(light_pos),

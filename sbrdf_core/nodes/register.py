@@ -13,7 +13,7 @@ import numpy as np
 
 from ..artifacts import CaptureSet, RegisteredStack
 from ..store import texel_tile
-from .base import BuildContext, NodeKind, Output, Port
+from .base import BuildContext, NodeKind, Output, Port, shared
 
 
 @dataclass
@@ -73,16 +73,13 @@ class Register(NodeKind):
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
-        from dask import delayed
 
         capture = ctx.inputs["capture"]
         reg: Registration = ctx.plugin.register(capture)
         U, V = reg.texels
         ids = np.asarray(reg.pose_ids, dtype=np.int64)
         # The plugin, the Registration (per-pose geometry, O(poses)) and the capture's
-        # arrays are one graph key each, fetched once per worker; as plain arguments
-        # every task would carry a copy, and a worker's queued tasks O(poses²) bytes.
-        shared = lambda obj: delayed(obj, pure=True, traverse=False)  # noqa: E731
+        # arrays are one graph key each (``shared``), fetched once per worker.
         k = pose_block((V, U), len(ids))
         index = da.arange(len(ids), chunks=k)
         packed = da.map_blocks(
