@@ -59,7 +59,7 @@ def pose_block(texels_vu: tuple[int, int], poses: int, gather_bytes: int = 32 <<
     blocks keep every core busy on small scans.
     """
     V, U = texels_vu
-    k = min(gather_bytes // max(V * U * 16, 1), -(-poses // min_blocks))
+    k = min(gather_bytes // max(V * U * 16, 1), poses // min_blocks)
     return int(max(1, min(poses, k)))
 
 

@@ -103,17 +103,26 @@ def test_registration_rms_camera_centre_and_true_texel_error(noisy_scan):
     assert max(nominal_err) > 1.0 and np.mean(measured_err) < np.mean(nominal_err) / 4
 
 
+@pytest.mark.parametrize("texels, poses", [((256, 256), 2170), ((512, 512), 8000), ((2048, 2048), 50), ((64, 64), 5),
+                                            ((256, 256), 27)])
+def test_pose_blocks_bound_a_tasks_memory_and_keep_cores_busy(texels, poses):
+    k = pose_block(texels, poses)
+    assert k == 1 or k * texels[0] * texels[1] * 16 <= 32 << 20  # resampled poses one task holds
+    assert -(-poses // k) >= min(8, poses)  # blocks, so tasks, for every core of a small scan
+
+
 def test_stack_and_reflectance_layout(noisy_scan):
     _, _, store, _ = noisy_scan
     st = open_artifact(str(store / "register"))
     fr = open_artifact(str(store / "reflectance"))
     P = len(st.read("pose_ids"))
     rad = st.zarr_array("radiance")
-    # pose-major in blocks of poses (one 12 KB tile of one pose per chunk made per-chunk overhead dominate)
-    assert rad.shape == (P, 64, 64, 3) and rad.chunks[0] == pose_block((64, 64), P, rad.chunks[1])
+    # pose-major: one shard per block of poses, written by one task, made of texel-tile chunks
+    k = pose_block((64, 64), P)
+    assert rad.shape == (P, 64, 64, 3) and rad.shards == (k, 64, 64, 3) and rad.chunks[0] == k
     f = fr.zarr_array("f_r")
     assert f.shape == (64, 64, P, 3) and f.chunks[2] == P  # every pose of a texel tile in one chunk
-    assert rad.chunks[1:3] == f.chunks[:2]  # the transpose reads whole stack chunks exactly once
+    assert rad.chunks[1:3] == f.chunks[:2]  # the transpose reads one inner chunk of every shard per tile
     valid = fr.read("valid")
     vals = fr.read("f_r")
     assert valid.mean() > 0.6 and np.all(vals[~valid] == 0) and np.isfinite(vals).all()
