@@ -30,10 +30,11 @@ store, and timed with ``time.perf_counter`` (wall clock):
        stores ``images`` and ``valid``;
     2. register: texel-aligned registration is the identity, so ``images`` and
        ``valid`` are read back and stored again as ``radiance`` and ``valid``
-       (the graph additionally runs its per-pose resample kernel, a copy);
+       (the graph additionally runs its resample kernel per pose block, a copy);
     3. reflectance: ``sbrdf_core.nodes.reflectance.reflectance_block`` through
-       ``da.map_blocks`` per pose, then the same rechunk to texel tiles
-       (``sbrdf_core.store.texel_tile``) and transpose; stores ``f_r`` and
+       ``da.map_blocks`` per pose, then a rechunk to the graph's texel tiles
+       (``sbrdf_core.store.texel_tile``) and transpose (the graph instead
+       reads one tile of every pose-block shard per task); stores ``f_r`` and
        ``valid``.
 
     The small per-pose metadata arrays (light and camera positions, ...) are

@@ -24,7 +24,7 @@ this plugin, per pose:
    ``max_rms_mm``, a measured camera behind the sample, a measured pose too far
    from the nominal one.
 
-Resampling (:meth:`ArucoRegistration.resample`, one pose per dask task) maps
+Resampling (:meth:`ArucoRegistration.resample`, one pose per call, a block of poses per dask task) maps
 every texel through H and the lens distortion into the photograph and samples
 it with bicubic interpolation (``cv2.remap``).  When a texel covers more than a
 pixel (the camera is close, or the sample is seen at a grazing angle so the
@@ -253,7 +253,7 @@ class ArucoRegistration:
         reg.extra["subsamples"] = [[int(p["n_u"]), int(p["n_v"])] for p in plans]
         return reg
 
-    # -- resampling (one pose per task) ---------------------------------------------------------
+    # -- resampling (one pose per call) ---------------------------------------------------------
 
     def _plan(self, reg: Registration, k: int) -> dict:
         """Per-pose filter choice from the mapping's Jacobian: pyramid level and sub-samples per texel axis."""
