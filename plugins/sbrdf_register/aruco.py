@@ -52,6 +52,7 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import camera_centre, texel_centres
+from sbrdf_core.nodes.base import shared
 from sbrdf_core.nodes.register import Registration
 
 #: Pixels of bicubic support on each side of a sample point (the kernel is 4×4).
@@ -75,8 +76,6 @@ class PoseFit:
     reproj_px: float = float("nan")
     R: np.ndarray | None = None  # measured world-to-camera rotation
     t: np.ndarray | None = None
-    corners_px: np.ndarray | None = None  # (n, 2) detected (distorted) corners
-    corners_mm: np.ndarray | None = None  # (n, 2) their printed positions
 
 
 # ---------------------------------------------------------------------------
@@ -168,19 +167,18 @@ class ArucoRegistration:
         light_nom = capture.read("light_pos")
         R_nom, t_nom = capture.read("camera_R"), capture.read("camera_t")
         P = light_nom.shape[0]
-        images = capture.array("images").to_delayed().ravel()
-        valids = capture.array("valid").to_delayed().ravel()
-        if len(images) != P:  # pose-major storage is the CaptureSet contract; be explicit if someone broke it
-            images = [capture.array("images")[i:i + 1].to_delayed().ravel()[0] for i in range(P)]
-            valids = [capture.array("valid")[i:i + 1].to_delayed().ravel()[0] for i in range(P)]
-        tasks = [dask.delayed(_measure_pose, pure=True)(i, images[i], valids[i], fid, K, dist, R_nom[i], t_nom[i],
-                                                        self._detector_settings())
-                 for i in range(P)]
-        # In batches: one compute of every pose held all their task specs and results in
-        # flight at once, and the client's memory grew with the scan.
+        # Each task reads its photograph from the capture's zarr arrays (one shared graph
+        # key each), and the tasks are built a batch at a time just before they run: a
+        # dask-array view of the images, or every pose's task built up front, is O(poses)
+        # task specs, and memory grew with the scan.
+        images, valids = shared(capture.zarr_array("images")), shared(capture.zarr_array("valid"))
+        fid_, K_, dist_, settings = shared(fid), shared(K), shared(dist), shared(self._detector_settings())
+        measure = dask.delayed(_measure_pose, pure=True)
         fits: list[PoseFit] = []
         for lo in range(0, P, MEASURE_BATCH):
-            fits.extend(dask.compute(*tasks[lo:lo + MEASURE_BATCH]))
+            batch = [measure(i, images, valids, fid_, K_, dist_, R_nom[i], t_nom[i], settings)
+                     for i in range(lo, min(P, lo + MEASURE_BATCH))]
+            fits.extend(dask.compute(*batch))
         return self._assemble(capture, fits, K, dist, light_nom, R_nom, t_nom)
 
     def _detector_settings(self) -> dict:
@@ -447,11 +445,11 @@ def refine_corners_by_edges(grey: np.ndarray, corners: np.ndarray, K: np.ndarray
 # ---------------------------------------------------------------------------
 
 
-def _measure_pose(pose: int, image, valid, fiducials: dict, K, dist, R_nom, t_nom, settings) -> PoseFit:
+def _measure_pose(pose: int, images, valids, fiducials: dict, K, dist, R_nom, t_nom, settings) -> PoseFit:
     import cv2
 
-    image = np.asarray(image)[0]
-    valid = np.asarray(valid)[0]
+    image = np.asarray(images[pose])  # the capture's (P, H, W, 3) zarr array: this pose only
+    valid = np.asarray(valids[pose])
     centre_nom = camera_centre(R_nom, t_nom)
     if centre_nom[2] <= 0:
         return PoseFit(pose, False, f"nominal camera is behind the sample plane (camera z = {centre_nom[2]:.1f} mm in "
@@ -512,8 +510,8 @@ def _measure_pose(pose: int, image, valid, fiducials: dict, K, dist, R_nom, t_no
     t = tvec.ravel()
     proj, _ = cv2.projectPoints(obj3, rvec, tvec, K, dist)
     reproj = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img_pts) ** 2, axis=-1))))
-    fit = PoseFit(pose, True, markers=len(found), H=H, rms_mm=rms_mm, reproj_px=reproj, R=R, t=t,
-                  corners_px=img_pts, corners_mm=obj)
+    # Only what registration uses: the runner keeps one PoseFit per pose until all are measured.
+    fit = PoseFit(pose, True, markers=len(found), H=H, rms_mm=rms_mm, reproj_px=reproj, R=R, t=t)
     c = camera_centre(R, t)
     if c[2] <= 0:
         fit.ok, fit.reason = False, f"fiducials put the camera behind the sample plane (z = {c[2]:.1f} mm)"
