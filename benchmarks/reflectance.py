@@ -179,8 +179,13 @@ def child_run(g: str, scheduler: str, nodes: list[str]) -> None:
     with contextlib.ExitStack() as stack:
         target = scheduler
         if scheduler == "cluster":
+            import dask
             from distributed import Client, LocalCluster
 
+            from sbrdf_core.memory import WORKER_ENV
+
+            stack.enter_context(dask.config.set({f"distributed.nanny.pre-spawn-environ.{k}": v
+                                                 for k, v in WORKER_ENV.items()}))
             lc = stack.enter_context(LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                                   dashboard_address=None))
             target = stack.enter_context(Client(lc))

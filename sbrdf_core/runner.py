@@ -270,6 +270,9 @@ class Runner:
         import dask
         from dask.callbacks import Callback
 
+        from .memory import limit_arenas
+
+        limit_arenas()  # the threads below would each keep their own heap of freed temporaries
         keys = {t.key for t in tasks}
 
         def posttask(key, result, dsk, state, worker_id):
