@@ -124,6 +124,11 @@ class Runner:
 
     def run(self, graph: Graph, only: Iterable[str] | None = None) -> RunReport:
         """Execute ``graph`` (or the nodes in ``only`` and what they need)."""
+        from .memory import limit_arenas
+
+        # Before any dask thread starts (plugins compute while building, e.g. aruco's marker
+        # measurement): each thread would keep its own heap of freed temporaries.
+        limit_arenas()
         report = RunReport(graph.name)
         wanted = self._closure(graph, only)
         try:
@@ -270,9 +275,6 @@ class Runner:
         import dask
         from dask.callbacks import Callback
 
-        from .memory import limit_arenas
-
-        limit_arenas()  # the threads below would each keep their own heap of freed temporaries
         keys = {t.key for t in tasks}
 
         def posttask(key, result, dsk, state, worker_id):
