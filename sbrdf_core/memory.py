@@ -17,7 +17,7 @@ both are no-ops.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
+import functools
 import os
 
 #: glibc's ``mallopt`` parameter number for the arena limit (malloc.h ``M_ARENA_MAX``).
@@ -28,16 +28,17 @@ ARENAS = 2
 WORKER_ENV = {"MALLOC_ARENA_MAX": str(ARENAS)}
 
 
+@functools.cache
 def limit_arenas(n: int = ARENAS) -> bool:
     """Cap glibc's malloc arenas at ``n`` for threads that allocate from now on; True if applied.
 
-    Respects a ``MALLOC_ARENA_MAX`` the user already set.
+    Respects a ``MALLOC_ARENA_MAX`` the user already set.  Once per process: the
+    runner calls it at the start of every run.
     """
     if "MALLOC_ARENA_MAX" in os.environ:
         return False
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        mallopt = ctypes.CDLL(None).mallopt  # the process's own C library, no search
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
