@@ -182,10 +182,9 @@ def child_run(g: str, scheduler: str, nodes: list[str]) -> None:
             import dask
             from distributed import Client, LocalCluster
 
-            from sbrdf_core.memory import WORKER_ENV
+            from sbrdf_core.memory import CLUSTER_CONFIG
 
-            stack.enter_context(dask.config.set({f"distributed.nanny.pre-spawn-environ.{k}": v
-                                                 for k, v in WORKER_ENV.items()}))
+            stack.enter_context(dask.config.set(CLUSTER_CONFIG))
             lc = stack.enter_context(LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                                   dashboard_address=None))
             target = stack.enter_context(Client(lc))

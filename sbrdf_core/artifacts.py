@@ -69,6 +69,8 @@ RegisteredStack = ArtifactKind(
         ArraySpec("camera_pos", "P3", "float64", "camera centre recovered by registration, sample frame, mm"),
         ArraySpec("homography", "P33", "float64", "sample-plane mm -> image pixel homography"),
         ArraySpec("rms_mm", "P", "float64", "registration RMS residual on the sample plane, mm"),
+        ArraySpec("registration/*", "P...", "float64|int32", "the registration plugin's other per-pose measurements "
+                  "(aruco: camera_R, camera_t, pixels_per_texel, pyramid_level, subsamples)", required=False),
     ),
 )
 

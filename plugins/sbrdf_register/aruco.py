@@ -59,8 +59,17 @@ from sbrdf_core.nodes.register import Registration
 BICUBIC_RADIUS = 2
 
 
-#: Poses whose markers are detected and measured per dask compute (see ``register``).
-MEASURE_BATCH = 256
+#: Most poses measured per dask task (see ``register``): one photograph is in memory at a time.
+MEASURE_BLOCK = 32
+
+#: One pose's measurement, as a task returns it: fixed-size fields, so a block of poses is
+#: one small array (a few hundred bytes a pose), not a Python object per pose.  ``level``,
+#: ``n_u``, ``n_v`` and ``px_per_texel`` are the resampling filter (:func:`footprint`).
+FIT_DTYPE = np.dtype([
+    ("pose", np.int64), ("ok", bool), ("markers", np.int32), ("H", np.float64, (3, 3)), ("rms_mm", np.float64),
+    ("reproj_px", np.float64), ("R", np.float64, (3, 3)), ("t", np.float64, (3,)),
+    ("level", np.int32), ("n_u", np.int32), ("n_v", np.int32), ("px_per_texel", np.float64),
+])
 
 
 @dataclass
@@ -146,7 +155,6 @@ class ArucoRegistration:
         self.max_subsamples = int(max_subsamples)
         self.edge_margin_px = float(edge_margin_px)
         self.corner_refine = corner_refine
-        self._plans: dict[int, dict] = {}
 
     # -- measuring (once per capture, before any resampling) --------------------------------------
 
@@ -167,67 +175,71 @@ class ArucoRegistration:
         light_nom = capture.read("light_pos")
         R_nom, t_nom = capture.read("camera_R"), capture.read("camera_t")
         P = light_nom.shape[0]
-        # Each task reads its photograph from the capture's zarr arrays (one shared graph
-        # key each), and the tasks are built a batch at a time just before they run: a
-        # dask-array view of the images, or every pose's task built up front, is O(poses)
-        # task specs, and memory grew with the scan.
+        # One task measures a block of poses, reading each photograph from the capture's
+        # zarr arrays (one shared graph key each), and returns one small record array:
+        # per-pose tasks or results were O(poses) task specs and Python objects, and the
+        # scheduler's and client's memory grew with the scan.
         images, valids = shared(capture.zarr_array("images")), shared(capture.zarr_array("valid"))
-        fid_, K_, dist_, settings = shared(fid), shared(K), shared(dist), shared(self._detector_settings())
-        measure = dask.delayed(_measure_pose, pure=True)
-        fits: list[PoseFit] = []
-        for lo in range(0, P, MEASURE_BATCH):
-            batch = [measure(i, images, valids, fid_, K_, dist_, R_nom[i], t_nom[i], settings)
-                     for i in range(lo, min(P, lo + MEASURE_BATCH))]
-            fits.extend(dask.compute(*batch))
-        return self._assemble(capture, fits, K, dist, light_nom, R_nom, t_nom)
+        sample_mm = tuple(float(v) for v in sample["size_mm"])
+        fid_, K_, dist_, settings = shared(fid), shared(K), shared(dist), shared(self._detector_settings(sample_mm))
+        R_, t_ = shared(R_nom), shared(t_nom)
+        measure = dask.delayed(_measure_poses, pure=True)
+        k = max(1, min(MEASURE_BLOCK, -(-P // 8)))  # at least 8 tasks keep every core busy on small scans
+        blocks = [measure(lo, min(P, lo + k), images, valids, fid_, K_, dist_, R_, t_, settings) for lo in range(0, P, k)]
+        results = dask.compute(*blocks)
+        fits = np.concatenate([r[0] for r in results])
+        reasons = {pose: why for r in results for pose, why in r[1].items()}
+        return self._assemble(capture, fits, reasons, K, dist, light_nom, R_nom, t_nom)
 
-    def _detector_settings(self) -> dict:
+    def _detector_settings(self, sample_mm: tuple[float, float]) -> dict:
         return {"min_markers": self.min_markers, "refine_win_px": self.refine_win_px,
-                "edge_refine": self.corner_refine == "edges"}
+                "edge_refine": self.corner_refine == "edges", "texels": self.texels, "sample_mm": sample_mm,
+                "max_subsamples": self.max_subsamples}
 
-    def _assemble(self, capture, fits, K, dist, light_nom, R_nom, t_nom) -> Registration:
+    def _assemble(self, capture, fits: np.ndarray, reasons: dict[int, str], K, dist, light_nom, R_nom,
+                  t_nom) -> Registration:
+        """Accept or reject every measured pose (``fits``: :data:`FIT_DTYPE` records) and build the Registration."""
         sx, sy = (float(s) for s in capture.attrs["sample"]["size_mm"])
         U, V = self.texels
         texel_mm = min(sx / U, sy / V)
-        accepted, rejected = [], []
-        for f in fits:
-            reason = f.reason
-            if f.ok and f.rms_mm > self.max_rms_mm:
-                reason = (f"registration RMS {f.rms_mm:.3f} mm > max_rms_mm {self.max_rms_mm:g} mm "
-                          f"({f.markers} markers)")
-            if f.ok and not reason and self.max_pose_deg is not None:
-                dR = R_nom[f.pose].T @ f.R
-                ang = math.degrees(math.acos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0)))
-                if ang > self.max_pose_deg:
-                    reason = (f"fiducial pose differs from the nominal one by {ang:.1f} deg > max_pose_deg "
-                              f"{self.max_pose_deg:g} (wrong manifest pose or misidentified markers?)")
-            if reason:
-                rejected.append({"pose": int(f.pose), "reason": reason,
-                                 **({"rms_mm": round(float(f.rms_mm), 4)} if np.isfinite(f.rms_mm) else {})})
-            else:
-                accepted.append(f)
-        if not accepted:
+        poses = fits["pose"]
+        why = np.array([reasons.get(int(p), "") for p in poses], object)
+        over = fits["ok"] & (why == "") & (fits["rms_mm"] > self.max_rms_mm)
+        for j in np.flatnonzero(over):
+            why[j] = (f"registration RMS {fits['rms_mm'][j]:.3f} mm > max_rms_mm {self.max_rms_mm:g} mm "
+                      f"({fits['markers'][j]} markers)")
+        if self.max_pose_deg is not None:
+            # Angle of R_nom^T R_measured, from its trace.
+            tr = np.einsum("pji,pji->p", R_nom[poses], fits["R"])
+            ang = np.degrees(np.arccos(np.clip((tr - 1) / 2, -1.0, 1.0)))
+            for j in np.flatnonzero(fits["ok"] & (why == "") & (ang > self.max_pose_deg)):
+                why[j] = (f"fiducial pose differs from the nominal one by {ang[j]:.1f} deg > max_pose_deg "
+                          f"{self.max_pose_deg:g} (wrong manifest pose or misidentified markers?)")
+        keep = fits["ok"] & (why == "")
+        rejected = [{"pose": int(poses[j]), "reason": why[j],
+                     **({"rms_mm": round(float(fits["rms_mm"][j]), 4)} if np.isfinite(fits["rms_mm"][j]) else {})}
+                    for j in np.flatnonzero(~keep)]
+        if not keep.any():
             lines = "; ".join(f"pose {r['pose']}: {r['reason']}" for r in rejected[:8])
             raise SbrdfError(f"capture {capture.url}: aruco registration rejected all {len(fits)} poses ({lines}"
                              f"{' ...' if len(rejected) > 8 else ''})")
-        ids = np.array([f.pose for f in accepted], np.int64)
+        accepted = fits[keep]
+        ids = accepted["pose"].astype(np.int64)
         if self.pose_from == "fiducials":
-            R = np.stack([f.R for f in accepted])
-            t = np.stack([f.t for f in accepted])
+            R, t = accepted["R"], accepted["t"]
         else:
             R, t = R_nom[ids], t_nom[ids]
         cam_pos = camera_centre(R, t)
         light = light_nom[ids].copy()
         if self.pose_from == "fiducials" and self.correct_light:
             # [R_m|t_m] = [R_n|t_n]·[dR|dt]: the sample frame moved by (dR, dt) in the lab, the light did not.
-            for k, i in enumerate(ids):
-                dR = R_nom[i].T @ R[k]
-                dt = R_nom[i].T @ (t[k] - t_nom[i])
-                light[k] = dR.T @ (light_nom[i] - dt)
-        rms = np.array([f.rms_mm for f in accepted])
+            dR = np.einsum("pji,pjk->pik", R_nom[ids], R)  # R_n^T R_m
+            dt = np.einsum("pji,pj->pi", R_nom[ids], t - t_nom[ids])
+            light = np.einsum("pji,pj->pi", dR, light_nom[ids] - dt)  # dR^T (l - dt)
+        rms = accepted["rms_mm"]
         reg = Registration(
             texels=(U, V), size_mm=(sx, sy), pose_ids=ids, light_pos=light, camera_pos=cam_pos,
-            homography=np.stack([f.H for f in accepted]), rms_mm=rms, rejected=rejected,
+            homography=accepted["H"].copy(), rms_mm=rms.copy(), rejected=rejected,
             extra={
                 "method": "aruco",
                 "K": K.tolist(), "dist": dist.tolist(), "image_size": [int(capture.attrs["camera"]["width"]),
@@ -238,47 +250,21 @@ class ArucoRegistration:
                 "rms_mm_mean": float(rms.mean()),
                 "rms_mm_max": float(rms.max()),
                 "rms_texel_mean": float(rms.mean() / texel_mm),
-                "reprojection_px_mean": float(np.mean([f.reproj_px for f in accepted])),
-                "markers_mean": float(np.mean([f.markers for f in accepted])),
-                "camera_R": R.tolist(), "camera_t": t.tolist(),
+                "reprojection_px_mean": float(accepted["reproj_px"].mean()),
+                "markers_mean": float(accepted["markers"].mean()),
                 "accepted": int(len(ids)), "rejected": int(len(rejected)),
             },
+            per_pose={
+                "camera_R": np.ascontiguousarray(R, np.float64), "camera_t": np.ascontiguousarray(t, np.float64),
+                # The resampling filter (measured with the fit), so users see the effective resolution.
+                "pixels_per_texel": accepted["px_per_texel"].copy(),
+                "pyramid_level": accepted["level"].copy(),
+                "subsamples": np.stack([accepted["n_u"], accepted["n_v"]], axis=-1),
+            },
         )
-        # Footprint statistics per pose (cheap: V×U points), so users see the effective resolution.
-        plans = [self._plan(reg, k) for k in range(len(ids))]
-        reg.extra["pixels_per_texel"] = [round(float(p["px_per_texel"]), 4) for p in plans]
-        reg.extra["pyramid_level"] = [int(p["level"]) for p in plans]
-        reg.extra["subsamples"] = [[int(p["n_u"]), int(p["n_v"])] for p in plans]
         return reg
 
     # -- resampling (one pose per call) ---------------------------------------------------------
-
-    def _plan(self, reg: Registration, k: int) -> dict:
-        """Per-pose filter choice from the mapping's Jacobian: pyramid level and sub-samples per texel axis."""
-        if k in self._plans:
-            return self._plans[k]
-        K = np.asarray(reg.extra["K"], float)
-        dist = np.asarray(reg.extra["dist"], float)
-        U, V = reg.texels
-        centres = texel_centres((U, V), reg.size_mm)[..., :2]
-        pix = plane_to_pixels(centres, reg.homography[k], K, dist)  # (V, U, 2)
-        # Jacobian columns: pixels moved per texel step along u (axis 1) and v (axis 0).
-        du = np.linalg.norm(np.gradient(pix, axis=1), axis=-1) if U > 1 else np.ones((V, U))
-        dv = np.linalg.norm(np.gradient(pix, axis=0), axis=-1) if V > 1 else np.ones((V, U))
-        fin = np.isfinite(du) & np.isfinite(dv)
-        lu = float(np.max(du[fin])) if fin.any() else 1.0
-        lv = float(np.max(dv[fin])) if fin.any() else 1.0
-        # Octaves of pre-blur so that no texel edge spans more than max_subsamples pixels.
-        level = max(0, math.ceil(math.log2(max(lu, lv, 1e-9) / self.max_subsamples))) if max(lu, lv) > self.max_subsamples else 0
-        scale = 2.0 ** -level
-        plan = {
-            "level": level,
-            "n_u": max(1, math.ceil(lu * scale - 1e-6)),
-            "n_v": max(1, math.ceil(lv * scale - 1e-6)),
-            "px_per_texel": float(np.sqrt(np.median(du[fin] * dv[fin]))) if fin.any() else 0.0,
-        }
-        self._plans[k] = plan
-        return plan
 
     def resample(self, image: np.ndarray, valid: np.ndarray, pose: int, registration: Registration):
         """One pose -> ``(V, U, 3)`` texel radiance and ``(V, U)`` validity (see the module docstring)."""
@@ -286,7 +272,6 @@ class ArucoRegistration:
 
         reg = registration
         k = int(np.flatnonzero(reg.pose_ids == pose)[0])
-        plan = self._plan(reg, k)
         K = np.asarray(reg.extra["K"], float)
         dist = np.asarray(reg.extra["dist"], float)
         H = reg.homography[k]
@@ -302,13 +287,13 @@ class ArucoRegistration:
         bad = cv2.dilate(bad, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
         bad_f = bad.astype(np.float32)
 
-        level = plan["level"]
+        level = int(reg.per_pose["pyramid_level"][k])
         for _ in range(level):
             image = cv2.pyrDown(image)
             bad_f = cv2.pyrDown(bad_f)
         scale = 2.0 ** -level
 
-        n_u, n_v = plan["n_u"], plan["n_v"]
+        n_u, n_v = (int(n) for n in reg.per_pose["subsamples"][k])
         acc = np.zeros((V, U, 3), np.float32)
         badness = np.zeros((V, U), np.float32)
         for a in range(n_u):
@@ -516,3 +501,52 @@ def _measure_pose(pose: int, images, valids, fiducials: dict, K, dist, R_nom, t_
     if c[2] <= 0:
         fit.ok, fit.reason = False, f"fiducials put the camera behind the sample plane (z = {c[2]:.1f} mm)"
     return fit
+
+
+def _measure_poses(lo: int, hi: int, images, valids, fiducials: dict, K, dist, R_nom, t_nom,
+                   settings) -> tuple[np.ndarray, dict]:
+    """A dask task: poses ``lo:hi`` -> (:data:`FIT_DTYPE` records, ``{pose: reason}`` for failures).
+
+    Each accepted pose's resampling filter (:func:`footprint`) is measured here too,
+    while its homography is at hand, so the runner never loops over poses.
+    """
+    out = np.zeros(hi - lo, FIT_DTYPE)
+    reasons = {}
+    for j, pose in enumerate(range(lo, hi)):
+        f = _measure_pose(pose, images, valids, fiducials, K, dist, R_nom[pose], t_nom[pose], settings)
+        rec = out[j]
+        rec["pose"], rec["ok"], rec["markers"] = pose, f.ok, f.markers
+        rec["rms_mm"], rec["reproj_px"] = f.rms_mm, f.reproj_px
+        if not f.ok:
+            reasons[pose] = f.reason
+        if f.H is None or f.R is None:
+            rec["H"] = rec["R"] = np.nan
+            continue
+        rec["H"], rec["R"], rec["t"] = f.H, f.R, f.t
+        if f.ok:
+            rec["level"], rec["n_u"], rec["n_v"], rec["px_per_texel"] = footprint(
+                f.H, K, dist, settings["texels"], settings["sample_mm"], settings["max_subsamples"])
+    return out, reasons
+
+
+def footprint(H: np.ndarray, K, dist, texels: tuple[int, int], size_mm, max_subsamples: int) -> tuple[int, int, int, float]:
+    """A pose's resampling filter from the mapping's Jacobian: (pyramid level, sub-samples along u and v, pixels per texel).
+
+    The Jacobian's columns are the pixels moved per texel step along u and v; the
+    largest, over the sample, sets how many bicubic sub-samples a texel needs, and
+    octaves of pre-blur keep that at most ``max_subsamples`` per axis.
+    """
+    K, dist = np.asarray(K, float), np.asarray(dist, float)
+    U, V = texels
+    pix = plane_to_pixels(texel_centres((U, V), size_mm)[..., :2], H, K, dist)  # (V, U, 2)
+    du = np.linalg.norm(np.gradient(pix, axis=1), axis=-1) if U > 1 else np.ones((V, U))
+    dv = np.linalg.norm(np.gradient(pix, axis=0), axis=-1) if V > 1 else np.ones((V, U))
+    fin = np.isfinite(du) & np.isfinite(dv)
+    lu = float(np.max(du[fin])) if fin.any() else 1.0
+    lv = float(np.max(dv[fin])) if fin.any() else 1.0
+    level = max(0, math.ceil(math.log2(max(lu, lv, 1e-9) / max_subsamples))) if max(lu, lv) > max_subsamples else 0
+    scale = 2.0 ** -level
+    n_u = max(1, math.ceil(lu * scale - 1e-6))
+    n_v = max(1, math.ceil(lv * scale - 1e-6))
+    px_per_texel = float(np.sqrt(np.median(du[fin] * dv[fin]))) if fin.any() else 0.0
+    return level, n_u, n_v, px_per_texel

@@ -28,7 +28,10 @@ class Registration:
     homography: np.ndarray  # (P', 3, 3)
     rms_mm: np.ndarray  # (P',)
     rejected: list[dict] = field(default_factory=list)  # [{"pose": i, "reason": "..."}]
-    extra: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)  # scalars and settings: the stack's ``registration`` attribute
+    #: Other per-pose measurements, ``(P', ...)`` arrays stored as ``registration/<name>``: arrays, not
+    #: attribute lists, so they cost bytes, not Python objects, per pose.
+    per_pose: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _resample_poses(index: np.ndarray, images, valid, plugin, registration: Registration) -> np.ndarray:
@@ -102,6 +105,7 @@ class Register(NodeKind):
                 "camera_pos": small(np.asarray(reg.camera_pos, float)),
                 "homography": small(np.asarray(reg.homography, float)),
                 "rms_mm": small(np.asarray(reg.rms_mm, float)),
+                **{f"registration/{name}": small(a) for name, a in reg.per_pose.items()},
             },
             chunks={"radiance": (k, V, U, 3), "valid": (k, V, U)},
             inner_chunks={"radiance": (k, t, t, 3), "valid": (k, t, t)},
@@ -112,4 +116,5 @@ class Register(NodeKind):
                 "rejected": reg.rejected,
                 "registration": reg.extra,
             },
+            stream=True,  # pose blocks share nothing but the capture's and registration's data keys
         )
