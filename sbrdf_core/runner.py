@@ -38,11 +38,6 @@ from .nodes.base import BuildContext, Output
 from .registry import Registry, default_registry
 from .store import ArrayLayout, ArtifactWriter, open_artifact, write_chunk
 
-#: Chunk writes in flight at once on a cluster for a streamed node (:attr:`Output.stream`):
-#: this many per worker thread, and at least ``STREAM_MIN_TASKS``.
-STREAM_TASKS_PER_THREAD = 8
-STREAM_MIN_TASKS = 64
-
 #: progress(node, done, total) is called after every chunk written.
 ProgressFn = Callable[[str, int, int], None]
 
@@ -187,7 +182,7 @@ class Runner:
         rep.status = "resumed" if n_done else "computed"
         rep.chunks_total = sum(lay.nchunks for lay in layouts.values())
         rep.chunks_resumed = n_done
-        self._execute(node.name, tasks, rep.chunks_total, n_done, sequential=out.sequential, stream=out.stream)
+        self._execute(node.name, tasks, rep.chunks_total, n_done, sequential=out.sequential)
         rep.chunks_written = len(tasks)
         extra: dict[str, Any] = {}
         if out.finalize is not None:
@@ -252,8 +247,7 @@ class Runner:
                 tasks.append((index, write(blocks[index], url, name, token, index, region)))
         return tasks, n_done
 
-    def _execute(self, node: str, tasks: list, total: int, already: int, sequential: bool = False,
-                 stream: bool = False) -> None:
+    def _execute(self, node: str, tasks: list, total: int, already: int, sequential: bool = False) -> None:
         if not tasks:
             return
         bar = self._bar(node, total, already)
@@ -267,7 +261,7 @@ class Runner:
                 for pose in sorted(by_pose):
                     self._execute_local(by_pose[pose], bar, scheduler="sync")
             elif self._is_distributed():
-                self._execute_distributed(node, tasks, bar, stream)
+                self._execute_distributed(node, [t for _, t in tasks], bar)
             else:
                 self._execute_local([t for _, t in tasks], bar, self.scheduler)
         except SbrdfError:
@@ -294,30 +288,15 @@ class Runner:
         s = self.scheduler
         return not isinstance(s, str) or "://" in s
 
-    def _execute_distributed(self, node: str, tasks: list, bar, stream: bool = False) -> None:
-        """Compute ``(chunk index, task)`` pairs on the cluster, all at once or, with ``stream``,
-        a window of first-axis positions at a time (:attr:`Output.stream`)."""
+    def _execute_distributed(self, node: str, tasks: list, bar) -> None:
         from distributed import Client, as_completed
 
         if self._client is None:
             self._client = Client(self.scheduler) if isinstance(self.scheduler, str) else self.scheduler
         client = self._client
-        groups: dict[tuple, list] = {}
-        for index, task in tasks:
-            groups.setdefault(tuple(index[:1]) if stream else (), []).append(task)
-        queue = iter([groups[k] for k in sorted(groups)])
-        # In flight at once when streaming: enough to keep every worker thread busy.
-        limit = max(STREAM_MIN_TASKS, STREAM_TASKS_PER_THREAD * sum(client.nthreads().values()))
-        pending: set = set()
-        seq = as_completed(with_results=False)
-
-        def refill():
-            while len(pending) < limit and (group := next(queue, None)) is not None:
-                futures = client.compute(group)  # one graph: chunks of a group share their kernel's key
-                pending.update(futures)
-                seq.update(futures)
-
-        refill()
+        futures = client.compute(tasks)
+        pending = set(futures)
+        seq = as_completed(futures, with_results=False)
         no_workers_since = None
         while pending:
             batch = seq.next_batch(block=False)
@@ -328,7 +307,6 @@ class Runner:
                     exc = f.exception()
                     raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
                 bar(1)
-            refill()
             if not batch:
                 if client.scheduler_info().get("workers"):
                     no_workers_since = None

@@ -81,13 +81,6 @@ class Output:
         beside the arrays).  The artifact is marked complete after it.
     sequential
         Compute chunks one at a time, in order, in this process (hardware).
-    stream
-        Chunks at different positions along the first axis share no work
-        (nothing but data keys): on a cluster the runner then submits them a
-        window at a time, so the scheduler holds a bounded number of tasks
-        however many chunks a large scan makes (Register's pose blocks,
-        Reflectance's tile rows).  Leave it off when chunks share a computation
-        (a global reduction), which each window would otherwise repeat.
     """
 
     arrays: dict[str, da.Array]
@@ -96,7 +89,6 @@ class Output:
     attrs: dict[str, Any] = field(default_factory=dict)
     finalize: Callable[[Artifact], Mapping[str, Any]] | None = None
     sequential: bool = False
-    stream: bool = False
 
 
 @dataclass

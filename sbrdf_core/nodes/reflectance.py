@@ -104,5 +104,4 @@ class Reflectance(NodeKind):
                 "camera_pos": da.from_array(camera_pos),
             },
             attrs={"texels": list(texels), "size_mm": list(size_mm), "light": stack.attrs.get("light", {}), "tile": t},
-            stream=True,  # tile rows share nothing but the stack's data keys
         )

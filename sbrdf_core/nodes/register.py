@@ -116,5 +116,4 @@ class Register(NodeKind):
                 "rejected": reg.rejected,
                 "registration": reg.extra,
             },
-            stream=True,  # pose blocks share nothing but the capture's and registration's data keys
         )

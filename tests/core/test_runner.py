@@ -110,24 +110,6 @@ def test_distributed_run_is_identical_to_local(write_graph, registry, tmp_path, 
     assert_stores_equal(tmp_path / "local", tmp_path / "dist")
 
 
-def test_streamed_nodes_go_to_the_cluster_a_window_at_a_time(write_graph, registry, tmp_path, cluster, monkeypatch):
-    """Register (Output.stream) is submitted one pose block at a time with a window of one task; same result."""
-    import sbrdf_core.runner as runner_module
-
-    _, client = cluster
-    monkeypatch.setattr(runner_module, "STREAM_MIN_TASKS", 1)
-    monkeypatch.setattr(runner_module, "STREAM_TASKS_PER_THREAD", 0)
-    sizes = []
-    compute = client.compute
-    monkeypatch.setattr(client, "compute", lambda tasks, **kw: sizes.append(len(tasks)) or compute(tasks, **kw))
-    run(write_graph, registry, tmp_path / "local")
-    run(write_graph, registry, tmp_path / "dist", "dist.yaml", scheduler=client)
-    assert_stores_equal(tmp_path / "local", tmp_path / "dist")
-    # 12 poses, one per Register block: blocks 1..11 are submitted alone (radiance + valid chunk);
-    # block 0 brings the one-chunk per-pose arrays, and unstreamed nodes go in one submission each.
-    assert sizes.count(2) >= 11, sizes
-
-
 def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, cluster):
     _, client = cluster
     slow = {"poses": 30, "pose_delay_s": 0.05}
