@@ -12,7 +12,8 @@ reflectance runs once to build the CaptureSet (not timed), then Register +
 Reflectance are timed (the runner's node wall times) on
 
 ``threads``  dask's threaded scheduler in this process, and
-``cluster``  a ``distributed.LocalCluster`` (2 worker processes, 1 thread each).
+``cluster``  a ``distributed.LocalCluster`` (2 worker processes, 1 thread each),
+             started under ``sbrdf_core.memory.CLUSTER_CONFIG`` (docs/cluster.md).
 
 ``mb_per_s`` = CaptureSet MB / (Register + Reflectance seconds), threads run.
 ``peak_rss_mb`` = peak resident set of the process running Register +

@@ -495,7 +495,7 @@ def _measure_pose(pose: int, images, valids, fiducials: dict, K, dist, R_nom, t_
     t = tvec.ravel()
     proj, _ = cv2.projectPoints(obj3, rvec, tvec, K, dist)
     reproj = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img_pts) ** 2, axis=-1))))
-    # Only what registration uses: the runner keeps one PoseFit per pose until all are measured.
+    # Only what registration uses (packed into one FIT_DTYPE record by _measure_poses).
     fit = PoseFit(pose, True, markers=len(found), H=H, rms_mm=rms_mm, reproj_px=reproj, R=R, t=t)
     c = camera_centre(R, t)
     if c[2] <= 0:
