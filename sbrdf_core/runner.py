@@ -24,7 +24,7 @@ import platform
 import socket
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
@@ -37,6 +37,11 @@ from .graph import Graph, Node
 from .nodes.base import BuildContext, Output
 from .registry import Registry, default_registry
 from .store import ArrayLayout, ArtifactWriter, open_artifact, write_chunk
+from .streaming import chunk_groups
+
+#: Chunk groups of a streamed node (:attr:`Output.stream`) in flight per worker
+#: thread on a cluster: one running and one queued, so no thread waits for the runner.
+STREAM_GROUPS_PER_THREAD = 2
 
 #: progress(node, done, total) is called after every chunk written.
 ProgressFn = Callable[[str, int, int], None]
@@ -182,7 +187,9 @@ class Runner:
         rep.status = "resumed" if n_done else "computed"
         rep.chunks_total = sum(lay.nchunks for lay in layouts.values())
         rep.chunks_resumed = n_done
-        self._execute(node.name, tasks, rep.chunks_total, n_done, sequential=out.sequential)
+        grids = {name: arr.numblocks for name, arr in arrays.items()}
+        self._execute(node.name, token, tasks, grids, rep.chunks_total, n_done, sequential=out.sequential,
+                      stream=out.stream)
         rep.chunks_written = len(tasks)
         extra: dict[str, Any] = {}
         if out.finalize is not None:
@@ -225,7 +232,7 @@ class Runner:
 
     @staticmethod
     def _write_tasks(url: str, token: str, arrays: dict, done: dict) -> tuple[list, int]:
-        """One ``(chunk index, write task)`` per chunk not yet done.
+        """One ``(array name, chunk index, write task)`` per chunk not yet done.
 
         The arrays are deliberately not optimized one by one: outputs that slice
         one kernel's result (images and valid of one pose read) must share its
@@ -244,10 +251,11 @@ class Runner:
                     continue
                 region = tuple(slice(int(s[i]), int(s[i + 1])) for s, i in zip(starts, index))
                 write = delayed(write_chunk, pure=True, name=f"write-{name}-{key}-{token}")
-                tasks.append((index, write(blocks[index], url, name, token, index, region)))
+                tasks.append((name, index, write(blocks[index], url, name, token, index, region)))
         return tasks, n_done
 
-    def _execute(self, node: str, tasks: list, total: int, already: int, sequential: bool = False) -> None:
+    def _execute(self, node: str, token: str, tasks: list, grids: dict, total: int, already: int,
+                 sequential: bool = False, stream: int = 0) -> None:
         if not tasks:
             return
         bar = self._bar(node, total, already)
@@ -256,14 +264,27 @@ class Runner:
                 # Hardware: in this process, in order of the first (pose) axis; the
                 # chunks of one pose are computed together so the pose is taken once.
                 by_pose: dict[int, list] = {}
-                for index, task in tasks:
-                    by_pose.setdefault(index[0] if index else 0, []).append(task)
+                for _, index, task in tasks:
+                    by_pose.setdefault(index[0] if index else 0, []).append((task, 1))
                 for pose in sorted(by_pose):
                     self._execute_local(by_pose[pose], bar, scheduler="sync")
-            elif self._is_distributed():
-                self._execute_distributed(node, [t for _, t in tasks], bar)
+                return
+            # (task, chunks it writes): a fused task per chunk group when streamed.
+            if not self._is_distributed():
+                units = chunk_groups(node, token, tasks, stream, grids) if stream else ((t, 1) for *_, t in tasks)
+                self._execute_local(list(units), bar, self.scheduler)
+            elif stream:
+                client, scattered = self._connect(), {}
+
+                def data(key, value):  # each shared value sent to the cluster once, not with every group
+                    if key not in scattered:
+                        scattered[key] = client.scatter(value, hash=False)
+                    return scattered[key]
+
+                units = chunk_groups(node, token, tasks, stream, grids, data)
+                self._execute_distributed(node, units, bar, window=STREAM_GROUPS_PER_THREAD)
             else:
-                self._execute_local([t for _, t in tasks], bar, self.scheduler)
+                self._execute_distributed(node, ((t, 1) for *_, t in tasks), bar, window=None)
         except SbrdfError:
             raise
         except Exception as e:
@@ -271,53 +292,83 @@ class Runner:
         finally:
             bar(None)
 
-    def _execute_local(self, tasks: list, bar, scheduler) -> None:
+    def _execute_local(self, units: list, bar, scheduler) -> None:
         import dask
         from dask.callbacks import Callback
 
-        keys = {t.key for t in tasks}
+        chunks = {t.key: n for t, n in units}
 
         def posttask(key, result, dsk, state, worker_id):
-            if key in keys:
-                bar(1)
+            if key in chunks:
+                bar(chunks[key])
 
         with Callback(posttask=posttask):
-            dask.compute(*tasks, scheduler=scheduler, num_workers=self.num_workers, optimize_graph=False)
+            dask.compute(*[t for t, _ in units], scheduler=scheduler, num_workers=self.num_workers,
+                         optimize_graph=False)
 
     def _is_distributed(self) -> bool:
         s = self.scheduler
         return not isinstance(s, str) or "://" in s
 
-    def _execute_distributed(self, node: str, tasks: list, bar) -> None:
-        from distributed import Client, as_completed
+    def _connect(self):
+        from distributed import Client
 
         if self._client is None:
             self._client = Client(self.scheduler) if isinstance(self.scheduler, str) else self.scheduler
-        client = self._client
-        futures = client.compute(tasks)
-        pending = set(futures)
-        seq = as_completed(futures, with_results=False)
-        no_workers_since = None
+        return self._client
+
+    def _execute_distributed(self, node: str, units: Iterator, bar, window: int | None) -> None:
+        """Compute ``(task, chunks)`` units on the cluster: all at once (``window=None``), or
+        at most ``window`` per worker thread in flight, submitted in order as others finish."""
+        from distributed import as_completed
+
+        client = self._connect()
+        pending: dict = {}  # future -> chunks it writes
+        seq = as_completed(with_results=False)
+        submitted, threads = 0, sum(client.nthreads().values())
+
+        def refill():
+            nonlocal submitted
+            if window is None:
+                batch = list(units)
+                futures = client.compute([t for t, _ in batch]) if batch else []
+                pending.update(zip(futures, (n for _, n in batch)))
+                seq.update(futures)
+                return
+            while len(pending) < window * max(1, threads) and (unit := next(units, None)) is not None:
+                # Earlier groups first, whatever a worker has queued.
+                future = client.compute(unit[0], priority=-submitted)
+                submitted += 1
+                pending[future] = unit[1]
+                seq.add(future)
+
+        refill()
+        no_workers_since, checked = None, 0.0
         while pending:
             batch = seq.next_batch(block=False)
             for f in batch:
-                pending.discard(f)
+                n = pending.pop(f)
                 if f.status == "error":
                     client.cancel(list(pending))
                     exc = f.exception()
                     raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
-                bar(1)
-            if not batch:
-                if client.scheduler_info().get("workers"):
+                bar(n)
+            if batch:
+                refill()
+            elif time.monotonic() - checked > 1.0:  # an RPC: not on every idle poll
+                checked = time.monotonic()
+                threads = sum(client.nthreads().values())
+                if threads:
                     no_workers_since = None
                 else:
-                    no_workers_since = no_workers_since or time.monotonic()
-                    if time.monotonic() - no_workers_since > self.no_worker_timeout:
+                    no_workers_since = no_workers_since or checked
+                    if checked - no_workers_since > self.no_worker_timeout:
                         client.cancel(list(pending))
                         raise RunError(
                             f"node {node!r}: no dask workers left on {client.scheduler.address} for "
                             f"{self.no_worker_timeout:.0f} s; {len(pending)} chunks unwritten (re-run to resume)"
                         )
+            else:
                 time.sleep(0.05)
 
     def _bar(self, node: str, total: int, already: int):

@@ -81,6 +81,14 @@ class Output:
         beside the arrays).  The artifact is marked complete after it.
     sequential
         Compute chunks one at a time, in order, in this process (hardware).
+    stream
+        Chunks at different positions on the first ``stream`` chunk axes share
+        no work but data keys (``shared``): the runner then computes each such
+        group of chunks as one task and, on a cluster, keeps a bounded window
+        of groups in flight (:mod:`sbrdf_core.streaming`), so memory does not
+        grow with the number of chunks.  Register streams pose blocks (1),
+        Reflectance texel tiles (2).  Leave it 0 when chunks share a computation
+        (a global reduction, a codebook), which each group would repeat.
     """
 
     arrays: dict[str, da.Array]
@@ -89,6 +97,7 @@ class Output:
     attrs: dict[str, Any] = field(default_factory=dict)
     finalize: Callable[[Artifact], Mapping[str, Any]] | None = None
     sequential: bool = False
+    stream: int = 0
 
 
 @dataclass

@@ -104,4 +104,5 @@ class Reflectance(NodeKind):
                 "camera_pos": da.from_array(camera_pos),
             },
             attrs={"texels": list(texels), "size_mm": list(size_mm), "light": stack.attrs.get("light", {}), "tile": t},
+            stream=2,  # texel tiles
         )

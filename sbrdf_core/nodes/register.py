@@ -116,4 +116,5 @@ class Register(NodeKind):
                 "rejected": reg.rejected,
                 "registration": reg.extra,
             },
+            stream=1,  # pose blocks
         )

@@ -110,13 +110,14 @@ def test_distributed_run_is_identical_to_local(write_graph, registry, tmp_path, 
     assert_stores_equal(tmp_path / "local", tmp_path / "dist")
 
 
-def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, cluster):
+@pytest.mark.parametrize("victim_node", ["capture", "register"])  # per-chunk tasks; streamed chunk groups
+def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, cluster, victim_node):
     _, client = cluster
     slow = {"poses": 30, "pose_delay_s": 0.05}
     killed = []
 
     def progress(node, done, total):
-        if node == "capture" and done >= 8 and not killed:
+        if node == victim_node and done >= 8 and not killed:
             pids = client.run(os.getpid)
             victim = sorted(pids.values())[0]
             os.kill(victim, signal.SIGKILL)
@@ -125,7 +126,7 @@ def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, 
     run(write_graph, registry, tmp_path / "local", capture=slow)
     rep = run(write_graph, registry, tmp_path / "dist", "dist.yaml", capture=slow, scheduler=client, progress=progress)
     assert killed, "the worker was never killed"
-    assert rep["capture"].chunks_written == rep["capture"].chunks_total
+    assert rep[victim_node].chunks_written == rep[victim_node].chunks_total
     assert_stores_equal(tmp_path / "local", tmp_path / "dist")
 
 

@@ -25,6 +25,7 @@ from dask.utils import key_split
 from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
 from sbrdf_core.graph import load_graph
 from sbrdf_core.runner import Runner
+from sbrdf_core.streaming import Subgraph
 
 
 class TaskSizes(Callback):
@@ -46,6 +47,9 @@ class TaskSizes(Callback):
             kind = key_split(key)
             self.count[kind] += 1
             self.largest[kind] = max(self.largest[kind], len(cloudpickle.dumps(task)))
+            for arg in getattr(task, "args", ()):  # a streamed node's fused chunk group: count its tasks too
+                if isinstance(getattr(arg, "value", arg), Subgraph):
+                    self._start(getattr(arg, "value", arg).graph)
 
 
 def task_sizes(registry, tmp_path: Path, poses: int) -> TaskSizes:

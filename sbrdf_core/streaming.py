@@ -1,0 +1,78 @@
+"""Chunk groups: the unit a streamed node is computed in (see :attr:`Output.stream`).
+
+A node whose chunks at different positions share no work is not handed to
+dask as one graph of per-chunk tasks.  Its chunks are grouped by position on
+the first ``stream`` chunk axes (Register: a pose block; Reflectance: a texel
+tile), and each group becomes **one task** that computes the group's kernel
+and writes its chunks.  Two things follow:
+
+* A worker never holds a finished block waiting for the scheduler to send its
+  write tasks, so it holds one block per thread.  With separate write tasks a
+  thread starts the next block meanwhile.
+* The runner submits a bounded window of groups at a time.  So the scheduler
+  and the client hold state for ``window`` tasks, not for every chunk of the
+  scan, and their memory does not grow with its size.
+
+The data a graph carries as one key (``nodes.base.shared``: a Registration, a
+zarr array handle, every pose's light position) stays a separate key, which
+each worker fetches once.  Only the computed tasks are fused.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+
+class Subgraph:
+    """Tasks to run inside one worker task. A plain holder, so dask doesn't traverse it."""
+
+    __slots__ = ("graph", "keys")
+
+    def __init__(self, graph: dict, keys: list):
+        self.graph, self.keys = graph, keys
+
+
+def run_group(sub: Subgraph, data_keys: Sequence, *data: Any) -> int:
+    """Worker side: compute one chunk group's tasks in order; returns the chunks written."""
+    from dask._task_spec import DataNode
+    from dask.local import get_sync
+
+    get_sync({**sub.graph, **{k: DataNode(k, v) for k, v in zip(data_keys, data)}}, list(sub.keys))
+    return len(sub.keys)
+
+
+def chunk_groups(node: str, token: str, tasks: Sequence[tuple[str, tuple, Any]], axes: int,
+                 numblocks: dict[str, tuple], data: Callable[[Any, Any], Any] | None = None
+                 ) -> Iterator[tuple[Any, int]]:
+    """Yield ``(task, chunks)``: one fused task per group of ``(array, chunk index, write task)``.
+
+    Arrays chunked alike on the streamed axes group together (radiance and
+    valid of a pose block); the others (the small per-pose arrays, one chunk
+    each) form groups of their own, so a block's task stays the same size
+    whatever the number of poses.  Groups are yielded lazily, in order, so the
+    client builds a group's graph only when the window has room for it.
+
+    ``data(key, value)`` gives what a group depends on for a shared data key.
+    By default it is that key in the group's own graph. On a cluster, the
+    runner scatters each value once (a future) instead, because a key in a
+    graph is sent again with every submission.
+    """
+    from dask import delayed
+    from dask._task_spec import DataNode
+    from dask.base import collections_to_expr
+    from dask.delayed import Delayed
+
+    resolve = data or (lambda k, v: Delayed(k, {k: DataNode(k, v)}))
+    by_group: dict[tuple, list] = {}
+    for name, index, task in tasks:
+        by_group.setdefault((tuple(numblocks[name][:axes]), tuple(index[:axes])), []).append((name, task))
+    for group in sorted(by_group, key=lambda g: (g[1], g[0])):
+        names, writes = zip(*by_group.pop(group))
+        graph = dict(collections_to_expr(writes, True).__dask_graph__())
+        shared = {k: v for k, v in graph.items() if isinstance(v, DataNode)}
+        inner = {k: v for k, v in graph.items() if k not in shared}
+        key = f"write-{node}-{names[0]}-{'.'.join(map(str, group[1]))}-{token}"
+        deps = [resolve(k, v.value) for k, v in shared.items()]
+        fused = delayed(run_group, pure=True, traverse=False)
+        yield fused(Subgraph(inner, [w.key for w in writes]), list(shared), *deps, dask_key_name=key), len(writes)
