@@ -42,7 +42,8 @@ CLUSTER_CONFIG = {
     **{f"distributed.nanny.pre-spawn-environ.{k}": v for k, v in WORKER_ENV.items()},
     "distributed.admin.low-level-log-length": LOG_LENGTH,
     # One queued root task per worker thread, not 1.1: a worker otherwise starts the next
-    # Register pose block while the last one still waits for its writes, and holds two.
+    # root task while the last one's result still waits for its dependents, and holds two.
+    # (Streamed nodes, sbrdf_core.streaming, write inside the task and set their own window.)
     "distributed.scheduler.worker-saturation": 1.0,
 }
 
