@@ -92,6 +92,44 @@ def node_token(node: Node, spec_version: str, inputs: dict, fingerprint: str) ->
     )
 
 
+class ChunkWrites:
+    """A node's chunks still to write, and each one's write task, made when asked for.
+
+    The tasks are made on demand so that a streamed node's runner holds a
+    window of them, not one per chunk of the scan (2.4 KB each: 5 MB for
+    Reflectance's 2050 chunks at 16 GB).
+
+    Outputs are deliberately not optimized one by one: outputs that slice one
+    kernel's result (images and valid of one pose read) must share its key, so
+    the kernel runs once when their tasks are computed together.
+    """
+
+    def __init__(self, url: str, token: str, arrays: dict, done: dict):
+        self.url, self.token, self.arrays = url, token, arrays
+        self.numblocks = {name: arr.numblocks for name, arr in arrays.items()}
+        self._starts = {name: [np.concatenate([[0], np.cumsum(c)]) for c in arr.chunks] for name, arr in arrays.items()}
+        self.pending: list[tuple[str, tuple]] = []
+        self.n_done = 0
+        for name, arr in arrays.items():
+            for index in np.ndindex(*arr.numblocks):
+                if (".".join(map(str, index)) or "0") in done[name]:
+                    self.n_done += 1
+                else:
+                    self.pending.append((name, index))
+
+    def task(self, name: str, index: tuple):
+        """The task that computes chunk ``index`` of output ``name`` and writes it."""
+        from dask import delayed
+        from dask.delayed import Delayed
+
+        arr = self.arrays[name]
+        block = Delayed((arr.name, *index), arr.__dask_graph__(), layer=arr.__dask_layers__()[0])
+        region = tuple(slice(int(s[i]), int(s[i + 1])) for s, i in zip(self._starts[name], index))
+        key = ".".join(map(str, index)) or "0"
+        write = delayed(write_chunk, pure=True, name=f"write-{name}-{key}-{self.token}")
+        return write(block, self.url, name, self.token, index, region)
+
+
 class Runner:
     """Runs graphs.
 
@@ -183,14 +221,14 @@ class Runner:
         arrays, layouts = _regularise(out)
         provenance = self._provenance(graph, node, spec, inputs, token)
         done = writer.prepare(layouts, {"provenance": provenance, **out.attrs})
-        tasks, n_done = self._write_tasks(url, token, arrays, done)
+        writes = ChunkWrites(url, token, arrays, done)
+        n_done = writes.n_done
         rep.status = "resumed" if n_done else "computed"
         rep.chunks_total = sum(lay.nchunks for lay in layouts.values())
         rep.chunks_resumed = n_done
-        grids = {name: arr.numblocks for name, arr in arrays.items()}
-        self._execute(node.name, token, tasks, grids, rep.chunks_total, n_done, sequential=out.sequential,
+        self._execute(node.name, token, writes, rep.chunks_total, n_done, sequential=out.sequential,
                       stream=out.stream)
-        rep.chunks_written = len(tasks)
+        rep.chunks_written = len(writes.pending)
         extra: dict[str, Any] = {}
         if out.finalize is not None:
             extra.update(out.finalize(open_artifact(url, require_complete=False)))
@@ -230,33 +268,9 @@ class Runner:
 
     # -- tasks ----------------------------------------------------------------------
 
-    @staticmethod
-    def _write_tasks(url: str, token: str, arrays: dict, done: dict) -> tuple[list, int]:
-        """One ``(array name, chunk index, write task)`` per chunk not yet done.
-
-        The arrays are deliberately not optimized one by one: outputs that slice
-        one kernel's result (images and valid of one pose read) must share its
-        key, so the kernel runs once when all tasks are computed together.
-        """
-        from dask import delayed
-
-        tasks, n_done = [], 0
-        for name, arr in arrays.items():
-            starts = [np.concatenate([[0], np.cumsum(c)]) for c in arr.chunks]
-            blocks = arr.to_delayed(optimize_graph=False)
-            for index in np.ndindex(*arr.numblocks):
-                key = ".".join(map(str, index)) or "0"
-                if key in done[name]:
-                    n_done += 1
-                    continue
-                region = tuple(slice(int(s[i]), int(s[i + 1])) for s, i in zip(starts, index))
-                write = delayed(write_chunk, pure=True, name=f"write-{name}-{key}-{token}")
-                tasks.append((name, index, write(blocks[index], url, name, token, index, region)))
-        return tasks, n_done
-
-    def _execute(self, node: str, token: str, tasks: list, grids: dict, total: int, already: int,
+    def _execute(self, node: str, token: str, writes: ChunkWrites, total: int, already: int,
                  sequential: bool = False, stream: int = 0) -> None:
-        if not tasks:
+        if not writes.pending:
             return
         bar = self._bar(node, total, already)
         try:
@@ -264,27 +278,30 @@ class Runner:
                 # Hardware: in this process, in order of the first (pose) axis; the
                 # chunks of one pose are computed together so the pose is taken once.
                 by_pose: dict[int, list] = {}
-                for _, index, task in tasks:
-                    by_pose.setdefault(index[0] if index else 0, []).append((task, 1))
+                for name, index in writes.pending:
+                    by_pose.setdefault(index[0] if index else 0, []).append((writes.task(name, index), 1))
                 for pose in sorted(by_pose):
                     self._execute_local(by_pose[pose], bar, scheduler="sync")
                 return
             # (task, chunks it writes): a fused task per chunk group when streamed.
+            every = ((writes.task(name, index), 1) for name, index in writes.pending)
             if not self._is_distributed():
-                units = chunk_groups(node, token, tasks, stream, grids) if stream else ((t, 1) for *_, t in tasks)
+                units = chunk_groups(node, token, writes, stream) if stream else every
                 self._execute_local(list(units), bar, self.scheduler)
             elif stream:
                 client, scattered = self._connect(), {}
 
-                def data(key, value):  # each shared value sent to the cluster once, not with every group
+                def data(key, value):
+                    # Each shared value sent to the cluster once, not with every group; on every
+                    # worker, so one that dies takes no value the other groups need.
                     if key not in scattered:
-                        scattered[key] = client.scatter(value, hash=False)
+                        scattered[key] = client.scatter(value, hash=False, broadcast=True)
                     return scattered[key]
 
-                units = chunk_groups(node, token, tasks, stream, grids, data)
+                units = chunk_groups(node, token, writes, stream, data)
                 self._execute_distributed(node, units, bar, window=STREAM_GROUPS_PER_THREAD)
             else:
-                self._execute_distributed(node, ((t, 1) for *_, t in tasks), bar, window=None)
+                self._execute_distributed(node, every, bar, window=None)
         except SbrdfError:
             raise
         except Exception as e:
@@ -352,6 +369,10 @@ class Runner:
                     client.cancel(list(pending))
                     exc = f.exception()
                     raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
+                if f.status != "finished":  # cancelled or lost: its chunks were not written
+                    client.cancel(list(pending))
+                    raise RunError(f"node {node!r}: a chunk task was {f.status} on the cluster; "
+                                   f"{len(pending) + 1} tasks unfinished (re-run to resume)")
                 bar(n)
             if batch:
                 refill()

@@ -21,7 +21,10 @@ each worker fetches once.  Only the computed tasks are fused.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .runner import ChunkWrites
 
 
 class Subgraph:
@@ -42,16 +45,18 @@ def run_group(sub: Subgraph, data_keys: Sequence, *data: Any) -> int:
     return len(sub.keys)
 
 
-def chunk_groups(node: str, token: str, tasks: Sequence[tuple[str, tuple, Any]], axes: int,
-                 numblocks: dict[str, tuple], data: Callable[[Any, Any], Any] | None = None
+def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Callable[[Any, Any], Any] | None = None
                  ) -> Iterator[tuple[Any, int]]:
-    """Yield ``(task, chunks)``: one fused task per group of ``(array, chunk index, write task)``.
+    """Yield ``(task, chunks)``: one fused task per group of ``writes.pending`` chunks.
 
-    Arrays chunked alike on the streamed axes group together (radiance and
-    valid of a pose block); the others (the small per-pose arrays, one chunk
-    each) form groups of their own, so a block's task stays the same size
-    whatever the number of poses.  Groups are yielded lazily, in order, so the
-    client builds a group's graph only when the window has room for it.
+    ``writes`` is the runner's :class:`~sbrdf_core.runner.ChunkWrites`: the
+    ``(output, chunk index)`` pairs still to write, their outputs' ``numblocks``,
+    and ``task(output, index)``, which makes a chunk's write task.  Outputs
+    chunked alike on the streamed axes group together (radiance and valid of a
+    pose block); the others (the small per-pose arrays, one chunk each) form
+    groups of their own, so a block's task stays the same size whatever the
+    number of poses.  Groups are made lazily, in order, so the client builds a
+    group's tasks and graph only when the window has room for it.
 
     ``data(key, value)`` gives what a group depends on for a shared data key.
     By default it is that key in the group's own graph. On a cluster, the
@@ -65,14 +70,16 @@ def chunk_groups(node: str, token: str, tasks: Sequence[tuple[str, tuple, Any]],
 
     resolve = data or (lambda k, v: Delayed(k, {k: DataNode(k, v)}))
     by_group: dict[tuple, list] = {}
-    for name, index, task in tasks:
-        by_group.setdefault((tuple(numblocks[name][:axes]), tuple(index[:axes])), []).append((name, task))
+    for name, index in writes.pending:
+        by_group.setdefault((tuple(writes.numblocks[name][:axes]), tuple(index[:axes])), []).append((name, index))
     for group in sorted(by_group, key=lambda g: (g[1], g[0])):
-        names, writes = zip(*by_group.pop(group))
-        graph = dict(collections_to_expr(writes, True).__dask_graph__())
+        chunks = by_group.pop(group)
+        names = [name for name, _ in chunks]
+        tasks = [writes.task(name, index) for name, index in chunks]
+        graph = dict(collections_to_expr(tasks, True).__dask_graph__())
         shared = {k: v for k, v in graph.items() if isinstance(v, DataNode)}
         inner = {k: v for k, v in graph.items() if k not in shared}
         key = f"write-{node}-{names[0]}-{'.'.join(map(str, group[1]))}-{token}"
         deps = [resolve(k, v.value) for k, v in shared.items()]
         fused = delayed(run_group, pure=True, traverse=False)
-        yield fused(Subgraph(inner, [w.key for w in writes]), list(shared), *deps, dask_key_name=key), len(writes)
+        yield fused(Subgraph(inner, [t.key for t in tasks]), list(shared), *deps, dask_key_name=key), len(tasks)

@@ -24,21 +24,27 @@ from sbrdf_core.streaming import Subgraph, chunk_groups
 from tests.conftest import graph_yaml
 
 
-def _write_tasks(arrays: dict, written: dict) -> list:
-    def write(block, name, index):
-        written[name, index] = np.array(block)
+class Writes:
+    """What ``chunk_groups`` needs of the runner's ``ChunkWrites``; writes into a dict."""
 
-    return [(name, index, delayed(write, pure=True, name=f"write-{name}-{index}")(arr.to_delayed()[index], name, index))
-            for name, arr in arrays.items() for index in np.ndindex(*arr.numblocks)]
+    def __init__(self, arrays: dict):
+        self.arrays, self.written = arrays, {}
+        self.numblocks = {name: arr.numblocks for name, arr in arrays.items()}
+        self.pending = [(name, index) for name, arr in arrays.items() for index in np.ndindex(*arr.numblocks)]
+
+    def task(self, name, index):
+        def write(block):
+            self.written[name, index] = np.array(block)
+
+        return delayed(write, pure=True, name=f"write-{name}-{index}")(self.arrays[name].to_delayed()[index])
 
 
 def test_a_chunk_group_is_one_task_that_writes_its_chunks():
     big = np.arange(1000.0)
     kernel = da.map_blocks(lambda g, b: g + b.sum(), da.zeros((6, 4), chunks=2), shared(big), dtype=float)
     arrays = {"f": kernel + 1, "ok": kernel > 3, "small": da.from_array(big)}
-    written: dict = {}
-    tasks = _write_tasks(arrays, written)
-    units = list(chunk_groups("n", "tok", tasks, 1, {k: a.numblocks for k, a in arrays.items()}))
+    writes = Writes(arrays)
+    units = list(chunk_groups("n", "tok", writes, 1))
     # a row of blocks of f and ok is one group (2 + 2 chunks); small, chunked otherwise, is its own
     assert sorted(n for _, n in units) == [1, 4, 4, 4]
     for task, _ in units:
@@ -48,6 +54,7 @@ def test_a_chunk_group_is_one_task_that_writes_its_chunks():
         assert not any(isinstance(getattr(v, "value", None), np.ndarray) and v.value.size == big.size
                        for v in graph.values())
     dask.compute(*[t for t, _ in units], scheduler="threads")
+    written = writes.written
     assert len(written) == 13
     np.testing.assert_array_equal(written["f", (2, 1)], np.full((2, 2), big.sum() + 1))
     np.testing.assert_array_equal(written["ok", (0, 0)], np.ones((2, 2), bool))
