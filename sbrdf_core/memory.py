@@ -63,4 +63,3 @@ def limit_arenas(n: int = ARENAS) -> bool:
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     return bool(mallopt(M_ARENA_MAX, int(n)))
-

@@ -36,7 +36,7 @@ from .errors import RunError, SbrdfError
 from .graph import Graph, Node
 from .nodes.base import BuildContext, Output
 from .registry import Registry, default_registry
-from .store import ArrayLayout, ArtifactWriter, open_artifact, write_chunk
+from .store import ArrayLayout, ArtifactWriter, chunk_key, open_artifact, write_chunk
 from .streaming import chunk_groups
 
 #: Chunk groups of a streamed node (:attr:`Output.stream`) in flight per worker
@@ -112,7 +112,7 @@ class ChunkWrites:
         self.n_done = 0
         for name, arr in arrays.items():
             for index in np.ndindex(*arr.numblocks):
-                if (".".join(map(str, index)) or "0") in done[name]:
+                if chunk_key(index) in done[name]:
                     self.n_done += 1
                 else:
                     self.pending.append((name, index))
@@ -125,8 +125,7 @@ class ChunkWrites:
         arr = self.arrays[name]
         block = Delayed((arr.name, *index), arr.__dask_graph__(), layer=arr.__dask_layers__()[0])
         region = tuple(slice(int(s[i]), int(s[i + 1])) for s, i in zip(self._starts[name], index))
-        key = ".".join(map(str, index)) or "0"
-        write = delayed(write_chunk, pure=True, name=f"write-{name}-{key}-{self.token}")
+        write = delayed(write_chunk, pure=True, name=f"write-{name}-{chunk_key(index)}-{self.token}")
         return write(block, self.url, name, self.token, index, region)
 
 

@@ -46,6 +46,15 @@ def registry() -> Registry:
     return Registry()
 
 
+@pytest.fixture(scope="module")
+def cluster():
+    """A real 2-worker ``distributed.LocalCluster`` (processes), shared by a test module."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as c, Client(c) as client:
+        yield c, client
+
+
 @pytest.fixture
 def write_graph(tmp_path):
     """Write YAML text to a file and return its path."""

@@ -94,14 +94,6 @@ def test_resume_after_sigkill_gives_identical_result(write_graph, registry, tmp_
     assert_stores_equal(tmp_path / "killed", tmp_path / "clean")
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    from distributed import Client, LocalCluster
-
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as c, Client(c) as client:
-        yield c, client
-
-
 def test_distributed_run_is_identical_to_local(write_graph, registry, tmp_path, cluster):
     _, client = cluster
     run(write_graph, registry, tmp_path / "local")

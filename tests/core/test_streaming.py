@@ -71,14 +71,6 @@ class MostTasks(SchedulerPlugin):
         self.most = max(self.most, len(self.scheduler.tasks))
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    from distributed import Client, LocalCluster
-
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as c, Client(c) as client:
-        yield c, client
-
-
 @pytest.mark.parametrize("node", ["register", "reflectance"])
 def test_the_scheduler_holds_a_window_not_the_scan(registry, tmp_path, cluster, node, monkeypatch):
     lc, client = cluster
