@@ -95,9 +95,13 @@ ParamMaps = ArtifactKind(
     "Per-texel BRDF-model parameters and error maps. Attributes: model, model_config, parameters (declarations).",
     (
         ArraySpec("params/*", "VUC", "float32", "one array per model parameter"),
-        ArraySpec("rms", "VU", "float32", "RMS residual of the fit over the texel's valid samples, sr^-1"),
+        ArraySpec("rms", "VU", "float32", "RMS residual of the fit over the texel's training samples, sr^-1"),
+        ArraySpec("rms_holdout", "VU", "float32", "RMS error at the texel's held-out samples (never fitted), sr^-1; "
+                  "NaN where none was held out", required=False),
         ArraySpec("samples", "VU", "int32", "number of valid samples the texel was fitted to"),
         ArraySpec("flags", "VU", "uint8", "why a fit is missing or doubtful: bits listed in attrs flag_bits (0 = fine)"),
+        ArraySpec("restarted", "VU", "uint8", "1 where the best fit came from a later start (multi-start)",
+                  required=False),
         ArraySpec("fit_time_s", "VU", "float32", "fitting time per texel (its tile's time shared out), s",
                   timing=True),
     ),

@@ -39,6 +39,10 @@ class ModelParameter:
         Value a fitter starts from and uses for texels with no valid samples.
     scope
         ``"texel"`` (a map) or ``"global"`` (one value for the material).
+    magnitude
+        f_r is affine in this parameter (ρ_d, ρ_s, F0): scaling it scales the
+        reflected energy, and a linear solve can find it for fixed lobe shapes
+        (:meth:`BRDFModel.refine_linear`, the energy bound in :mod:`sbrdf_core.constraints`).
     """
 
     name: str
@@ -49,6 +53,7 @@ class ModelParameter:
     scope: str = "texel"
     unit: str = ""
     doc: str = ""
+    magnitude: bool = False
 
 
 class BRDFModel:
@@ -152,12 +157,55 @@ class BRDFModel:
         return LeastSquaresProblem(self, f_r, weight, wi, wo)
 
     def refine_linear(self, params, f_r, valid, wi, wo) -> dict[str, np.ndarray]:
-        """Re-solve the parameters ``f_r`` depends on linearly, others fixed (default: unchanged).
+        """Re-solve the ``magnitude`` parameters (f_r is affine in them) with the lobe shapes fixed.
 
         Multi-start fitting draws the nonlinear shape at random; solving the
-        magnitudes for it puts each start near the data.
+        magnitudes for it puts each start near the data.  The default works for
+        any model whose RGB magnitudes act per channel: it probes the affine
+        basis with :meth:`eval` and solves a small least-squares system per
+        texel and channel, clipped to the declared bounds.
         """
-        return dict(params)
+        mags = [p for p in self.parameters if p.magnitude and p.channels == 3]
+        out = {k: np.array(v, dtype=np.float64) for k, v in params.items()}
+        if not mags:
+            return out
+        T = f_r.shape[0]
+        zero = {**out, **{p.name: np.zeros((T, 3)) for p in mags}}
+        with np.errstate(all="ignore"):
+            offset = self.eval(zero, wi, wo)
+            basis = np.stack([self.eval({**zero, p.name: np.ones((T, 3))}, wi, wo) - offset for p in mags], axis=-1)
+        w = np.asarray(valid, np.float64)[..., None, None] * np.isfinite(basis).all(axis=-1, keepdims=True)
+        basis = np.nan_to_num(basis) * w  # (T, S, 3, P)
+        rhs = np.einsum("tscp,tsc->tcp", basis, np.nan_to_num(f_r - offset) * w[..., 0])
+        A = np.einsum("tscp,tscq->tcpq", basis, basis)
+        A += (1e-12 * np.einsum("tcpp->tc", A)[..., None, None] + 1e-30) * np.eye(len(mags))
+        with np.errstate(all="ignore"):
+            sol = np.nan_to_num(np.linalg.solve(A, rhs[..., None])[..., 0])  # (T, 3, P)
+        for k, p in enumerate(mags):
+            out[p.name] = np.clip(sol[..., k], *p.bounds)
+        return out
+
+    def constrain(self, params, limits) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Project parameters into the set that keeps this model physical and bounded.
+
+        ``limits`` (:class:`sbrdf_core.constraints.Limits`) gives per texel the
+        largest f_r the data supports and the finest angular detail it
+        resolves.  Returns ``(params, changed)`` with ``changed`` a ``(T,)``
+        mask of the texels the projection moved.  Fitters call it on every
+        iteration (in the fit form), the Fit node once more on what any fitter
+        returns.  Default: clip to the declared bounds; models whose lobes can
+        grow without bound (Lafortune) or resolve finer than the sampling
+        (exponents, roughness) override it.
+        """
+        out, changed = {}, None
+        for p in self.parameters:
+            v = np.asarray(params[p.name], dtype=np.float64)
+            c = np.clip(v, *p.bounds)
+            moved = (c != v).any(axis=-1)
+            changed = moved if changed is None else changed | moved
+            out[p.name] = c
+        out.update({k: v for k, v in params.items() if k not in out})
+        return out, changed if changed is not None else np.zeros(0, bool)
 
     def defaults(self, T: int) -> dict[str, np.ndarray]:
         """Every parameter at its declared default, for ``T`` texels."""
@@ -252,6 +300,13 @@ class LogFitForm(BRDFModel):
 
     def initial_guess(self, f_r, valid, wi, wo):
         return self.from_model(self.model.initial_guess(f_r, valid, wi, wo))
+
+    def refine_linear(self, params, f_r, valid, wi, wo):
+        return self.from_model(self.model.refine_linear(self.to_model(params), f_r, valid, wi, wo))
+
+    def constrain(self, params, limits):
+        out, changed = self.model.constrain(self.to_model(params), limits)
+        return self.from_model(out), changed
 
     def fit_form(self):
         return self

@@ -1,6 +1,7 @@
 """``sbrdf``: run, validate, list plugins, inspect artifacts.
 
-    sbrdf run GRAPH [--scheduler tcp://host:8786] [--store URL] [--only NODE ...]
+    sbrdf run GRAPH [--scheduler tcp://host:8786] [--store URL] [--only NODE ...] [--wait [SECONDS]]
+    sbrdf verify STORE [--repair] [--wait [SECONDS]]
     sbrdf validate GRAPH
     sbrdf plugins [--category fitter]
     sbrdf info STORE_OR_ARTIFACT
@@ -45,12 +46,58 @@ def cmd_run(args) -> int:
 
     reg = _registry(args)
     g = load_graph(args.graph, reg, store=args.store)
-    runner = Runner(reg, scheduler=args.scheduler, num_workers=args.workers, progress=not args.quiet)
+    runner = Runner(reg, scheduler=args.scheduler, num_workers=args.workers, progress=not args.quiet, wait=args.wait)
     t0 = time.perf_counter()
     report = runner.run(g, only=args.only)
     print(report.table())
     print(f"graph {g.name!r} done in {time.perf_counter() - t0:.1f} s; artifacts in {g.store}")
     return 0
+
+
+def cmd_verify(args) -> int:
+    """Read every chunk of every artifact; say what is damaged and what a re-run recomputes.
+
+    Exit status 1 when anything is damaged (0 when all is sound).  With
+    ``--repair`` the damage is turned into work for the next run (done markers
+    of bad chunks dropped, broken artifacts removed); without it nothing is written.
+    """
+    from .integrity import StoreLock, artifact_dirs, check_artifact, repair
+    from .store import open_artifact
+
+    urls = artifact_dirs(args.store)
+    if not urls:
+        raise SbrdfError(f"{args.store}: no sbrdf artifacts here")
+    damaged = 0
+    with StoreLock(args.store, args.wait, "sbrdf verify"):
+        for url in urls:
+            node = url.rstrip("/").rsplit("/", 1)[-1]
+            try:
+                art = open_artifact(url, require_complete=False)
+                kind, complete = art.kind, art.complete
+            except SbrdfError:
+                kind, complete = "?", True
+            if not complete:
+                print(f"{url}  {kind}  incomplete (an interrupted run): a re-run resumes it")
+                continue
+            d = check_artifact(url, full=True)
+            if not d:
+                print(f"{url}  {kind}  ok")
+                continue
+            damaged += 1
+            print(f"{url}  {kind}  DAMAGED")
+            for p in d.problems:
+                print(f"    {p}")
+            if args.repair:
+                repair(d, args.store, node)
+                print(f"    repaired: the next run recomputes {d.plan()} of node {node!r}")
+            elif d.deep:
+                print(f"    a re-run does not see this (it reads no chunk of a cached artifact): "
+                      f"`sbrdf verify --repair {args.store}` marks it, then a re-run recomputes {d.plan()} of node {node!r}")
+            else:
+                print(f"    a re-run recomputes {d.plan()} of node {node!r}")
+    print(f"{args.store}: {len(urls)} artifacts, {damaged} damaged"
+          + ("; nodes downstream of a recomputed one stay cached (same inputs, same token)" if damaged else ""))
+    return 1 if damaged else 0
 
 
 def cmd_plugins(args) -> int:
@@ -170,7 +217,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--store", default=None, help="override the graph's store")
     p.add_argument("--only", nargs="+", help="run only these nodes (and what they need)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--wait", type=float, nargs="?", const=True, default=False, metavar="SECONDS",
+                   help="if another run holds the store, wait for it (for ever, or SECONDS) instead of refusing")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("verify", help="read every chunk of a store's artifacts; report damage (exit 1) and what a re-run recomputes")
+    p.add_argument("store")
+    p.add_argument("--repair", action="store_true",
+                   help="drop the done markers of damaged chunks (remove broken artifacts) so the next run recomputes them")
+    p.add_argument("--wait", type=float, nargs="?", const=True, default=False, metavar="SECONDS",
+                   help="wait for a run holding the store instead of refusing")
+    p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("validate", help="check a graph without running anything")
     p.add_argument("graph")

@@ -9,7 +9,8 @@ A graph file::
       register: {kind: Register, plugin: texel-aligned, in: {capture: capture}}
 
 Every problem is collected and reported together, each with file and line:
-syntax errors, unknown top-level or node keys, duplicate names, unknown node
+syntax errors, unknown top-level or node keys, duplicate names, node names
+that are not identifiers (:data:`sbrdf_core.store.NODE_NAME`), unknown node
 kinds or plugins (listing the known ones), unknown, missing or ill-typed
 parameters (listing the accepted ones with types and defaults), missing,
 unknown or mistyped inputs, cycles, and stores that cannot be opened.
@@ -29,8 +30,9 @@ from . import _yaml
 from .errors import GraphError, Problem
 from .params import Param, resolve
 from .registry import Registry, default_registry
+from .store import NODE_NAME
 
-TOP_KEYS = ("name", "store", "nodes", "description")
+TOP_KEYS = ("name", "store", "nodes", "description", "limits")
 NODE_KEYS = ("kind", "plugin", "in", "params", "doc")
 
 
@@ -75,9 +77,11 @@ def load_graph(source: str | os.PathLike, registry: Registry | None = None, stor
     else:
         path = Path(src)
         try:
-            text = path.read_text()
+            text = _yaml.read_text(path)  # UTF-8 (or UTF-16/32 with a BOM); a binary or Latin-1 file is a file:line error
         except OSError as e:
             raise GraphError([Problem(f"cannot read graph file: {e.strerror}", str(path))]) from None
+        except yaml.YAMLError as e:
+            raise GraphError([_yaml.syntax_problem(e, str(path))]) from None
         file, base = str(path), path.resolve().parent
     return _Validator(text, file, base, registry, store).run()
 
@@ -119,6 +123,7 @@ class _Validator:
                 nodes[node.name] = node
         self._edges(nodes, raw_nodes)
         order = self._topological(nodes)
+        self._estimate(doc.get("limits"), nodes, order, store)
         if self.problems:
             raise GraphError(sorted(self.problems, key=lambda p: (p.line or 0, p.message)))
         return Graph(
@@ -130,6 +135,17 @@ class _Validator:
             description=str(doc.get("description", "")),
             text=self.text,
         )
+
+    def _estimate(self, raw_limits: Any, nodes: dict[str, Node], order: list[str], store: str) -> None:
+        """Each node's output bytes and peak memory against free disk and ``limits:`` (:mod:`.estimate`)."""
+        from . import estimate
+
+        limits, problems = estimate.limits_from(raw_limits)
+        for key, msg in problems:
+            self.problem(msg, ("limits", key) if key else ("limits",))
+        if not self.problems and store:
+            for name, msg in estimate.check(nodes, order, store, limits)[1]:
+                self.problem(msg, ("nodes", name) if name else ("nodes",))
 
     # -- store ----------------------------------------------------------------
 
@@ -169,6 +185,10 @@ class _Validator:
 
     def _node(self, name: str, decl: Any) -> Node | None:
         path = ("nodes", name)
+        if not NODE_NAME.fullmatch(name):  # it becomes <store>/<name>: no way out of the store
+            self.problem(f"node name {name!r} is not an identifier (a letter or '_', then up to 63 letters, "
+                         f"digits, '_' or '-')", path)
+            return None
         if not isinstance(decl, dict):
             self.problem(f"node {name!r} must be a mapping with 'kind' (and 'plugin', 'in', 'params')", path)
             return None
@@ -212,6 +232,9 @@ class _Validator:
             params = self._params(declared, raw_params, owner, path + ("params",))
             if spec is not None and len(self.problems) == before:
                 self._check_combination(spec, params, owner, path + ("params",))
+            elif spec is None and len(self.problems) == before and callable(getattr(kind, "check_params", None)):
+                for key, msg in kind.check_params(params):  # a node kind's own files (MeasuredTable's table)
+                    self.problem(f"{owner}: {msg}", path + ("params", key) if key else path + ("params",))
         inputs = decl.get("in", {}) or {}
         if not isinstance(inputs, dict):
             self.problem(f"node {name!r}: 'in' must map input ports to node names", path + ("in",))

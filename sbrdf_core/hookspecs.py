@@ -228,6 +228,12 @@ def sbrdf_scene_effects() -> list[PluginSpec]:
         - ``options(scene) -> dict`` (static): the effect's parameter values
           taken from the scene file, validated against the spec's ``params``
           when the renderer constructs it (``impl(**values)``).
+        - ``check(scene) -> list[str]`` (optional): cheap checks of what
+          ``prepare`` will need (files exist and can be read, scene-level
+          conditions), run on the constructed effect when a graph that
+          renders the scene is validated, so a render does not fail after
+          the nodes upstream of it computed.  Constructors must stay cheap
+          (store and check options; load in ``prepare``): they run then too.
         - ``prepare(scene, materials, gl_context=None)``: load data and
           precompute (maps, buffers); ``materials`` are the scene's resolved
           materials by name; ``gl_context`` is given by the ``gl`` renderer,

@@ -8,6 +8,7 @@ its implementation is constructed with.
 
 from __future__ import annotations
 
+import math
 import numbers
 import re
 from collections.abc import Mapping, Sequence
@@ -62,6 +63,12 @@ class Param:
         Unit of the value (``mm``, ``s``, ``sr^-1``), shown in docs.
     nullable
         Whether ``null`` is accepted (meaning "not set").
+    nonfinite
+        Whether NaN and ±infinity are accepted (in the value and, for ``list``,
+        ``dict`` and ``any``, anywhere inside it).  Off by default: YAML's
+        ``.nan``, ``.inf`` and an overflowing ``1e400`` are refused with the
+        parameter named, since a bounds check cannot catch them (``nan < lo``
+        is false).
     """
 
     name: str
@@ -75,6 +82,7 @@ class Param:
     unit: str = ""
     nullable: bool = False
     extra: Mapping[str, Any] = field(default_factory=dict)
+    nonfinite: bool = False
 
     def __post_init__(self) -> None:
         if self.type not in _TYPE_NAMES:
@@ -110,6 +118,12 @@ class Param:
                 raise ParameterError(f"parameter {self.name!r} needs {self.length} items, got {len(value)}")
             if self.item:
                 value = [_coerce(self.item, v, f"{self.name}[{i}]") for i, v in enumerate(value)]
+        if not self.nonfinite:
+            bad = _nonfinite(value)
+            if bad is not None:
+                where = f" (at {self.name}{bad[0]})" if bad[0] else ""
+                raise ParameterError(f"parameter {self.name!r} is not a finite number{where}: {bad[1]!r}; "
+                                     "NaN and infinity are not accepted here")
         if self.choices is not None and value not in self.choices:
             raise ParameterError(f"parameter {self.name!r} is {value!r}; expected one of {list(self.choices)}")
         if self.bounds is not None:
@@ -119,6 +133,25 @@ class Param:
                 if (lo is not None and v < lo) or (hi is not None and v > hi):
                     raise ParameterError(f"parameter {self.name!r} = {v!r} is outside [{lo}, {hi}]")
         return value
+
+
+def _nonfinite(value: Any, where: str = "", depth: int = 0) -> tuple[str, float] | None:
+    """The first NaN or infinity in ``value`` (a number, or inside lists and mappings) as ``(where, value)``."""
+    if isinstance(value, numbers.Real) and not isinstance(value, (bool, numbers.Integral)):
+        return None if math.isfinite(value) else (where, value)
+    if depth > 64:
+        return None
+    if isinstance(value, Mapping):
+        items = ((f"{where}.{k}", v) for k, v in value.items())
+    elif isinstance(value, Sequence) and not isinstance(value, (str, bytes)):
+        items = ((f"{where}[{i}]", v) for i, v in enumerate(value))
+    else:
+        return None
+    for w, v in items:
+        bad = _nonfinite(v, w, depth + 1)
+        if bad is not None:
+            return bad
+    return None
 
 
 _YAML11_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")

@@ -5,8 +5,11 @@ For each node, in dependency order:
 1. open its inputs (complete artifacts only) and construct its plugin;
 2. compute its *token*: ``tokenize`` of node kind, plugin name and version,
    parameters, the plugin's fingerprint and the input tokens;
-3. if the artifact at ``<store>/<node>`` is complete with that token, skip it
-   (cached); if it is partial with that token, resume; otherwise start fresh;
+3. if the artifact at ``<store>/<node>`` is complete with that token and
+   passes the cheap integrity check (:func:`sbrdf_core.integrity.check_artifact`),
+   skip it (cached); if it is damaged, drop what is damaged and recompute it
+   (noted in the report); if it is partial with that token, resume; otherwise
+   start fresh;
 4. ``build`` the lazy output, and write only the chunks without a done
    marker, each in its own dask task (:func:`sbrdf_core.store.write_chunk`);
 5. finalize and mark the artifact complete.
@@ -15,11 +18,18 @@ Execution is on dask's threaded scheduler by default, or on a
 ``dask.distributed`` cluster given its address.  A lost worker's tasks are
 recomputed elsewhere by distributed; writes are idempotent, so results are
 identical.
+
+The whole run holds the store's lock (:class:`~sbrdf_core.integrity.StoreLock`):
+a second run on the same store is refused at once, naming the holder, or
+waits (``wait``).  A chunk of an input that fails its checksum stops the node
+with a :class:`~sbrdf_core.store.ChunkError` naming artifact, array and chunk;
+the chunk's done marker is dropped first, so a re-run recomputes it.
 """
 
 from __future__ import annotations
 
 import getpass
+import logging
 import platform
 import socket
 import sys
@@ -36,12 +46,15 @@ from .errors import RunError, SbrdfError
 from .graph import Graph, Node
 from .nodes.base import BuildContext, Output
 from .registry import Registry, default_registry
-from .store import ArrayLayout, ArtifactWriter, chunk_key, open_artifact, write_chunk
+from .integrity import StoreLock, check_artifact, drop_chunks, repair
+from .store import ArrayLayout, ArtifactWriter, ChunkError, chunk_key, inside_store, open_artifact, write_chunk
 from .streaming import chunk_groups
 
 #: Chunk groups of a streamed node (:attr:`Output.stream`) in flight per worker
 #: thread on a cluster: one running and one queued, so no thread waits for the runner.
 STREAM_GROUPS_PER_THREAD = 2
+
+log = logging.getLogger("sbrdf.runner")
 
 #: progress(node, done, total) is called after every chunk written.
 ProgressFn = Callable[[str, int, int], None]
@@ -59,6 +72,8 @@ class NodeReport:
     wall_s: float = 0.0
     url: str = ""
     token: str = ""
+    #: What the run found and did beyond the status (a damaged cached artifact recomputed).
+    notes: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -74,6 +89,7 @@ class RunReport:
         for r in self.nodes:
             chunks = f"{r.chunks_written}/{r.chunks_total}" + (f" +{r.chunks_resumed}" if r.chunks_resumed else "")
             rows.append(f"{r.node:<14} {r.status:<9} {chunks:>13} {r.wall_s:>8.2f}  {r.url}")
+            rows.extend(f"  ! {note}" for note in r.notes)
         return "\n".join(rows)
 
 
@@ -145,6 +161,9 @@ class Runner:
         callable ``progress(node, done, total)``.
     no_worker_timeout
         Seconds a distributed run waits with no workers at all before failing.
+    wait
+        When another run holds the store: ``False`` refuses at once, ``True``
+        waits, a number waits that many seconds.
     """
 
     def __init__(
@@ -154,12 +173,14 @@ class Runner:
         num_workers: int | None = None,
         progress: bool | ProgressFn = False,
         no_worker_timeout: float = 60.0,
+        wait: bool | float = False,
     ):
         self.registry = registry or default_registry()
         self.scheduler = scheduler
         self.num_workers = num_workers
         self.progress = progress
         self.no_worker_timeout = no_worker_timeout
+        self.wait = wait
         self._client = None
 
     # -- public -----------------------------------------------------------------
@@ -174,9 +195,10 @@ class Runner:
         report = RunReport(graph.name)
         wanted = self._closure(graph, only)
         try:
-            for node in graph.nodes.values():
-                if node.name in wanted:
-                    report.nodes.append(self._run_node(graph, node))
+            with StoreLock(graph.store, self.wait, f"graph {graph.name!r}"):
+                for node in graph.nodes.values():
+                    if node.name in wanted:
+                        report.nodes.append(self._run_node(graph, node))
         finally:
             if self._client is not None and isinstance(self.scheduler, str):
                 self._client.close()
@@ -186,9 +208,20 @@ class Runner:
     # -- one node -------------------------------------------------------------------
 
     def _run_node(self, graph: Graph, node: Node) -> NodeReport:
+        try:
+            return self._run_node_inner(graph, node)
+        except ChunkError as e:
+            # Whether the chunk was an input's or this node's own: drop its marker so a re-run rewrites it.
+            inside_store(graph.store, e.url)
+            drop_chunks(e.url, {e.array: set(e.keys) or None})
+            raise RunError(f"node {node.name!r}: {e}. Its done marker was dropped: re-run the graph to "
+                           f"recompute it") from None
+
+    def _run_node_inner(self, graph: Graph, node: Node) -> NodeReport:
         t0 = time.perf_counter()
-        url = graph.url(node.name)
-        inputs = {port: open_artifact(graph.url(src), kind=node.kind.port(port).kinds) for port, src in node.inputs.items()}
+        url = inside_store(graph.store, graph.url(node.name))
+        inputs = {port: open_artifact(inside_store(graph.store, graph.url(src)), kind=node.kind.port(port).kinds)
+                  for port, src in node.inputs.items()}
         spec = plugin = None
         plugin_params = node.params
         if node.kind.plugin_category is not None:
@@ -205,12 +238,18 @@ class Runner:
                 raise RunError(f"node {node.name!r}: plugin {node.plugin!r} rejected its parameters: {e}") from e
         ctx = BuildContext(node.name, dict(node.params), inputs, plugin, spec, self.registry, url)
         token = node_token(node, spec.version if spec else __version__, inputs, node.kind.fingerprint(ctx))
-        writer = ArtifactWriter(url, node.kind.output, token)
+        writer = ArtifactWriter(url, node.kind.output, token, store=graph.store, node=node.name)
         state = writer.state()
         rep = NodeReport(node.name, "cached", url=url, token=token)
-        if state == "complete":
-            rep.wall_s = time.perf_counter() - t0
-            return rep
+        if state == "complete" or (state == "missing" and writer.fs.exists(writer.root)):
+            damage = check_artifact(url)
+            if not damage:
+                rep.wall_s = time.perf_counter() - t0
+                return rep
+            note = f"damaged: {'; '.join(damage.problems)}; recomputing {damage.plan()}"
+            log.warning("node %r: %s", node.name, note)
+            rep.notes.append(note)
+            repair(damage, graph.store, node.name)
         try:
             out = self._build(node, ctx)
         except SbrdfError:
@@ -367,6 +406,8 @@ class Runner:
                 if f.status == "error":
                     client.cancel(list(pending))
                     exc = f.exception()
+                    if isinstance(exc, ChunkError):
+                        raise exc
                     raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
                 if f.status != "finished":  # cancelled or lost: its chunks were not written
                     client.cancel(list(pending))

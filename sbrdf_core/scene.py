@@ -315,9 +315,11 @@ def load_scene(source: str | Path, material_names: tuple[str, ...] = ()) -> Scen
         text, file, base = src, "<scene>", Path.cwd()
     else:
         try:
-            text = Path(src).read_text()
+            text = _yaml.read_text(src)
         except OSError as e:
             raise SceneError([Problem(f"cannot read scene file: {e.strerror}", src)]) from None
+        except yaml.YAMLError as e:
+            raise SceneError([_yaml.syntax_problem(e, src)]) from None
         file, base = src, Path(src).resolve().parent
     return _SceneValidator(text, file, base).run()
 
@@ -368,8 +370,10 @@ class _SceneValidator:
         env = None
         if doc.get("environment") is not None:
             e = self.params(ENVIRONMENT, doc["environment"], "environment", ("environment",))
-            if "file" in e:
+            if len(e) == len(ENVIRONMENT):  # every key valid (a bad one is reported; no KeyError)
                 env = Environment(self.path(e["file"]), e["layout"], e["intensity"], e["options"])
+                if "://" not in env.file and not Path(env.file).is_file():
+                    self.problem(f"environment: file {env.file} does not exist", ("environment", "file"))
         shadows = doc.get("shadows", False)
         if not isinstance(shadows, bool):
             self.problem(f"shadows must be true or false, got {shadows!r}", ("shadows",))
@@ -477,13 +481,57 @@ class _SceneValidator:
         return out
 
 
-def check_scene_param(params) -> list[tuple[str, str]]:
-    """``check_params`` for renderers taking a ``scene`` file: its problems, reported at graph load."""
+def check_scene_param(params, registry=None) -> list[tuple[str, str]]:
+    """``check_params`` for renderers taking a ``scene`` file: its problems, reported at graph load.
+
+    Beyond the file itself (:func:`load_scene`): the scene effects it wants,
+    constructed from their options and asked to ``check`` their files
+    (:func:`effect_problems`), so a bad option or a missing environment map
+    is an error before anything runs, not after the upstream nodes computed.
+    """
     try:
-        load_scene(params["scene"])
+        scene = load_scene(params["scene"])
     except SceneError as e:
         return [("scene", "; ".join(str(p) for p in e.problems))]
-    return []
+    return [("scene", msg) for msg in effect_problems(scene, registry)]
+
+
+def effect_problems(scene: Scene, registry=None) -> list[str]:
+    """What would stop a renderer constructing the scene's effects, found without rendering.
+
+    Every installed scene effect the scene wants is constructed from its
+    options (a constructor only stores and checks them); one that defines
+    ``check(scene) -> [message]`` then checks what it will read (an
+    environment map's file).  Effects named in ``effects:`` that no plugin
+    provides, and ``environment:`` or ``reflector: true`` without their
+    effect, are reported too.
+    """
+    from .registry import default_registry
+
+    registry = registry if registry is not None else default_registry()
+    out: list[str] = []
+    provided: set[str] = set()
+    for name in registry.names("scene-effect"):
+        try:
+            cls = registry.load(registry.get("scene-effect", name))
+            if not cls.wanted(scene):
+                continue
+            provided.add(name)
+            effect = registry.create("scene-effect", name, cls.options(scene))
+            check = getattr(effect, "check", None)
+            out += [f"{scene.file}: scene effect {name!r}: {m}" for m in (check(scene) if callable(check) else [])]
+        except SbrdfError as e:
+            msg = str(e)
+            out.append(f"{scene.file}: " + (msg if msg.startswith("scene-effect ") else f"scene effect {name!r}: {msg}"))
+    if scene.environment is not None and "environment" not in provided:
+        out.append(f"{scene.file}: environment lighting needs the environment scene effect, which is not installed")
+    if any(o.params.get("reflector") for o in scene.objects) and "mirror" not in provided:
+        out.append(f"{scene.file}: reflector: true needs the mirror scene effect, which is not installed")
+    missing = sorted(set(scene.effects) - provided)
+    if missing:
+        out.append(f"{scene.file}: effects: no installed scene effect provides {missing} "
+                   "(see `sbrdf plugins --category scene-effect`)")
+    return out
 
 
 def scene_fingerprint(path: str) -> str:

@@ -14,14 +14,32 @@ Every artifact is a zarr group with attributes
 Chunks are written by dask tasks, each followed by a *done marker*: one chunk
 of the array ``_done/<name>``, whose grid mirrors the data array's chunk grid.  A run killed part-way leaves the markers of the
 chunks it finished, and a re-run with the same token writes only the others.
-The marker, not the chunk file, is the proof: zarr skips chunks that equal the
-fill value and a killed writer can leave a torn chunk file, but a marker is
-only created after its chunk was written whole.
+The marker, not the chunk file, is the proof: a killed writer can leave a torn
+chunk file, but a marker is only created after its chunk was written whole.
+
+Integrity (docs/reliability.md).  Every array is written with a ``crc32c``
+codec after ``zstd`` in its codec chain, so a damaged chunk fails to decode
+instead of reading back as other numbers, and every chunk is written even when
+it equals the fill value, so a missing chunk file means a lost chunk, not an
+empty one.  Arrays opened through :class:`Artifact` raise
+:class:`ChunkError` naming the artifact, array and chunk.  The group records
+the ``layout`` its node declared (shape, chunks, dtype per array), against
+which :mod:`sbrdf_core.integrity` checks a cached artifact before reuse.
+
+Confinement.  A node writes only below ``<store>/<node>``: names are checked
+against :data:`NODE_NAME` at validation, every artifact path is proven inside
+the store by :func:`inside_store`, and a directory is removed only when it
+carries this node's marker file (:data:`ARTIFACT_MARKER`) or its group
+attributes name this node.
 """
 
 from __future__ import annotations
 
+import itertools
+import json
 import math
+import os
+import posixpath
 import re
 import threading
 from collections import OrderedDict
@@ -40,6 +58,9 @@ __all__ = [
     "Artifact",
     "ArrayLayout",
     "ArtifactWriter",
+    "ChunkError",
+    "NODE_NAME",
+    "inside_store",
     "open_artifact",
     "pose_major_chunks",
     "texel_tile",
@@ -48,6 +69,24 @@ __all__ = [
 
 MARKERS = "_done"
 
+#: What a node name may be: it becomes a directory of the store, so no path
+#: separators, no ``.``/``..``, nothing empty, and short enough for any file system.
+NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,63}")
+
+#: File in each artifact directory naming the node that owns it: the proof
+#: that a directory may be removed (a directory with a ``zarr.json`` is not).
+ARTIFACT_MARKER = ".sbrdf-artifact"
+
+#: Array names (``params/rho_d``): relative, no ``.``/``..`` components.
+_ARRAY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*(/[A-Za-z0-9_][A-Za-z0-9_-]*)*")
+
+
+def _codecs():
+    """zstd, then a crc32c checksum of the compressed bytes (zstd's own checksum is off)."""
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    return [ZstdCodec(level=0, checksum=False), Crc32cCodec()]
+
 
 def _fs(url: str) -> tuple[fsspec.AbstractFileSystem, str]:
     return fsspec.core.url_to_fs(url)
@@ -55,6 +94,43 @@ def _fs(url: str) -> tuple[fsspec.AbstractFileSystem, str]:
 
 def join(url: str, *parts: str) -> str:
     return "/".join([url.rstrip("/"), *[p.strip("/") for p in parts]])
+
+
+def _is_local(fs) -> bool:
+    return "file" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,))
+
+
+def inside_store(store: str, url: str) -> str:
+    """Return ``url`` once proven strictly inside ``store``; raise :class:`ArtifactError` otherwise.
+
+    Every path the runner writes or deletes goes through here first.  Local
+    paths are resolved (``..`` and symbolic links) before the comparison, so
+    neither a node name nor a link planted in the store leads out of it; the
+    store root itself is refused too (writing a group there wipes the store).
+    """
+    fs, root = _fs(store)
+    fs2, path = _fs(url)
+    if _is_local(fs) != _is_local(fs2):
+        raise ArtifactError(f"{url} is not in the store {store}; refusing to write or delete there")
+    if _is_local(fs):
+        root, path = os.path.realpath(root), os.path.realpath(path)
+    else:
+        root, path = posixpath.normpath("/" + root.lstrip("/")), posixpath.normpath("/" + path.lstrip("/"))
+    if path == root or os.path.commonpath([root, path]) != root:
+        raise ArtifactError(f"{url} resolves to {path}, outside the store {root}; refusing to write or delete there")
+    return url
+
+
+class ChunkError(ArtifactError):
+    """A stored chunk cannot be read back: checksum mismatch, torn or foreign bytes."""
+
+    def __init__(self, url: str, array: str, keys: list[str], cause: str):
+        self.url, self.array, self.keys, self.cause = url, array, list(keys), cause
+        where = f"chunk{'s' if len(keys) > 1 else ''} {', '.join(keys)}" if keys else "a chunk"
+        super().__init__(f"damaged artifact {url}: array {array!r}, {where}: {cause}")
+
+    def __reduce__(self):  # distributed pickles exceptions raised on workers
+        return ChunkError, (self.url, self.array, self.keys, self.cause)
 
 
 # ---------------------------------------------------------------------------
@@ -115,18 +191,23 @@ class Artifact:
         return sorted(name for name, m in members(self.group)
                       if isinstance(m, zarr.Array) and not name.startswith(MARKERS))
 
-    def zarr_array(self, name: str) -> zarr.Array:
+    def zarr_array(self, name: str) -> CheckedArray:
+        """The stored array; reads that fail to decode raise :class:`ChunkError`."""
         try:
-            return self.group[name]
+            z = self.group[name]
         except KeyError:
             raise ArtifactError(f"{self.kind} at {self.url} has no array {name!r}; it has {self.names()}") from None
+        except Exception as e:  # an unreadable zarr.json
+            raise ArtifactError(f"damaged artifact {self.url}: array {name!r} metadata cannot be read: {e}") from None
+        return CheckedArray(z, self.url, name)
 
     def array(self, name: str):
         """Lazy dask array over the stored chunks (nothing is read yet)."""
         import dask.array as da
 
         z = self.zarr_array(name)
-        return da.from_zarr(z, name=f"read-{name}-{self.token or 'x'}-{self.url}")
+        return da.from_array(z, chunks=z.chunks, name=f"read-{name}-{self.token or 'x'}-{self.url}",
+                             asarray=False, fancy=False, meta=np.empty((0,) * z.ndim, z.dtype))
 
     def read(self, name: str) -> np.ndarray:
         """Read a (small) array into memory."""
@@ -139,6 +220,62 @@ class Artifact:
     def __repr__(self) -> str:
         state = "complete" if self.complete else "INCOMPLETE"
         return f"<{self.kind} v{self.version} {state} at {self.url}>"
+
+
+class CheckedArray:
+    """A zarr array whose reads name the damaged chunk when decoding fails.
+
+    zarr reports a checksum mismatch as a bare ``ValueError``; raised inside a
+    node's task it would name neither the artifact nor the chunk.  Everything
+    but ``[...]`` is the underlying :class:`zarr.Array`.
+    """
+
+    def __init__(self, z: zarr.Array, url: str, name: str):
+        self.z, self.url, self.name = z, url, name
+
+    def __getattr__(self, attr):
+        if attr.startswith("__") or attr in ("z", "url", "name"):  # unpickling: not yet set
+            raise AttributeError(attr)
+        return getattr(self.z, attr)
+
+    def __len__(self) -> int:
+        return len(self.z)
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self[...], dtype=dtype)
+
+    def __getitem__(self, sel):
+        try:
+            return self.z[sel]
+        except (IndexError, TypeError):  # a bad selection, not a damaged chunk
+            raise
+        except Exception as e:
+            cause = "crc32c checksum mismatch" if "checksum" in str(e) else f"{type(e).__name__}: {e}"
+            raise ChunkError(self.url, self.name, self._bad_chunks(sel), cause) from None
+
+    def _bad_chunks(self, sel) -> list[str]:
+        """The stored chunks (shards) overlapping ``sel`` that fail on their own; at most 8 tried bad."""
+        step = self.z.shards or self.z.chunks
+        sel = sel if isinstance(sel, tuple) else (sel,)
+        ranges = []
+        for axis, (n, c) in enumerate(zip(self.z.shape, step)):
+            s = sel[axis] if axis < len(sel) and sel[axis] is not Ellipsis else slice(None)
+            if isinstance(s, (int, np.integer)):
+                s = slice(int(s) % n, int(s) % n + 1)
+            if not isinstance(s, slice):
+                s = slice(None)
+            lo, hi, _ = s.indices(n)
+            ranges.append(range(lo // c, max(lo // c, (hi - 1) // c) + 1) if hi > lo else range(0))
+        bad = []
+        for index in itertools.product(*ranges):
+            region = tuple(slice(i * c, min((i + 1) * c, n)) for i, c, n in zip(index, step, self.z.shape))
+            try:
+                self.z[region]
+            except Exception:
+                bad.append(chunk_key(index))
+                if len(bad) == 8:
+                    break
+        return bad
 
 
 def members(group: zarr.Group):
@@ -202,6 +339,11 @@ class ArrayLayout:
     def nchunks(self) -> int:
         return int(np.prod(self.grid)) if self.shape else 1
 
+    def record(self) -> dict:
+        """What the group's ``layout`` attribute keeps of it (JSON)."""
+        return {"shape": list(self.shape), "chunks": list(self.chunks), "dtype": str(np.dtype(self.dtype)),
+                "inner": list(self.inner) if self.inner else None}
+
 
 def chunk_key(index: tuple[int, ...]) -> str:
     return ".".join(map(str, index)) or "0"
@@ -214,43 +356,101 @@ def _marker_name(name: str) -> str:
     return f"{MARKERS}/{name.replace('/', '.')}"
 
 
-class ArtifactWriter:
-    """Creates or resumes one artifact and tracks which chunks are done."""
+def done_keys(fs, root: str, name: str) -> set[str]:
+    """Chunk keys of array ``name`` of the artifact at ``root`` whose done marker exists."""
+    path = join(root, _marker_name(name), "c")
+    try:
+        found = fs.find(path)
+    except FileNotFoundError:
+        return set()
+    keys = (p[len(path) + 1:].replace("/", ".") for p in found)
+    return {k for k in keys if _CHUNK_KEY.fullmatch(k)}
 
-    def __init__(self, url: str, kind: ArtifactKind, token: str):
+
+class ArtifactWriter:
+    """Creates or resumes one artifact and tracks which chunks are done.
+
+    ``store`` is the store the artifact belongs to and ``node`` its node name
+    (by default the parent directory and the last path component of ``url``):
+    nothing outside the store is written, and only a directory marked as this
+    node's artifact is removed.
+    """
+
+    def __init__(self, url: str, kind: ArtifactKind, token: str, store: str | None = None, node: str | None = None):
         self.url = url
         self.kind = kind
         self.token = token
+        self.store = store if store is not None else url.rstrip("/").rsplit("/", 1)[0]
+        self.node = node if node is not None else url.rstrip("/").rsplit("/", 1)[-1]
         self.fs, self.root = _fs(url)
+
+    def attrs(self) -> dict | None:
+        try:
+            return dict(zarr.open_group(store=self.url, mode="r").attrs)
+        except Exception:
+            return None
 
     def state(self) -> str:
         """``missing``, ``complete`` (same token), ``partial`` (same token) or ``stale``."""
         if not self.fs.exists(join(self.root, "zarr.json")):
             return "missing"
-        try:
-            attrs = dict(zarr.open_group(store=self.url, mode="r").attrs)
-        except Exception:
-            return "stale"
-        if attrs.get("token") != self.token or attrs.get("kind") != self.kind.kind:
+        attrs = self.attrs()
+        if attrs is None or attrs.get("token") != self.token or attrs.get("kind") != self.kind.kind:
             return "stale"
         return "complete" if attrs.get("complete") else "partial"
 
+    def owned(self) -> bool:
+        """Whether the directory is this node's artifact: its marker file, or (stores written
+        before markers) group attributes of an sbrdf kind whose provenance names this node."""
+        try:
+            with self.fs.open(join(self.root, ARTIFACT_MARKER), "r") as f:
+                return json.load(f).get("node") == self.node
+        except Exception:
+            pass
+        attrs = self.attrs() or {}
+        node = attrs.get("node", (attrs.get("provenance") or {}).get("node"))
+        return attrs.get("kind") in KINDS and node == self.node
+
+    def remove(self) -> None:
+        """Delete the artifact, once proven inside the store and this node's."""
+        inside_store(self.store, self.url)
+        if not self.fs.exists(self.root):
+            return
+        if not self.owned():
+            raise ArtifactError(f"{self.url} exists but is not the artifact of node {self.node!r} "
+                                f"(no {ARTIFACT_MARKER} naming it); refusing to delete it: move it away")
+        self.fs.rm(self.root, recursive=True)
+
     def prepare(self, layouts: Mapping[str, ArrayLayout], attrs: Mapping[str, Any]) -> dict[str, set[str]]:
         """Create the group and arrays (or keep a partial one); return done chunk keys per array."""
+        inside_store(self.store, self.url)
+        for name in layouts:
+            if not _ARRAY_NAME.fullmatch(name) or name.split("/")[0] == MARKERS:
+                raise ArtifactError(f"{self.url}: output array name {name!r} is not a relative name of "
+                                    f"letters, digits, '_', '-' and '/'")
+        record = {name: lay.record() for name, lay in layouts.items()}
         state = self.state()
+        if state == "partial" and (self.attrs() or {}).get("layout", record) != record:
+            state = "stale"  # the node now declares other shapes: its chunks do not fit
         if state == "partial":
             for leftover in (p for p in self.fs.find(self.root) if p.endswith(".partial")):
                 self.fs.rm(leftover)  # a killed writer's temporary file; its chunk is rewritten
-            return {name: self.done(name) for name in layouts}
-        if state in ("stale", "complete"):
-            self.fs.rm(self.root, recursive=True)
-        group = zarr.open_group(store=self.url, mode="w")
+            from .integrity import written
+
+            # A marker whose chunk file is gone proves nothing any more: rewrite that chunk.
+            return {name: self.done(name) & written(self.fs, self.root, name, lay) for name, lay in layouts.items()}
+        if state != "missing" or self.fs.exists(self.root):
+            self.remove()
+        group = zarr.open_group(store=self.url, mode="w", attributes={
+            **attrs, "kind": self.kind.kind, "version": self.kind.version, "token": self.token, "complete": False,
+            "node": self.node, "layout": record})
+        self.fs.pipe(join(self.root, ARTIFACT_MARKER), json.dumps({"node": self.node, "kind": self.kind.kind}).encode())
         for name, lay in layouts.items():
             group.create_array(name, shape=lay.shape, chunks=lay.inner or lay.chunks, shards=lay.chunks if lay.inner else None,
-                               dtype=lay.dtype, fill_value=lay.fill_value)
+                               dtype=lay.dtype, fill_value=lay.fill_value, compressors=_codecs())
             grid = lay.grid or (1,)
-            group.create_array(_marker_name(name), shape=grid, chunks=(1,) * len(grid), dtype="uint8", fill_value=0)
-        group.attrs.update({**attrs, "kind": self.kind.kind, "version": self.kind.version, "token": self.token, "complete": False})
+            group.create_array(_marker_name(name), shape=grid, chunks=(1,) * len(grid), dtype="uint8", fill_value=0,
+                               compressors=_codecs())
         return {name: set() for name in layouts}
 
     def done(self, name: str) -> set[str]:
@@ -258,22 +458,21 @@ class ArtifactWriter:
         marker torn by a killed writer still proves its data chunk was complete.  A
         killed writer can also leave zarr's temporary ``<key>.<uuid>.partial`` file
         behind; it proves nothing and is not a chunk key."""
-        path = join(self.root, _marker_name(name), "c")
-        try:
-            found = self.fs.find(path)
-        except FileNotFoundError:
-            return set()
-        keys = (p[len(path) + 1:].replace("/", ".") for p in found)
-        return {k for k in keys if _CHUNK_KEY.fullmatch(k)}
+        return done_keys(self.fs, self.root, name)
 
     def mark_complete(self, layouts: Mapping[str, ArrayLayout], attrs: Mapping[str, Any]) -> None:
-        """Set ``complete`` only after checking every chunk's marker exists."""
+        """Set ``complete`` only after checking every chunk's marker exists; record the
+        size and digest of the files kept beside the arrays, so a lost one is noticed."""
         for name, lay in layouts.items():
             missing = lay.nchunks - len(self.done(name))
             if missing:
                 raise ArtifactError(f"{self.url}: {missing} chunks of {name!r} were not written; not marking complete")
         group = zarr.open_group(store=self.url, mode="r+")
-        group.attrs.update({**attrs, "complete": True})
+        files = attrs.get("files", group.attrs.get("files")) or []
+        from .integrity import file_digest
+
+        digests = {f: file_digest(self.fs, join(self.root, f)) for f in files if isinstance(f, str)}
+        group.attrs.update({**attrs, "file_digests": digests, "complete": True})
 
 
 #: Open zarr arrays per (url, name, token) in this process (LRU, so long-lived
@@ -304,7 +503,10 @@ def _open_cached(url: str, name: str, token: str) -> zarr.Array:
     with _ARRAYS_LOCK:
         arr = _ARRAYS.get(key)
         if arr is None:
-            arr = _ARRAYS[key] = zarr.open_array(store=join(url, name), mode="r+")
+            # Every chunk written, fill-valued or not: a missing chunk file is then a lost chunk.
+            with zarr.config.set({"array.write_empty_chunks": True}):  # captured by the array when opened
+                arr = zarr.open_array(store=join(url, name), mode="r+")
+            _ARRAYS[key] = arr
             while len(_ARRAYS) > _ARRAYS_MAX:
                 _ARRAYS.popitem(last=False)
         else:

@@ -43,6 +43,10 @@ FOLDER_PARAMS = (
     Param("colour_matrix", "list", None, "3x3 camera RGB -> working RGB matrix (row-major, 9 numbers)", nullable=True,
           length=9, item="float"),
     Param("allow_incomplete", "bool", False, "read the poses recorded so far of an interrupted capture"),
+    Param("negative_tolerance", "float", 0.01, "noise tolerance for negative radiance, a fraction of full scale: a "
+          "pixel below -tolerance is invalid and counted (docs/capture-folders.md)", bounds=(0.0, 1.0)),
+    Param("negative_max_fraction", "float", 0.5, "a pose with more than this fraction of its pixels negative beyond "
+          "the tolerance is an error, not noise", bounds=(0.0, 1.0)),
 )
 
 

@@ -25,6 +25,19 @@ carry no ``complete`` key; those are taken as complete.
 Validation (:func:`load_manifest`, :func:`validate_folder`) raises
 :class:`CaptureFolderError` naming the file and the JSON path of the field,
 e.g. ``capture.json: poses[3] (id 3).camera.R: not orthonormal``.
+
+Confinement: everything read or written is inside the folder.  Image paths
+must be relative and resolve inside it (links included); ``capture.json`` and
+``capture.journal`` themselves must be regular files inside it - a link to a
+file elsewhere is refused (:func:`inside_folder`), so a folder can neither
+make the reader trust a manifest from elsewhere nor make the writer append
+to or replace a file outside.
+
+Physically impossible input is refused (docs/capture-folders.md, "What is
+refused"): a light at the origin or at/below the sample plane (``z <= 0``,
+where it cannot light the surface) is an error naming the pose and the file.
+Negative radiance in the images is handled by the reader
+(:mod:`sbrdf_capture.folder`).
 """
 
 from __future__ import annotations
@@ -52,6 +65,23 @@ ORTHONORMAL_TOLERANCE = 1e-4
 
 class CaptureFolderError(ArtifactError):
     """A capture folder is malformed, incomplete or inconsistent."""
+
+
+def inside_folder(folder: str | os.PathLike, name: str, what: str) -> Path:
+    """``folder / name``, refused if it (through any link) resolves outside the folder.
+
+    A missing file is fine (the caller reports it); a link pointing outside,
+    even a dangling one, is a :class:`CaptureFolderError`.
+    """
+    folder = Path(folder)
+    path = folder / name
+    root = folder.resolve()
+    target = path.resolve()
+    if target.parent != root and root not in target.parents:
+        link = f" is a link to {os.readlink(path)!r} and" if path.is_symlink() else ""
+        raise CaptureFolderError(f"{path}: the {what}{link} resolves to {target}, outside the capture folder {root}; "
+                                 f"the {what} must be a file inside the folder (copy it in instead of linking)")
+    return path
 
 
 def aruco_dictionaries() -> list[str]:
@@ -318,6 +348,12 @@ def parse_pose(w: _Where, path: str, p: Any) -> PoseRecord:
         w.fail(f"{path}.id", f"expected a non-negative integer, got {pid!r}")
     path = f"{path} (id {pid})"
     light = _vector(w, f"{path}.light_pos_mm", p.get("light_pos_mm"), 3)
+    if light == [0.0, 0.0, 0.0]:
+        w.fail(f"{path}.light_pos_mm", "the light is at the origin, the centre of the sample (distance 0, infinite "
+                                       "irradiance); positions are mm in the sample frame")
+    if light[2] <= 0:
+        w.fail(f"{path}.light_pos_mm", f"z = {light[2]:g} mm: the light is at or below the sample plane (z <= 0), where "
+                                       "it cannot light the surface (+z is the surface normal, z = 0 the sample plane)")
     cam = p.get("camera")
     if not isinstance(cam, Mapping):
         w.fail(f"{path}.camera", f"expected {{\"R\": ..., \"t\": ...}}, got {cam!r}")
@@ -364,6 +400,7 @@ def load_manifest(folder: str | os.PathLike) -> Manifest:
     file = folder / MANIFEST
     if not folder.is_dir():
         raise CaptureFolderError(f"{folder}: no such capture folder")
+    inside_folder(folder, MANIFEST, "manifest capture.json")
     try:
         text = file.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -529,7 +566,7 @@ def encode_image(image: np.ndarray, suffix: str) -> bytes:
 
 def read_journal(folder: Path) -> list[PoseRecord]:
     """Poses recorded in the journal; a torn last line (a killed writer) is dropped."""
-    path = Path(folder) / JOURNAL
+    path = inside_folder(folder, JOURNAL, "journal capture.journal")
     if not path.exists():
         return []
     w = _Where(str(path))
@@ -584,6 +621,10 @@ class CaptureFolderWriter:
         self.manifest = parse_manifest({**header, "complete": False, "poses": []}, f"{self.folder / MANIFEST} (writer header)")
         self.header = self.manifest.header_json()
         self.poses: dict[int, PoseRecord] = {}
+        if self.folder.is_dir():  # never append to, or replace, a file outside the folder through a link
+            for name, what in ((MANIFEST, "manifest capture.json"), (JOURNAL, "journal capture.journal"),
+                               (IMAGE_DIR, "image directory")):
+                inside_folder(self.folder, name, what)
         existing = self.folder / MANIFEST
         if existing.exists():
             old = load_manifest(self.folder)

@@ -17,11 +17,26 @@ Response curve: the manifest's, else ``"linear"`` for float images, else it
 is recovered from the brackets (McAllister's cubic by default, or Debevec's)
 once, at describe time, from a sample of pixels of up to ``response_poses``
 bracketed poses.
+
+Negative radiance (physically impossible; docs/capture-folders.md, "What is
+refused"): after the merge, before the colour matrix, a pixel with a channel
+below ``-negative_tolerance x full scale`` is marked invalid and counted
+(a warning on the ``sbrdf.capture.folder`` logger per pose, and
+:attr:`FolderCapture.negative_pixels`).  Full scale is the radiance that fills
+the pose's longest exposure (normalised code 1 through the response, or
+``camera.white_level``; for float images without a white level, the pose's
+brightest value).  Smaller negatives are sensor noise around zero (e.g.
+after dark-frame subtraction) and stay as measured, unclamped, so averages
+stay unbiased.  A pose where more than ``negative_max_fraction`` of the pixels
+are negative beyond the tolerance (every pixel, in a sign-flipped image) is
+not noise but a broken image or calibration: a :class:`CaptureFolderError`
+naming the pose and its files.
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 from pathlib import Path
 
@@ -38,6 +53,8 @@ from .response import (ResponseCurve, ResponseError, bracket_samples, cubic_curv
 #: Codes below this (normalised) are left out of the response fit: dark pixels are
 #: noise-dominated and bias the log-log fit.  Merging still uses them down to ``underexposure``.
 RECOVERY_LOW = 0.1
+
+log = logging.getLogger("sbrdf.capture.folder")
 
 
 def read_image(path: Path, where: str) -> np.ndarray:
@@ -89,16 +106,21 @@ class FolderCapture:
     """Capture source reading an ``sbrdf-capture/1`` folder (see module docstring)."""
 
     def __init__(self, path, response, response_method, response_poses, saturation, underexposure, dark_frame,
-                 dark_time_s, colour_matrix, allow_incomplete):
+                 dark_time_s, colour_matrix, allow_incomplete, negative_tolerance=0.01, negative_max_fraction=0.5):
         self.path = Path(os.path.expanduser(str(path)))
         self.response_mode, self.response_method, self.response_poses = response, response_method, response_poses
         self.saturation, self.underexposure = saturation, underexposure
         self.dark_frame_name, self.dark_time_s = dark_frame, dark_time_s
         self.colour_matrix = None if colour_matrix is None else np.asarray(colour_matrix, np.float64).reshape(3, 3)
         self.allow_incomplete = allow_incomplete
+        self.negative_tolerance = float(negative_tolerance)
+        self.negative_max_fraction = float(negative_max_fraction)
+        #: Pose id -> pixels made invalid by negative radiance beyond the tolerance (poses read in this process).
+        self.negative_pixels: dict[int, int] = {}
         self.manifest: Manifest | None = None
         self.curve: ResponseCurve | None = None
         self.linear = False
+        self._float_pose = False
         self._dark: np.ndarray | None = None
 
     # -- protocol ------------------------------------------------------------------
@@ -165,6 +187,7 @@ class FolderCapture:
         if m is None:
             raise CaptureFolderError(f"{self.path / MANIFEST}: read_record before the folder was opened or attached")
         signals, levels, times = [], [], []
+        self._float_pose = False
         for k, e in enumerate(pose.exposures):
             at = f"{where}.exposures[{k}]"
             img = read_image(resolve_image(self.path, e, at + ".file"), at)
@@ -172,15 +195,58 @@ class FolderCapture:
                 raise CaptureFolderError(f"{self.path / e.file}: image is {img.shape[1]}x{img.shape[0]} but the camera is "
                                          f"{m.camera.width}x{m.camera.height} ({at})")
             signal, level = self._linearize(img, at)
+            self._float_pose = self._float_pose or img.dtype.kind == "f"
             signals.append(subtract_dark(signal, self._dark, self.dark_time_s or 1.0, e.time_s))
             levels.append(level)
             times.append(e.time_s)
         radiance, valid = merge_exposures(signals, levels, times, self.saturation, self.underexposure)
+        valid = self._negative_radiance(radiance, valid, pose, where, max(times))
         if self.colour_matrix is not None:
             from .colour import apply_matrix
 
             radiance = apply_matrix(radiance, self.colour_matrix)
         return radiance, valid
+
+    def full_scale(self, radiance: np.ndarray, longest_s: float) -> float:
+        """The radiance that fills the longest exposure (see the module docstring)."""
+        m = self.manifest
+        if self._float_pose:
+            if m is not None and m.camera.white_level is not None:
+                level = float(m.camera.white_level)
+            else:
+                finite = np.abs(radiance[np.isfinite(radiance)])
+                return float(finite.max()) if finite.size else 0.0
+        elif self.curve is not None and not self.linear:
+            level = float(self.curve.table[-1].max())
+        else:
+            level = 1.0  # linear integer codes, normalised
+        return level / float(longest_s)
+
+    def _negative_radiance(self, radiance: np.ndarray, valid: np.ndarray, pose: PoseRecord, where: str,
+                           longest_s: float) -> np.ndarray:
+        """Apply the negative-radiance rule: invalidate and count, or refuse the pose."""
+        below = np.where(np.isfinite(radiance), radiance, 0.0).min(axis=-1)
+        if not (below < 0).any():
+            return valid
+        tolerance = self.negative_tolerance * self.full_scale(radiance, longest_s)
+        negative = below < -tolerance
+        n = int(negative.sum())
+        if n == 0:
+            return valid
+        total = int(negative.size)
+        files = ", ".join(e.file for e in pose.exposures)
+        if n == total or n > self.negative_max_fraction * total:
+            raise CaptureFolderError(
+                f"{self.path / MANIFEST}: {where}: {n} of {total} pixels ({100.0 * n / total:.1f}%) have negative "
+                f"radiance beyond the noise tolerance {tolerance:.3g} (min {float(below.min()):.3g}) in {files}: "
+                f"radiance cannot be negative, so the image or its calibration is broken (a dark frame brighter than "
+                f"the image, a wrong dark_time_s, a sign error in whatever wrote it); at most "
+                f"{self.negative_max_fraction:g} of a pose may be negative (negative_max_fraction)")
+        self.negative_pixels[pose.id] = n
+        log.warning("%s: %s: %d of %d pixels have negative radiance below -%.3g (the noise tolerance, "
+                    "negative_tolerance %g of full scale) in %s; marked invalid", self.path, where, n, total, tolerance,
+                    self.negative_tolerance, files)
+        return valid & ~negative
 
     # -- internals -------------------------------------------------------------------------
 

@@ -85,6 +85,20 @@ class EnvironmentEffect:
     def options(scene) -> dict:
         return dict(getattr(scene.environment, "options", None) or {})
 
+    @staticmethod
+    def check(scene) -> list[str]:
+        """Problems :meth:`prepare` would meet, found when the graph is validated: the map is read at a tiny size."""
+        env = scene.environment
+        if "://" in env.file:
+            return []
+        try:
+            cubemap.load_environment(env.file, env.layout, 2, env.intensity)
+        except SbrdfError as e:
+            return [str(e)]
+        except Exception as e:  # anything the EXR reader raises on a damaged file
+            return [f"{env.file}: cannot read the environment map ({type(e).__name__}: {e})"]
+        return []
+
     def prepare(self, scene, materials=None, gl_context=None) -> None:
         """Load the map and build what the method needs (D(N), S maps, the MIP chain)."""
         env = scene.environment

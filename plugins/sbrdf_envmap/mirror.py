@@ -54,19 +54,29 @@ class MirrorEffect:
     def options(scene) -> dict:
         return {}
 
-    def prepare(self, scene, materials=None, gl_context=None) -> None:
+    @staticmethod
+    def check(scene) -> list[str]:
+        """The scene-level conditions of :meth:`prepare`, checked when the graph is validated."""
         idx = [k for k, o in enumerate(scene.objects) if o.shape == "plane" and o.params.get("reflector")]
         if len(idx) > 1:
-            raise SbrdfError(f"{scene.file}: one reflector: true plane is supported, got {len(idx)}")
+            return [f"one reflector: true plane is supported, got {len(idx)}"]
         if scene.environment is not None:
-            raise SbrdfError(f"{scene.file}: a reflector: true plane together with an environment map is not "
-                             "supported (reflected objects do not occlude the environment yet)")
+            return ["a reflector: true plane together with an environment map is not "
+                    "supported (reflected objects do not occlude the environment yet)"]
+        obj = scene.objects[idx[0]]
+        if sum(o.material == obj.material for o in scene.objects) > 1:
+            return [f"the reflector's material {obj.material!r} must not be used by other "
+                    "objects (give the plane a material of its own)"]
+        return []
+
+    def prepare(self, scene, materials=None, gl_context=None) -> None:
+        problems = self.check(scene)
+        if problems:
+            raise SbrdfError(f"{scene.file}: {problems[0]}")
+        idx = [k for k, o in enumerate(scene.objects) if o.shape == "plane" and o.params.get("reflector")]
         self.index = idx[0]
         obj = scene.objects[self.index]
         self.material = obj.material
-        if sum(o.material == obj.material for o in scene.objects) > 1:
-            raise SbrdfError(f"{scene.file}: the reflector's material {obj.material!r} must not be used by other "
-                             "objects (give the plane a material of its own)")
         self.scene, self.materials = scene, materials or {}
         self.others = dataclasses.replace(scene, objects=tuple(o for k, o in enumerate(scene.objects) if k != self.index))
         p0 = obj.matrix[:3, 3]

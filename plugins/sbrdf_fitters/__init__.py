@@ -8,8 +8,9 @@ _MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model",
 _ITERATIONS = Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000))
 _TOLERANCE = Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
                    bounds=(0.0, 1.0))
-_STARTS = Param("starts", "int", 1, "starting points per texel: 1 = the model's initial guess, more adds random starts "
-                "and keeps the best (for 3+ lobes)", bounds=(1, 64))
+_STARTS = Param("starts", "int", 2, "LM runs per texel, from its best-scoring starting points (the model's guess and "
+                "a Sobol set over typical shapes, magnitudes solved); the texel keeps its best (1 = the guess alone)",
+                bounds=(1, 64))
 
 LM_PARAMS = (
     _MODEL,
@@ -19,7 +20,11 @@ LM_PARAMS = (
     Param("damping", "float", 1e-3, "initial Marquardt damping λ", bounds=(0.0, None)),
     _STARTS,
     Param("fixed", "list", [], "fit-form parameter names held at their initial value", item="str"),
-    Param("seed", "int", 0, "random seed of the extra starts"),
+    Param("seed", "int", 0, "seed of the Sobol starting points"),
+    Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1: outliers such as dust spikes "
+          "are down-weighted (iteratively reweighted)", choices=["linear", "huber", "soft-l1"]),
+    Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns from quadratic to linear; "
+          "0 = 1.4826 x the texel's median absolute residual", bounds=(0.0, None)),
 )
 
 _ROOT_FLOOR = Param("root_floor", "float", 0.01, "line search: drop samples whose luminance residual is below this "
@@ -43,7 +48,8 @@ MCALLISTER_PARAMS = _SHARED + (
           choices=["text", "one-lobe"]),
     _ITERATIONS,
     _TOLERANCE,
-    _STARTS,
+    Param("starts", "int", 1, "starting points of the lobe fit: 1 = the procedure's own, more adds Sobol starts "
+          "and keeps the best", bounds=(1, 64)),
     Param("objective", "str", "root", "line search residual: in n-th-root space (as written) or BRDF space",
           choices=["root", "brdf"]),
     _ROOT_FLOOR,

@@ -9,10 +9,19 @@ hardest texels need.
 
 The fit runs in the model's *fit form* (:meth:`BRDFModel.fit_form`): for
 Lafortune lobes C_z = 1 and log n, which removes the ρ_s ↔ |C|^n degeneracy
-of the raw form.  Parameters are clipped to the fit form's bounds; parameters
-named in ``fixed`` keep their initial value.  ``starts`` > 1 adds random
-starts (shape from each parameter's typical range, magnitudes solved
-linearly) and keeps each texel's best.
+of the raw form.  Every trial point is clipped to the fit form's bounds and
+projected by the model's :meth:`~sbrdf_core.brdf.BRDFModel.constrain` onto the
+texel's :class:`~sbrdf_core.constraints.Limits` (bounded peak, resolvable
+sharpness), so the fit is the best one *inside* them, not a clipped
+unbounded one.  Parameters named in ``fixed`` keep their initial value.
+
+Starting points do not depend on luck: the model's own initial guess and a
+Sobol set over the parameters' typical ranges, each with its magnitudes
+solved linearly (:meth:`~sbrdf_core.brdf.BRDFModel.refine_linear`), are
+scored per texel, and LM runs from the ``starts`` best of them; the texel keeps
+its best result.  ``loss: huber`` or ``soft-l1`` reweights samples by their
+residual (iteratively reweighted least squares) so a few outliers (dust,
+specular spikes) do not pull the lobes.
 """
 
 from __future__ import annotations
@@ -29,20 +38,24 @@ EXACT = 1e-24
 
 
 def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *, iterations: int = 50,
-                        tolerance: float = 1e-4, damping: float = 1e-3, free: np.ndarray | None = None):
+                        tolerance: float = 1e-4, damping: float = 1e-3, free: np.ndarray | None = None, project=None):
     """Minimise each texel's cost in ``problem`` (a :class:`~sbrdf_core.least_squares.LeastSquaresProblem`).
 
     Each trial point is evaluated with its normal equations in one call: an
     accepted step (most of them) then needs no second evaluation, which saves
-    about a third of the work over evaluating the cost first.  Returns
-    ``(x, cost, converged)``; texels whose weights are all zero stay at ``x0``.
+    about a third of the work over evaluating the cost first.  ``project(x,
+    idx)``, if given, maps each clipped trial point into the feasible set
+    (:func:`projector`).  Returns ``(x, cost, converged)``; texels whose
+    weights are all zero stay at ``x0``.
     """
     T, K = x0.shape
     lo, hi = bounds
     free = np.ones(K, bool) if free is None else np.asarray(free, bool)
     outer_free = np.outer(free, free)
-    x = np.clip(x0, lo, hi)
     everyone = np.arange(T)
+    x = np.clip(x0, lo, hi)
+    if project is not None:
+        x = project(x, everyone)
     A, g, cost = problem.normal_equations(x, everyone)
     A, g = A * outer_free, g * free
     lam = np.full(T, damping)
@@ -61,6 +74,9 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
             step = -np.linalg.solve(Aa + (lam[idx, None] * diag)[:, :, None] * eye, ga[..., None])[..., 0]
         step = np.where(np.isfinite(step), step, 0.0)
         x_new = np.clip(xa + step, lo, hi)
+        if project is not None:
+            x_new = project(x_new, idx)
+            step = x_new - xa
         A_new, g_new, cost_new = problem.normal_equations(x_new, idx)
         better = np.isfinite(cost_new) & (cost_new < cost[idx])
         gain = np.where(better, (cost[idx] - cost_new) / np.maximum(cost[idx], 1e-300), 0.0)
@@ -77,20 +93,92 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
     return x, cost, ~active
 
 
+def projector(form, limits):
+    """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows through ``form.constrain``."""
+    if limits is None:
+        return None
+
+    def project(x, idx):
+        params, _ = form.constrain(form.unpack(x), limits.take(idx))
+        return form.pack(params)
+
+    return project
+
+
+def candidate_starts(form, f_r, valid, wi, wo, count: int, seed: int = 0, first=None) -> list[dict[str, np.ndarray]]:
+    """``first`` (default: the form's initial guess) and ``count − 1`` Sobol points over the typical ranges,
+    magnitudes solved.
+
+    The same points for every texel, so a fit is reproducible and covers
+    the shape space evenly rather than by a random draw per texel.
+    """
+    from scipy.stats import qmc
+
+    T = f_r.shape[0]
+    out = [form.initial_guess(f_r, valid, wi, wo) if first is None else first]
+    shape = [p for p in form.parameters if not p.magnitude]
+    dims = sum(p.channels for p in shape)
+    if count > 1 and dims:
+        points = qmc.Sobol(dims, scramble=True, seed=seed).random(1 << int(np.ceil(np.log2(count - 1))))[:count - 1]
+        for point in points:
+            guess = form.defaults(T)
+            k = 0
+            for p in shape:
+                lo, hi = p.typical
+                guess[p.name] = np.broadcast_to(lo + (hi - lo) * point[k:k + p.channels], (T, p.channels)).copy()
+                k += p.channels
+            out.append(form.refine_linear(guess, f_r, valid, wi, wo))
+    return out
+
+
+def robust_weights(form, x, f_r, valid, wi, wo, loss: str, scale: float) -> np.ndarray:
+    """IRLS weights √ρ'(z), z = (r/δ)², for Huber or soft-L1 on each sample's RGB residual norm.
+
+    δ = ``scale`` (sr⁻¹) or, when 0, 1.4826 × the texel's median absolute
+    residual (the noise level a Gaussian would have), floored so an exact
+    fit does not divide by zero.
+    """
+    with np.errstate(all="ignore"):
+        r = np.linalg.norm(form.eval(form.unpack(x), wi, wo) - f_r, axis=-1)
+    r = np.where(valid & np.isfinite(r), r, 0.0)
+    if scale > 0:
+        delta = np.full((r.shape[0], 1), float(scale))
+    else:
+        med = np.nanmedian(np.where(valid, r, np.nan), axis=1, keepdims=True)
+        floor = 1e-3 * np.abs(f_r).max(axis=(1, 2))[:, None] + 1e-9
+        delta = np.maximum(1.4826 * np.nan_to_num(med), floor)
+    z = (r / delta) ** 2
+    rho_prime = np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0))) if loss == "huber" else 1.0 / np.sqrt(1.0 + z)
+    return valid * np.sqrt(rho_prime)
+
+
+LOSSES = ("linear", "huber", "soft-l1")
+#: Reweighting rounds of a robust loss (each an LM run from the last result).
+IRLS_ROUNDS = 4
+
+
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
-              fixed=(), starts=1, seed=0):
+              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, scan=None, stats=None):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
-    samples (all channels), so RMS = sqrt(cost / (channels · samples)).
+    samples (all channels, unweighted even for a robust loss), so
+    RMS = sqrt(cost / (channels · samples)).
 
-    ``initial``: fit-form parameters to start from (default: the form's
-    ``initial_guess``).  ``fixed``: fit-form parameter names held constant.
+    ``initial``: fit-form parameters to start from (default: the best of
+    ``scan`` scored candidates, :func:`candidate_starts`).  ``starts``: LM
+    runs per texel, from its best candidates.  ``limits``: per-texel
+    :class:`~sbrdf_core.constraints.Limits` every iterate is projected onto.
+    ``fixed``: fit-form parameter names held constant.  ``stats``, a dict, gets
+    ``restarted`` (``(T,)`` mask of texels whose best result came from a start
+    other than their best-scored one) and ``starts``.
     """
+    if loss not in LOSSES:
+        raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
     form = model.fit_form()
     T = f_r.shape[0]
     f_r, valid = usable(f_r, valid)
-    problem = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
+    plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
     lo, hi = form.bounds()
     free = np.ones(form.size, bool)
     slices = form.slices()
@@ -98,40 +186,71 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         if name not in slices:
             raise ValueError(f"fixed parameter {name!r} is not a parameter of {form.name}; known: {', '.join(slices)}")
         free[slices[name]] = False
-    start = initial if initial is not None else form.initial_guess(f_r, valid, wi, wo)
-    x0 = np.clip(form.pack(start), lo, hi)
-    opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free)
-    x, cost, converged = levenberg_marquardt(problem, x0, (lo, hi), **opts)
-    rng = np.random.default_rng(seed)
-    for _ in range(starts - 1):
-        guess = form.random_guess(rng, T)
-        for name in fixed:  # fixed parameters keep their given value in every start
-            guess[name] = form.unpack(x0)[name]
-        guess = form.refine_linear(guess, f_r, valid, wi, wo)
-        xs, cs, conv = levenberg_marquardt(problem, np.clip(form.pack(guess), lo, hi), (lo, hi), **opts)
-        better = cs < cost
-        x[better], cost[better], converged[better] = xs[better], cs[better], conv[better]
+    project = projector(form, limits)
+    everyone = np.arange(T)
+    count = scan if scan is not None else (8 * starts if starts > 1 else 1)
+    cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, seed, initial)]
+    for c in cands[1:]:  # fixed parameters keep the initial guess's value in every start
+        c[:, ~free] = cands[0][:, ~free]
+    if project is not None:
+        cands = [project(c, everyone) for c in cands]
+    if len(cands) > 1:
+        costs = np.stack([_cost(plain, c) for c in cands])  # (C, T)
+        order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
+        stack = np.stack(cands)  # (C, T, K)
+        x_starts = [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
+    else:
+        x_starts = cands
+    opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free, project=project)
+    best = None
+    for x in x_starts:
+        weight = valid.astype(np.float64)
+        for _ in range(1 if loss == "linear" else IRLS_ROUNDS):
+            problem = plain if loss == "linear" else form.least_squares(f_r, weight, wi, wo)
+            x, cost, converged = levenberg_marquardt(problem, x, (lo, hi), **opts)
+            if loss != "linear":
+                weight = robust_weights(form, x, f_r, valid, wi, wo, loss, loss_scale)
+        if loss != "linear":
+            cost = _cost(plain, x)
+        if best is None:
+            best = [x, cost, converged, np.zeros(T, bool)]
+            continue
+        better = cost < best[1] * (1 - 1e-9)
+        best[0][better], best[1][better], best[2][better] = x[better], cost[better], converged[better]
+        best[3] |= better
+    x, cost, converged, restarted = best
+    if stats is not None:
+        stats["restarted"] = restarted
+        stats["starts"] = len(x_starts)
     return form.to_model(form.unpack(x)), converged, cost
+
+
+def _cost(problem, x):
+    return problem.normal_equations(x, np.arange(x.shape[0]))[2]
 
 
 class LevenbergMarquardtFitter:
     """The ``lm`` fitter plugin (parameters: ``sbrdf_fitters.LM_PARAMS``)."""
 
-    def __init__(self, model, model_params, iterations, tolerance, damping, starts, fixed, seed):
+    def __init__(self, model, model_params, iterations, tolerance, damping, starts, fixed, seed, loss="linear",
+                 loss_scale=0.0):
         self.model_name = model
         self.model_config = dict(model_params)
         self.iterations, self.tolerance, self.damping = iterations, tolerance, damping
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
-        if model == "lafortune" and int(model_params.get("lobes", 1)) >= 3 and starts == 1:
+        self.loss, self.loss_scale = loss, loss_scale
+        if model == "lafortune" and int(model_params.get("lobes", 1)) >= 3 and starts < 4:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
 
-    def fit(self, model, f_r, valid, wi, wo) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, limits=None) -> FitResult:
         f_r, valid = usable(f_r, valid)
+        stats: dict = {}
         params, converged, cost = fit_model(model, f_r, valid, wi, wo, iterations=self.iterations,
                                             tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
-                                            starts=self.starts, seed=self.seed)
+                                            starts=self.starts, seed=self.seed, limits=limits, loss=self.loss,
+                                            loss_scale=self.loss_scale, stats=stats)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         n = valid.sum(axis=1)
         rms = np.sqrt(cost / np.maximum(f_r.shape[-1] * n, 1))  # the fit's own cost: no second evaluation
-        return FitResult(params, rms, n, flags)
+        return FitResult(params, rms, n, flags, restarted=stats.get("restarted"))

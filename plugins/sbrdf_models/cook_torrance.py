@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
+from sbrdf_core.constraints import clip_shape
 from sbrdf_core.params import Param
 
 
@@ -54,8 +55,9 @@ class CookTorranceModel(BRDFModel):
     name = "cook-torrance"
     anisotropic = False
     parameters = (
-        ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term"),
-        ModelParameter("f0", 3, (0.0, 1.0), (0.02, 0.9), 0.04, unit="1", doc="Fresnel reflectance at normal incidence"),
+        ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
+        ModelParameter("f0", 3, (0.0, 1.0), (0.02, 0.9), 0.04, unit="1", doc="Fresnel reflectance at normal incidence",
+                       magnitude=True),
         ModelParameter("alpha", 1, ALPHA_BOUNDS, (0.05, 0.5), 0.2, doc="roughness"),
     )
 
@@ -169,3 +171,9 @@ class CookTorranceModel(BRDFModel):
 
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("alpha",))
+
+    def constrain(self, params, limits):
+        """F0 ≤ 1 bounds the lobe's energy; α may not be narrower than the sampling resolves."""
+        out, changed = super().constrain(params, limits)
+        out, finer = clip_shape(out, ("alpha",), low=limits.min_roughness())
+        return out, changed | finer

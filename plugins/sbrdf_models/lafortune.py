@@ -81,12 +81,13 @@ class LafortuneModel(BRDFModel):
 
     def _declare(self, fit_form: bool) -> tuple[ModelParameter, ...]:
         nc = self.channels
-        ps = [ModelParameter("rho_d", nc, (0.0, 100.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term")]
+        ps = [ModelParameter("rho_d", nc, (0.0, 100.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term",
+                             magnitude=True)]
         for j in range(1, self.lobes + 1):
             cx0, _, cz0, n0 = INITIAL_LOBES[min(j, 2) - 1]
             back = j == 2
             ps.append(ModelParameter(f"rho_s_{j}", nc, (0.0, 1e6), (0.05, 0.3) if back else (0.2, 2.0), 0.3,
-                                     unit="sr^-1", doc=f"lobe {j} magnitude"))
+                                     unit="sr^-1", doc=f"lobe {j} magnitude", magnitude=True))
             cx_typ = (0.8, 1.0) if back else (-1.0, -0.95)
             names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
             for nm in names:
@@ -258,6 +259,99 @@ class LafortuneModel(BRDFModel):
         return out
 
 
+    def constrain(self, params, limits):
+        """Bound every lobe's peak over the hemisphere and its exponent (:func:`bound_lobes`).
+
+        Works in the C_z = 1 gauge (:meth:`canonical`, the same BRDF), where a
+        lobe's largest value up to ``limits.max_theta`` is ρ_s·m^n with
+        m = max(1, |C|_max sin²θ + cos²θ): |C_x| or |C_y| above C_z is what
+        makes a lobe grow toward grazing.
+        """
+        out = self.canonical(params) if self.lobes else {k: np.asarray(v, np.float64) for k, v in params.items()}
+        out, changed = BRDFModel.constrain(self, out, limits)
+        if self.lobes:
+            changed |= _apply_lobe_bounds(self, out, limits, exponent_key="exponent_{j}", log=False)
+        return out, changed
+
+
+def bound_lobes(rho_d, lobes, limits):
+    """Scale factors that keep C_z = 1 lobes bounded: ``[(rho_scale, c_scale, exponent, dead)], changed``.
+
+    ``lobes`` is ``[(rho_s (T, C), |C|_max (T, 1), n (T, 1))]``.  Each lobe
+    gets n ≤ the sharpest the sampling resolves and a shape that grows toward
+    grazing by at most ``limits.growth`` (m^n, whatever ρ_s); then, against a
+    budget of ``limits.peak − max ρ_d``: ρ_s scaled down if it alone exceeds
+    it, |C| shrunk toward 1 until ρ_s·m^n fits (the grazing growth is what the
+    samples did not see), and all ρ_s scaled together if the lobes' peaks add
+    up to more.  A lobe left below :data:`NEGLIGIBLE` of the budget is
+    ``dead``: callers reset it to a neutral shape, because an invisible lobe
+    parked at |C| = 10 or n = 0.1 turns into a real one when a renderer
+    interpolates it with its neighbour's.
+    """
+    T = rho_d.shape[0]
+    changed = np.zeros(T, bool)
+    s2, c2 = np.sin(limits.max_theta) ** 2, np.cos(limits.max_theta) ** 2
+    n_cap = limits.max_cosine_exponent()
+    if limits.peak is None:
+        budget = np.full((T, 1), np.inf)
+    else:
+        budget = np.maximum(np.asarray(limits.peak, np.float64)[:, None] - rho_d.max(axis=1, keepdims=True), 0.0)
+    out, peaks = [], []
+    with np.errstate(all="ignore"):
+        for rho, cabs, n in lobes:
+            n_new = np.clip(np.minimum(n, n_cap), *EXPONENT_BOUNDS)
+            rmax = rho.max(axis=1, keepdims=True)
+            r_scale = np.where(rmax > budget, budget / np.where(rmax > 0, rmax, 1.0), 1.0)
+            r = rmax * r_scale
+            log_m = np.where((r > 0) & np.isfinite(budget), np.log(budget / np.where(r > 0, r, 1.0)) / n_new, np.inf)
+            if limits.growth is not None:
+                log_m = np.minimum(log_m, np.log(max(limits.growth, 1.0)) / n_new)
+            m_allowed = np.exp(np.minimum(log_m, 50.0))
+            c_allowed = np.maximum((m_allowed - c2) / s2, 1.0)
+            c_scale = np.where(cabs > c_allowed, c_allowed / np.where(cabs > 0, cabs, 1.0), 1.0)
+            m = np.maximum(1.0, cabs * c_scale * s2 + c2)
+            peaks.append(r * np.exp(np.minimum(n_new * np.log(m), 700.0)))
+            out.append([r_scale, c_scale, n_new])
+            changed |= ((n_new < n * (1 - 1e-9)) | (r_scale < 1 - 1e-9) | (c_scale < 1 - 1e-9))[:, 0]
+        total = np.sum(peaks, axis=0)
+        share = np.where(total > budget, budget / np.where(total > 0, total, 1.0), 1.0)
+    changed |= share[:, 0] < 1 - 1e-9
+    for lobe, peak in zip(out, peaks):
+        lobe[0] = lobe[0] * share
+        lobe.append(((peak * share) < NEGLIGIBLE * budget) & np.isfinite(budget))
+    return out, changed
+
+
+#: A lobe whose peak is below this fraction of the texel's peak budget contributes nothing visible.
+NEGLIGIBLE = 1e-3
+#: The neutral shape a dead lobe is reset to: a mirror cosine lobe, n = 1 (bounded under interpolation).
+NEUTRAL_EXPONENT = 1.0
+
+
+def _apply_lobe_bounds(model, out, limits, exponent_key, log, reset_dead=True):
+    """:func:`bound_lobes` on ``out`` in place (model form or fit form, C_z = 1); returns ``changed``.
+
+    The fit form keeps dead lobes as they are (``reset_dead=False``): a lobe
+    the iteration is about to grow starts small.
+    """
+    names = ("c_x", "c_y") if model.anisotropic else ("c_xy",)
+    lobes = []
+    for j in range(1, model.lobes + 1):
+        n = np.asarray(out[exponent_key.format(j=j)], np.float64)
+        cabs = np.max([np.abs(out[f"{nm}_{j}"][:, :1]) for nm in names], axis=0)
+        lobes.append((out[f"rho_s_{j}"], cabs, np.exp(n) if log else n))
+    factors, changed = bound_lobes(out["rho_d"], lobes, limits)
+    for j, (r_scale, c_scale, n_new, dead) in enumerate(factors, start=1):
+        c0 = INITIAL_LOBES[min(j, 2) - 1][0]
+        dead = dead & reset_dead
+        out[f"rho_s_{j}"] = np.where(dead, 0.0, out[f"rho_s_{j}"] * r_scale)
+        for nm in names:
+            out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"] * c_scale)
+        n_new = np.where(dead, NEUTRAL_EXPONENT, n_new)
+        out[exponent_key.format(j=j)] = np.log(n_new) if log else n_new
+    return changed
+
+
 class LafortuneFitForm(LafortuneModel):
     """The same lobes with C_z = 1 fixed and log n: what fitters iterate on."""
 
@@ -342,6 +436,14 @@ class LafortuneFitForm(LafortuneModel):
 
     def refine_linear(self, params, f_r, valid, wi, wo):
         return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)
+
+    def constrain(self, params, limits):
+        """:func:`bound_lobes` directly on the fit form (C_z = 1 already, log n)."""
+        out, changed = BRDFModel.constrain(self, params, limits)
+        if self.lobes:
+            changed |= _apply_lobe_bounds(self, out, limits, exponent_key="log_exponent_{j}", log=True,
+                                          reset_dead=False)
+        return out, changed
 
     def random_guess(self, rng, T):
         params = super().random_guess(rng, T)

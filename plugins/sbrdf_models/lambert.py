@@ -28,7 +28,7 @@ class LambertModel(BRDFModel):
     anisotropic = False
     parameters = (
         ModelParameter("rho_d", channels=3, bounds=(0.0, 10.0), typical=(0.02, 0.3), default=0.1, unit="sr^-1",
-                       doc="diffuse reflectance per channel"),
+                       doc="diffuse reflectance per channel", magnitude=True),
     )
 
     def eval(self, params, wi, wo):

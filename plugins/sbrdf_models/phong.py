@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
+from sbrdf_core.constraints import clip_shape
 
 EXPONENT_BOUNDS = (0.1, 20000.0)
 
@@ -43,8 +44,9 @@ class PhongModel(BRDFModel):
     name = "phong"
     anisotropic = False
     parameters = (
-        ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term"),
-        ModelParameter("rho_s", 3, (0.0, 10.0), (0.05, 0.8), 0.3, unit="1", doc="specular albedo at normal incidence"),
+        ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
+        ModelParameter("rho_s", 3, (0.0, 10.0), (0.05, 0.8), 0.3, unit="1", doc="specular albedo at normal incidence",
+                       magnitude=True),
         ModelParameter("exponent", 1, EXPONENT_BOUNDS, (5.0, 200.0), 10.0, doc="Phong exponent n"),
     )
 
@@ -85,5 +87,30 @@ class PhongModel(BRDFModel):
 
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("exponent",))
+
+    def constrain(self, params, limits):
+        """n no sharper than the sampling resolves, and a peak ρ_d + ρ_s (n + 2)/2π within ``limits.peak``.
+
+        The peak bound lowers n (widens the lobe, keeping its albedo ρ_s)
+        rather than ρ_s; only a lobe too bright even at the lowest n loses
+        magnitude.
+        """
+        out, changed = super().constrain(params, limits)
+        out, sharp = clip_shape(out, ("exponent",), high=limits.max_cosine_exponent())
+        changed |= sharp
+        if limits.peak is not None:
+            budget = np.maximum(np.asarray(limits.peak)[:, None] - out["rho_d"].max(axis=1, keepdims=True), 0.0)
+            rho = out["rho_s"].max(axis=1, keepdims=True)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                n_peak = np.where(rho > 0, 2 * np.pi * budget / np.where(rho > 0, rho, 1.0) - 2.0, np.inf)
+            n = out["exponent"]
+            low = EXPONENT_BOUNDS[0]
+            over = n > n_peak
+            out["exponent"] = np.where(over, np.maximum(n_peak, low), n)
+            lobe_peak = rho * (out["exponent"] + 2.0) / (2 * np.pi)
+            shrink = np.where(lobe_peak > budget, budget / np.where(lobe_peak > 0, lobe_peak, 1.0), 1.0)
+            out["rho_s"] = out["rho_s"] * shrink
+            changed |= over[:, 0] | (shrink[:, 0] < 1.0)
+        return out, changed
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
+from sbrdf_core.constraints import clip_shape
 from sbrdf_core.params import Param
 
 
@@ -62,8 +63,8 @@ class WardModel(BRDFModel):
         self.anisotropic, self.normalization = anisotropic, normalization
         slopes = ("alpha_x", "alpha_y") if anisotropic else ("alpha",)
         self.parameters = (
-            ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term"),
-            ModelParameter("rho_s", 3, (0.0, 10.0), (0.02, 0.5), 0.1, unit="1", doc="specular albedo"),
+            ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
+            ModelParameter("rho_s", 3, (0.0, 10.0), (0.02, 0.5), 0.1, unit="1", doc="specular albedo", magnitude=True),
         ) + tuple(ModelParameter(s, 1, ALPHA_BOUNDS, (0.05, 0.4), 0.15, doc=f"RMS slope{s[5:].replace('_', ' along ')}")
                   for s in slopes)
 
@@ -129,3 +130,10 @@ class WardModel(BRDFModel):
 
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",))
+
+    def constrain(self, params, limits):
+        """ρ_s ≤ 1 bounds the lobe's energy; no slope narrower than the sampling resolves."""
+        out, changed = super().constrain(params, limits)
+        out, finer = clip_shape(out, ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",),
+                                low=limits.min_roughness())
+        return out, changed | finer

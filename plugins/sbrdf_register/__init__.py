@@ -33,8 +33,15 @@ def sbrdf_registrations():
                 Param("refine_win_px", "int", 5, "half-size of the sub-pixel corner refinement window", bounds=(1, 64), unit="px"),
                 Param("max_subsamples", "int", 4, "most bicubic sub-samples per texel axis before an extra pyramid octave "
                       "of pre-blur is used", bounds=(1, 16)),
-                Param("edge_margin_px", "float", 1.0, "extra pixels kept clear of the sample edge and invalid pixels",
-                      bounds=(0.0, 64.0), unit="px"),
+                Param("edge_margin_px", "float", 2.0, "pixels next to the sample edge that are never used (lens blur "
+                      "mixes in the carrier), and extra pixels kept clear of invalid pixels", bounds=(0.0, 64.0),
+                      unit="px"),
+                Param("edge", "str", "renormalise", "texels whose filter reaches past the sample edge or the image "
+                      "border: renormalise (the filter is clipped to the usable pixels and its weights renormalised) "
+                      "or strict (the texel is invalid for that pose: the whole outer ring is lost)",
+                      choices=("renormalise", "strict")),
+                Param("edge_min_weight", "float", 0.25, "renormalise: a clipped texel is valid when at least this "
+                      "fraction of its filter's weight falls on usable pixels", bounds=(0.0, 1.0)),
             ),
             summary="ArUco fiducials: sub-pixel corners, undistortion, homography + RMS (mm), solvePnP pose, "
                     "filtered bicubic resampling onto a W×H texel grid",

@@ -37,10 +37,25 @@ than texels, bicubic interpolation alone is right; the stack then simply
 holds less detail than its grid suggests, and the pixels-per-texel figures are
 recorded so users can see it.
 
+At the sample edge (``edge: renormalise``, the default) the filter is clipped
+and renormalised: pixels off the sample rectangle or within ``edge_margin_px``
+of its edge (where lens blur mixes in the carrier) are not *usable*; a
+sub-sample whose bicubic support touches one of them, or the image border, is
+instead interpolated bilinearly from the usable pixels only, weights
+renormalised (normalised convolution, ``remap(image·usable) / remap(usable)``
+through the same pyramid), and weighs what it found.  A texel is the weighted
+mean of its sub-samples, valid when at least ``edge_min_weight`` of its filter
+weight fell on usable pixels, so the outer texel rings are kept (on the
+virtual-scan capture 375 of 4096 texels, the outer ring and half the second,
+had no sample at all under the former rule, ``edge: strict``: any pixel the
+filter touches off the sample or outside the image invalidates the texel).
+
 A texel sample is invalid (``valid`` false) when any pixel its filter touches
-is saturated or under-exposed (the capture's ``valid`` mask), lies outside the
-image, or lies outside the sample area (on the carrier, a marker, or beyond the
-carrier edge), or when the texel faces away from the camera.
+is saturated or under-exposed (the capture's ``valid`` mask: never renormalised
+away, dropping a highlight's brightest pixels would bias it), when too little
+of its filter falls on usable pixels (``strict``: when any pixel it touches is
+off the sample or outside the image), or when the texel faces away from the
+camera.
 """
 
 from __future__ import annotations
@@ -144,7 +159,7 @@ class ArucoRegistration:
     """Register plugin ``aruco`` (see the module docstring)."""
 
     def __init__(self, texels, max_rms_mm, min_markers, max_pose_deg, pose_from, correct_light, refine_win_px,
-                 max_subsamples, edge_margin_px, corner_refine="edges"):
+                 max_subsamples, edge_margin_px, corner_refine="edges", edge="renormalise", edge_min_weight=0.25):
         self.texels = (int(texels[0]), int(texels[1]))
         self.max_rms_mm = float(max_rms_mm)
         self.min_markers = int(min_markers)
@@ -155,6 +170,8 @@ class ArucoRegistration:
         self.max_subsamples = int(max_subsamples)
         self.edge_margin_px = float(edge_margin_px)
         self.corner_refine = corner_refine
+        self.edge = edge
+        self.edge_min_weight = float(edge_min_weight)
 
     # -- measuring (once per capture, before any resampling) --------------------------------------
 
@@ -246,6 +263,7 @@ class ArucoRegistration:
                                                                          int(capture.attrs["camera"]["height"])],
                 "homography_maps": "sample-plane mm -> undistorted pixel (apply K, dist to reach the photograph)",
                 "pose_from": self.pose_from,
+                "edge": self.edge, "edge_min_weight": self.edge_min_weight, "edge_margin_px": self.edge_margin_px,
                 "texel_mm": texel_mm,
                 "rms_mm_mean": float(rms.mean()),
                 "rms_mm_max": float(rms.max()),
@@ -279,22 +297,39 @@ class ArucoRegistration:
         sx, sy = reg.size_mm
         h, w = image.shape[:2]
         image = np.where(np.isfinite(image), image, 0.0).astype(np.float32)
+        strict = self.edge == "strict"
 
-        # "bad" pixels: invalid in the capture, or not on the sample (carrier, markers, beyond its edge).
-        bad = (~np.asarray(valid, bool)).astype(np.uint8)
-        bad |= self._outside_sample_mask(H, K, dist, (sx, sy), (h, w))
+        def square(n: int) -> np.ndarray:
+            return np.ones((2 * n + 1, 2 * n + 1), np.uint8)
+
         r = BICUBIC_RADIUS + int(math.ceil(self.edge_margin_px))
-        bad = cv2.dilate(bad, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-        bad_f = bad.astype(np.float32)
+        invalid = (~np.asarray(valid, bool)).astype(np.uint8)
+        off = self._outside_sample_mask(H, K, dist, (sx, sy), (h, w))  # 1: carrier, markers, beyond the sample
+        if strict:
+            # Any pixel the bicubic kernel (+ margin) touches must be valid and on the sample.
+            hard_f = cv2.dilate(invalid | off, square(r)).astype(np.float32)
+        else:
+            # Invalid (saturated, under-exposed) pixels still invalidate every texel whose filter touches
+            # them; the sample edge and the image border only clip the filter (renormalised, see below).
+            hard_f = cv2.dilate(invalid, square(r)).astype(np.float32)
+            m = int(math.ceil(self.edge_margin_px))
+            usable = (1 - (cv2.dilate(off, square(m)) if m > 0 else off)).astype(np.float32)
+            # Where the bicubic kernel would touch a pixel that is not usable.
+            near_f = cv2.dilate(off, square(r)).astype(np.float32)
+            num, den = image * usable[..., None], usable
 
         level = int(reg.per_pose["pyramid_level"][k])
         for _ in range(level):
             image = cv2.pyrDown(image)
-            bad_f = cv2.pyrDown(bad_f)
+            hard_f = cv2.pyrDown(hard_f)
+            if not strict:  # normalised convolution: the pre-blur of the usable pixels only
+                near_f, num, den = cv2.pyrDown(near_f), cv2.pyrDown(num), cv2.pyrDown(den)
         scale = 2.0 ** -level
+        hl, wl = image.shape[:2]
 
         n_u, n_v = (int(n) for n in reg.per_pose["subsamples"][k])
         acc = np.zeros((V, U, 3), np.float32)
+        weight = np.zeros((V, U), np.float32)  # sum over sub-samples of the filter weight on usable pixels
         badness = np.zeros((V, U), np.float32)
         for a in range(n_u):
             for b in range(n_v):
@@ -307,15 +342,36 @@ class ArucoRegistration:
                 my = ((pix[..., 1] + 0.5) * scale - 0.5).astype(np.float32)
                 mx = np.where(np.isfinite(mx), mx, -1e6).astype(np.float32)
                 my = np.where(np.isfinite(my), my, -1e6).astype(np.float32)
-                acc += cv2.remap(image, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-                badness = np.maximum(badness, cv2.remap(bad_f, mx, my, cv2.INTER_LINEAR,
-                                                        borderMode=cv2.BORDER_CONSTANT, borderValue=1.0))
+                cubic = cv2.remap(image, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
                 # Outside the (possibly reduced) image, with room for the bicubic kernel.
-                hl, wl = image.shape[:2]
                 out = (mx < 1) | (my < 1) | (mx > wl - 2) | (my > hl - 2)
-                badness[out] = 1.0
-        texels = acc / np.float32(n_u * n_v)
+                if strict:
+                    acc += cubic
+                    weight += 1.0
+                    badness = np.maximum(badness, cv2.remap(hard_f, mx, my, cv2.INTER_LINEAR,
+                                                            borderMode=cv2.BORDER_CONSTANT, borderValue=1.0))
+                    badness[out] = 1.0
+                    continue
+                badness = np.maximum(badness, cv2.remap(hard_f, mx, my, cv2.INTER_LINEAR,
+                                                        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0))
+                near = out | (cv2.remap(near_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                        borderValue=1.0) > 1e-6)
+                inner = ~near
+                acc += np.where(inner[..., None], cubic, 0.0)
+                weight += inner
+                if near.any():
+                    # Clipped filter: bilinear interpolation of the usable pixels only, weights renormalised
+                    # (normalised convolution); what it reaches of the usable pixels is its weight.
+                    acc += np.where(near[..., None], cv2.remap(num, mx, my, cv2.INTER_LINEAR,
+                                                               borderMode=cv2.BORDER_CONSTANT, borderValue=0), 0.0)
+                    weight += np.where(near, cv2.remap(den, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                                       borderValue=0), 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            texels = acc / weight[..., None]
         ok = badness <= 1e-6
+        if not strict:
+            ok &= weight >= np.float32(self.edge_min_weight * n_u * n_v) - 1e-6
+            ok &= weight > 0
         # Texels facing away from the measured camera are not seen at all.
         if reg.camera_pos[k][2] <= 0:
             ok[:] = False

@@ -39,6 +39,9 @@ PTU_PARAMS = _LINK_PARAMS + (
     Param("tilt_limits_deg", "list", [-47.0, 31.0], "tilt soft limits [low, high], intersected with the unit's",
           length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
     Param("speed_deg_s", "float", 20.0, "pan and tilt speed", bounds=(0.01, 1000.0), unit="deg/s"),
+    Param("resolutions_arcsec", "list", [185.1428, 92.5714, 46.2857, 23.1428, 11.5714, 5.7857],
+          "resolutions the controller model can report (PTU-46 family by default); a PR/TR reading must be one of "
+          "them and read the same twice; [] checks agreement only", item="float", bounds=(1e-6, None), unit="arcsec"),
 )
 
 INDEXER_PARAMS = _LINK_PARAMS + (

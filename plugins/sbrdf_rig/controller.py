@@ -16,18 +16,31 @@ for tilt and roll, an indexer for the light arm) through one small API:
     Halt motion; halt and release the port.
 
 A failure that ends the session (a reply that never comes after every retry,
-an error reply, a persistent position miss) halts the motors, closes the port
-and re-raises: a driver in an unknown state must not keep moving hardware.
+an error reply, a persistent position miss, the port vanishing) halts the
+motors, closes the port and re-raises: a driver in an unknown state must not
+keep moving hardware.  When the port itself is gone (:class:`LinkLost`) the
+halt is still attempted (best effort) and the error says whether it got
+through, and what the driver was doing (``moving to pan_deg=20.0000``).
+
+Values that can be verified are: constants the drivers read at connection
+(resolutions, factory limits) are queried until two readings in a row agree
+and pass the controller model's checks (:meth:`MotorController._verified`),
+settings are read back after they are sent, and every move is read back.
+Line noise that turns one digit into another keeps a reply valid ASCII, so
+only a repeated, cross-checked reading catches it (:class:`ImplausibleReply`).
 The protocol drivers implement only the ``_send_move``, ``_wait_for_move``,
 ``_read_position`` and ``_halt`` hooks.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import TypeVar
 
-from .errors import DeviceClosed, DeviceError, PositionError, SoftLimitError
-from .link import SerialLink
+from .errors import DeviceClosed, DeviceError, ImplausibleReply, LinkLost, PositionError, SoftLimitError
+from .link import SerialLink, _head
+
+T = TypeVar("T")
 
 
 class MotorController:
@@ -44,6 +57,11 @@ class MotorController:
         self.limits: dict[str, tuple[float, float]] = {}
         #: Moves that needed re-commanding after a position miss, as ``(axis, target, read)``.
         self.position_misses: list[tuple[str, float, float]] = []
+        #: Verified queries that needed more than two readings, as ``(what, readings)`` (diagnostics).
+        self.reread: list[tuple[str, list]] = []
+        #: Outcome of the last halt attempted by :meth:`close`: ``None`` (none yet), ``""`` (acknowledged)
+        #: or why it failed.
+        self.halt_outcome: str | None = None
 
     # -- public API -------------------------------------------------------------------
 
@@ -66,7 +84,7 @@ class MotorController:
                 self._wait_for_move(targets)
                 read, reply = self._read_position(tuple(targets))
             except DeviceError as e:
-                self._fail(e)
+                self._fail(e, doing="moving to " + ", ".join(f"{k}={v:.4f}" for k, v in targets.items()))
             off = {k: read[k] - v for k, v in targets.items() if abs(read[k] - v) > self.tolerance_deg}
             if not off:
                 return self._full_position(read)
@@ -86,7 +104,7 @@ class MotorController:
         try:
             read, _ = self._read_position(self.axes)
         except DeviceError as e:
-            self._fail(e)
+            self._fail(e, doing="reading the position")
         return read
 
     def stop(self) -> None:
@@ -95,7 +113,7 @@ class MotorController:
         try:
             self._halt(best_effort=False)
         except DeviceError as e:
-            self._fail(e)
+            self._fail(e, doing="halting")
 
     def close(self) -> None:
         """Halt motion (best effort) and release the port; safe to call twice."""
@@ -103,8 +121,11 @@ class MotorController:
             return
         try:
             self._halt(best_effort=True)
-        except DeviceError:
-            pass
+            self.halt_outcome = ""
+        except DeviceError as e:
+            self.halt_outcome = getattr(e, "reason", None) or _head(e)
+        except Exception as e:  # noqa: BLE001 - closing must release the port whatever the halt raised
+            self.halt_outcome = f"{type(e).__name__}: {e}"
         finally:
             self.link.close()
 
@@ -145,10 +166,49 @@ class MotorController:
         if not self.link.is_open:
             raise DeviceClosed(f"cannot {what}: the driver is closed", device=self.link.device, port=self.port)
 
-    def _fail(self, error: DeviceError):
-        """Halt (best effort), close the port, raise ``error``."""
+    def _fail(self, error: DeviceError, doing: str | None = None):
+        """Halt (best effort), close the port, raise ``error``.
+
+        A lost link is re-raised with what the driver was ``doing`` and whether
+        the halt got through (it cannot when the port is gone; a capture source
+        halts its other motors).
+        """
         self.close()
+        if isinstance(error, LinkLost):
+            halt = ("halt acknowledged" if self.halt_outcome == "" else
+                    f"halt could not be sent ({self.halt_outcome})" if self.halt_outcome else "halt not attempted")
+            lost = LinkLost(f"{_head(error)}{' while ' + doing if doing else ''}; {halt}; port closed",
+                            device=error.device, port=error.port, command=error.command, received=error.received)
+            lost.reason = error.reason
+            raise lost from error
         raise error
+
+    def _verified(self, what: str, command: str, read: Callable[[], T], check: Callable[[T], str | None],
+                  reads: int | None = None) -> T:
+        """A constant read until two readings in a row agree and ``check`` finds nothing wrong.
+
+        ``read()`` queries the controller once (its reply already parsed
+        strictly); ``check(value)`` returns why a value cannot be right for
+        the controller model, or ``None``.  Up to ``reads`` readings (default
+        ``3 + link.retries``) are taken; then :class:`ImplausibleReply` lists
+        them.  One corrupted reading among good ones costs one extra query.
+        """
+        limit = max(2, 3 + self.link.retries if reads is None else int(reads))
+        readings: list = []
+        problem = None
+        for _ in range(limit):
+            value = read()
+            readings.append(value)
+            problem = check(value)
+            if problem is None and len(readings) >= 2 and readings[-1] == readings[-2]:
+                if len(readings) > 2:
+                    self.reread.append((what, readings))
+                return value
+        shown = ", ".join(str(v) for v in readings)
+        reason = f"; the last is implausible: {problem}" if problem else " (line noise changing digits?)"
+        raise ImplausibleReply(f"{what}: {len(readings)} readings ({shown}) never gave the same plausible value "
+                               f"twice in a row{reason}", readings=readings, device=self.link.device,
+                               port=self.port, command=command, received=getattr(self, "_raw", None))
 
     # -- protocol hooks -----------------------------------------------------------------
 

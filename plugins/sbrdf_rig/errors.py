@@ -56,3 +56,28 @@ class PositionError(DeviceError):
 
 class DeviceClosed(DeviceError):
     """The driver was closed (by :meth:`close` or after a fatal error) and cannot be used."""
+
+
+class LinkLost(DeviceError):
+    """The serial link failed at the operating-system level: the device vanished (unplugged, powered off).
+
+    Raised for ``OSError``, ``termios.error`` and ``serial.SerialException``
+    from the port (anything but a timeout).  Never retried: the command
+    cannot be sent again on a port that is gone.  ``reason`` is the OS error in
+    one line (``write failed: termios.error: [Errno 5] Input/output error``).
+    """
+
+    reason: str = ""
+
+
+class ImplausibleReply(GarbledReply):
+    """A well-formed reply whose value cannot be right: it changes between repeated queries of a
+    constant, lies outside what the controller model allows, or disagrees with the value just set.
+
+    Line noise that turns one digit into another stays valid ASCII and parses;
+    this is how the drivers catch it (``readings`` lists every value read).
+    """
+
+    def __init__(self, message: str, *, readings=(), **kwargs):
+        self.readings = list(readings)
+        super().__init__(message, **kwargs)

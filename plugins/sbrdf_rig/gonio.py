@@ -60,7 +60,7 @@ import numpy as np
 from sbrdf_core.errors import ParameterError, SbrdfError
 from sbrdf_core.nodes.capture import CaptureDescription
 
-from .errors import DeviceError, SoftLimitError
+from .errors import DeviceError, LinkLost, SoftLimitError
 from .kinematics import RigGeometry, forward
 
 log = logging.getLogger(__name__)
@@ -340,6 +340,7 @@ class GonioCapture:
 
             self.bind(default_registry())
         nominal = forward(self.geometry, *angles.T)
+        self._check_light_above(angles, np.asarray(nominal.light_pos_mm, np.float64))
         if not self._started:
             self._start(angles, times)
         from sbrdf_capture.capture_folder import parse_manifest
@@ -483,6 +484,22 @@ class GonioCapture:
             return cls(axes=int(values.get("axis", 1)), gear_ratio=float(values.get("gear_ratio", 90.0)))
         return cls()
 
+    def _check_light_above(self, angles: np.ndarray, light: np.ndarray) -> None:
+        """Refuse, before anything connects or moves, poses that put the light at or below the sample plane.
+
+        There the light cannot reach the sample's surface; the capture folder
+        refuses such a pose (docs/capture-folders.md), so the plan does first.
+        """
+        bad = np.flatnonzero(~(light[:, 2] > 0))
+        if len(bad):
+            i = int(bad[0])
+            raise ParameterError(
+                f"gonio: plan: {len(bad)} of {len(angles)} poses put the light at or below the sample plane (z <= 0), "
+                f"where it cannot light the surface; first: pose {i} [pan, tilt, roll, light] = "
+                f"{[round(float(a), 4) for a in angles[i]]} deg puts it at z = {light[i, 2]:.1f} mm "
+                f"(poses {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''}). Nothing moved; drop those poses or "
+                "narrow the light/tilt angles")
+
     def _check_limits(self, angles: np.ndarray) -> None:
         """Refuse the plan before any motion if a pose leaves a driver's or the geometry's limits."""
         problems = []
@@ -534,9 +551,11 @@ class GonioCapture:
                     position = m.driver.move_to(**goal)
                 except DeviceError as e:
                     done = len(self.writer.done_ids)
+                    halted = ("Its port is gone (halt attempted, best effort); every other motor halted"
+                              if isinstance(e, LinkLost) else "All motors halted")
                     raise GonioCaptureError(
                         f"gonio: pose {index} of {len(angles)} failed: motor {m.name!r} ({m.device} on {e.port or m.port}) "
-                        f"moving to {_fmt_angles(goal)}: {e}. All motors halted; {self.path} holds the {done} completed "
+                        f"moving to {_fmt_angles(goal)}: {e}. {halted}; {self.path} holds the {done} completed "
                         f"poses - fix the cause and re-run the graph to resume from pose {index}",
                         pose=index, motor=m.name, cause=e) from e
                 for joint, axis in m.axes.items():

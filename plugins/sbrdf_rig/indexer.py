@@ -34,6 +34,13 @@ and status are polled with ``!`` during motion.
 
 Transfer replies repeat the command name (``*1TPE+4000``), so a stale reply to
 another command is recognised as garbled rather than misread.
+
+What is verified (a digit changed by line noise keeps a reply valid ASCII):
+the drive and encoder resolutions (``DRES``/``ERES``) are read until two
+readings in a row agree and lie in the 6000 series' range (``DRES`` 200 to
+1,024,000 steps/rev); the soft limits (``LSPOS``/``LSNEG``), velocity and
+acceleration are read back after they are set and must equal what was sent
+(re-sent once if not); every move is read back from the encoder.
 """
 
 from __future__ import annotations
@@ -43,10 +50,13 @@ import time
 from collections.abc import Sequence
 
 from .controller import MotorController
-from .errors import DeviceRefused, GarbledReply, ReplyTimeout
+from .errors import DeviceRefused, GarbledReply, ImplausibleReply, ReplyTimeout
 from .link import SerialLink
 
 _PROMPTS = (">", "?")
+#: Plausible resolutions, steps (counts) per motor revolution: the 6000 series accepts DRES 200..1,024,000.
+DRES_RANGE = (200, 1_024_000)
+ERES_RANGE = (1, 16_777_216)
 
 
 class Indexer(MotorController):
@@ -85,17 +95,17 @@ class Indexer(MotorController):
         try:
             for setup in ("ECHO0", "ERRLVL4", "COMEXC0", f"{n}MA1"):
                 self._command(setup)
-            self.steps_per_deg = self._report(f"{n}DRES") * self.gear_ratio / 360.0
-            self.counts_per_deg = self._report(f"{n}ERES") * self.gear_ratio / 360.0
+            self.steps_per_deg = self._resolution(f"{n}DRES", "drive resolution", DRES_RANGE) * self.gear_ratio / 360.0
+            self.counts_per_deg = self._resolution(f"{n}ERES", "encoder resolution", ERES_RANGE) * self.gear_ratio / 360.0
             self.limits["angle_deg"] = (lo, hi)
             # The controller's own limits sit just outside ours: ours refuse first, its stop a runaway.
             margin = 2.0 * self.tolerance_deg
-            self._command(f"{n}LSPOS{round((hi + margin) * self.steps_per_deg):+d}")
-            self._command(f"{n}LSNEG{round((lo - margin) * self.steps_per_deg):+d}")
+            self._set(f"{n}LSPOS", round((hi + margin) * self.steps_per_deg), "{:+d}", r"[+-]\d+", int)
+            self._set(f"{n}LSNEG", round((lo - margin) * self.steps_per_deg), "{:+d}", r"[+-]\d+", int)
             self._command(f"{n}LS3")
             rev = 360.0 / self.gear_ratio
-            self._command(f"{n}V{self.speed_deg_s / rev:.4f}")
-            self._command(f"{n}A{acceleration_deg_s2 / rev:.4f}")
+            self._set(f"{n}V", round(self.speed_deg_s / rev, 4), "{:.4f}", r"\d*\.?\d+", float)
+            self._set(f"{n}A", round(acceleration_deg_s2 / rev, 4), "{:.4f}", r"\d*\.?\d+", float)
             self._last, _ = self._read_position(self.axes)
         except Exception:
             self.close()
@@ -134,10 +144,27 @@ class Indexer(MotorController):
                                    port=self.port, command=command, received="\n".join(lines))
             return m.group("value"), data[0]
 
-        return self._exchange(command, parse)
+        value, self._raw = self._exchange(command, parse)
+        return value, self._raw
 
     def _report(self, command: str) -> int:
         return int(self._transfer(command, r"\d+")[0])
+
+    def _resolution(self, command: str, what: str, bounds: tuple[int, int]) -> int:
+        lo, hi = bounds
+        return self._verified(what, command, lambda: self._report(command),
+                              lambda v: None if lo <= v <= hi else f"{v} per revolution is outside {lo}..{hi}")
+
+    def _set(self, name: str, value, fmt: str, value_pattern: str, convert) -> None:
+        """Send ``<name><value>``, read it back (``<name>``, twice in agreement); re-send once on a mismatch."""
+        read = None
+        for _ in range(2):
+            self._command(f"{name}{fmt.format(value)}")
+            read = self._verified(name, name, lambda: convert(self._transfer(name, value_pattern)[0]), lambda v: None)
+            if abs(read - value) <= 1e-6 * max(1.0, abs(value)):
+                return
+        raise ImplausibleReply(f"{name} reads back {read} after setting {fmt.format(value)}", readings=[read],
+                               device="indexer", port=self.port, command=name, received=self._raw)
 
     def _send_move(self, targets: dict[str, float]) -> None:
         n = self.axis

@@ -14,7 +14,11 @@ so the link relies on three things instead:
   draining whatever late bytes are still on the line.
 
 An explicit error reply from the controller (:class:`DeviceRefused`) is not
-retried: the controller heard the command and said no.
+retried: the controller heard the command and said no.  Neither is a failure
+of the port itself (:class:`LinkLost`: ``OSError``, ``termios.error`` or a
+``serial.SerialException`` from any read, write, flush or reconfiguration,
+e.g. a USB adapter unplugged mid-capture): it names the device, the port and
+the command, and the driver above halts what it still can and closes.
 
 The protocol modules supply two callables per exchange: ``is_last(line)``
 (does this line end the reply?) and ``parse(lines)``.
@@ -22,15 +26,27 @@ The protocol modules supply two callables per exchange: ``is_last(line)``
 
 from __future__ import annotations
 
+import termios
 import time
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
 import serial
 
-from .errors import DeviceClosed, DeviceError, DeviceRefused, GarbledReply, ReplyTimeout
+from .errors import DeviceClosed, DeviceError, DeviceRefused, GarbledReply, LinkLost, ReplyTimeout
 
 T = TypeVar("T")
+
+#: What the port raises when the device itself fails (a timeout is ``serial.SerialTimeoutException``, handled apart).
+OS_LINK_ERRORS = (serial.SerialException, OSError, termios.error)
+
+
+def os_reason(error: BaseException) -> str:
+    """``termios.error(5, 'Input/output error')`` -> ``termios.error: [Errno 5] Input/output error``."""
+    args = getattr(error, "args", ())
+    if isinstance(error, termios.error) and len(args) == 2:
+        return f"termios.error: [Errno {args[0]}] {args[1]}"
+    return f"{type(error).__name__}: {error}"
 
 
 class SerialLink:
@@ -75,8 +91,17 @@ class SerialLink:
         if self._serial is not None:
             try:
                 self._serial.close()
+            except OS_LINK_ERRORS:
+                pass  # a port that is gone cannot be closed any further
             finally:
                 self._serial = None
+
+    def _lost(self, what: str, error: BaseException, command: str | None, received: bytes | None = None) -> LinkLost:
+        lost = LinkLost(f"serial link lost: {what} failed ({os_reason(error)}); the device disappeared "
+                        "(unplugged, powered off or its port closed)", device=self.device, port=self.port,
+                        command=command, received=received)
+        lost.reason = f"{what} failed: {os_reason(error)}"
+        return lost
 
     def _port(self, command: str | None = None) -> serial.Serial:
         if self._serial is None:
@@ -90,8 +115,11 @@ class SerialLink:
             port.reset_input_buffer()
             port.write((command + self.terminator).encode("ascii"))
             port.flush()
-        except (serial.SerialException, OSError) as e:
-            raise DeviceError(f"write failed: {e}", device=self.device, port=self.port, command=command) from e
+        except serial.SerialTimeoutException as e:
+            raise ReplyTimeout(f"write did not complete within {self.timeout_s:g} s", device=self.device,
+                               port=self.port, command=command) from e
+        except OS_LINK_ERRORS as e:
+            raise self._lost("write", e, command) from e
 
     def read_line(self, command: str, deadline: float) -> str:
         """One line without its terminator, or :class:`ReplyTimeout` at ``deadline`` (``time.monotonic``)."""
@@ -102,12 +130,11 @@ class SerialLink:
             if remaining <= 0:
                 raise ReplyTimeout(f"no complete reply within {self.timeout_s:g} s", device=self.device,
                                    port=self.port, command=command, received=bytes(buf) or None)
-            port.timeout = remaining
             try:
+                port.timeout = remaining
                 chunk = port.read_until(b"\n")
-            except (serial.SerialException, OSError) as e:
-                raise DeviceError(f"read failed: {e}", device=self.device, port=self.port, command=command,
-                                  received=bytes(buf) or None) from e
+            except OS_LINK_ERRORS as e:
+                raise self._lost("read", e, command, bytes(buf) or None) from e
             buf += chunk
             if buf.endswith(b"\n"):
                 break
@@ -123,21 +150,24 @@ class SerialLink:
                                command=command, received=raw)
         return text
 
-    def drain(self) -> None:
+    def drain(self, command: str | None = None) -> None:
         """Discard input until the line has been quiet for one timeout (bounded by three).
 
         A reply that was merely late (a stalled controller) then lands here
         instead of being taken for the answer to the next attempt.
         """
-        port = self._port()
+        port = self._port(command)
         quiet = max(self.timeout_s, 0.01)
         stop = time.monotonic() + 3 * self.timeout_s
         last = time.monotonic()
-        while time.monotonic() < stop and time.monotonic() - last < quiet:
-            port.timeout = min(quiet, max(stop - time.monotonic(), 0.0))
-            if port.read(max(port.in_waiting, 1)):
-                last = time.monotonic()
-        port.reset_input_buffer()
+        try:
+            while time.monotonic() < stop and time.monotonic() - last < quiet:
+                port.timeout = min(quiet, max(stop - time.monotonic(), 0.0))
+                if port.read(max(port.in_waiting, 1)):
+                    last = time.monotonic()
+            port.reset_input_buffer()
+        except OS_LINK_ERRORS as e:
+            raise self._lost("draining the input", e, command) from e
 
     # -- exchanges --------------------------------------------------------------------
 
@@ -177,7 +207,7 @@ class SerialLink:
                 last = e
                 if self._serial is None:
                     break
-                self.drain()
+                self.drain(command)
                 continue
             if last is not None:
                 self.recovered.append((command, str(last)))

@@ -30,6 +30,20 @@ PTU-46-70 in eighth-step mode has 46.2857 arc-seconds per position, the
 The driver keeps the controller in verbose mode so that a position reply
 names its axis: a stale ``Tilt`` reply arriving for a ``PP`` query is
 detected as garbled instead of being read as the pan position.
+
+What is verified (a digit changed by line noise keeps a reply valid ASCII):
+
+* the resolution (``PR``/``TR``) is read until two readings in a row agree,
+  and must be one of the controller model's resolutions (``resolutions_arcsec``;
+  default the PTU-46 family: 185.1428″/2^k for full to 1/32 steps, which
+  includes the PTU-46-70's 46.2857″); ``46.2857`` read once as ``41.2857``
+  costs one extra query, a persistent wrong value is an
+  :class:`~sbrdf_rig.errors.ImplausibleReply` before anything moves;
+* the factory limits (``PN``/``PX``/``TN``/``TX``) likewise must agree twice,
+  with minimum < maximum within ±360°;
+* each speed (``PS<n>``) is read back (``PS``) and must equal what was sent
+  (re-sent once if not);
+* every move is read back (:class:`~sbrdf_rig.controller.MotorController`).
 """
 
 from __future__ import annotations
@@ -38,13 +52,18 @@ import re
 from collections.abc import Sequence
 
 from .controller import MotorController
-from .errors import DeviceRefused, GarbledReply
+from .errors import DeviceRefused, GarbledReply, ImplausibleReply
 from .link import SerialLink
 
 _AXIS = {"pan_deg": ("P", "Pan"), "tilt_deg": ("T", "Tilt")}
 _ACK = re.compile(r"^\*\s*$")
 _NUMBER_REPLY = r"^\*\s*(?:{phrase}\s+)?(?P<value>[-+]?\d+)\s*$"
 _RESOLUTION = re.compile(r"^\*\s*(?P<value>\d*\.?\d+)\s+seconds arc per position\s*$")
+#: Arc-seconds per position of the Directed Perception / FLIR PTU-46 family: a PTU-46-17.5 at full step
+#: (185.1428) down to a PTU-46-70 at eighth step; a unit always reports one of these.
+PTU46_RESOLUTIONS_ARCSEC = tuple(round(185.1428 / 2 ** k, 4) for k in range(6))
+#: Relative tolerance when matching a reported resolution (the unit prints four decimals).
+RESOLUTION_RTOL = 2e-4
 
 
 class PanTiltUnit(MotorController):
@@ -66,31 +85,74 @@ class PanTiltUnit(MotorController):
     def __init__(self, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
                  tolerance_deg: float = 0.05, pan_limits_deg: Sequence[float] = (-159.0, 159.0),
                  tilt_limits_deg: Sequence[float] = (-47.0, 31.0), speed_deg_s: float = 20.0,
-                 move_timeout_s: float = 60.0):
+                 move_timeout_s: float = 60.0, resolutions_arcsec: Sequence[float] | None = PTU46_RESOLUTIONS_ARCSEC):
         link = SerialLink(port, device="ptu", baudrate=baudrate, timeout_s=timeout_s, retries=retries)
         super().__init__(link, tolerance_deg=tolerance_deg, retries=retries)
         self.speed_deg_s = float(speed_deg_s)
         self.move_timeout_s = float(move_timeout_s)
         self.arcsec_per_step: dict[str, float] = {}
+        self.resolutions_arcsec = tuple(float(v) for v in (resolutions_arcsec or ()))
         self._last: dict[str, float] = {}
         try:
             for setup in ("ED", "FV", "I"):
                 self._ack(setup)
             user = {"pan_deg": pan_limits_deg, "tilt_deg": tilt_limits_deg}
             for axis, (letter, word) in _AXIS.items():
-                self.arcsec_per_step[axis] = self._query(f"{letter}R", _RESOLUTION, float)
-                lo = self._steps_to_deg(axis, self._query(f"{letter}N", _number(f"Minimum {word} position is"), int))
-                hi = self._steps_to_deg(axis, self._query(f"{letter}X", _number(f"Maximum {word} position is"), int))
+                self.arcsec_per_step[axis] = self._verified(
+                    f"{word.lower()} resolution", f"{letter}R", lambda c=f"{letter}R": self._query(c, _RESOLUTION, float),
+                    self._check_resolution)
+                lo_steps = self._factory_limit(axis, letter, word, "N", "Minimum")
+                hi_steps = self._factory_limit(axis, letter, word, "X", "Maximum")
+                if lo_steps >= hi_steps:
+                    raise ImplausibleReply(f"{word.lower()} factory limits read as [{lo_steps}, {hi_steps}] positions: "
+                                           "minimum is not below maximum", readings=[lo_steps, hi_steps], device="ptu",
+                                           port=self.port, command=f"{letter}N/{letter}X", received=self._raw)
+                lo, hi = self._steps_to_deg(axis, lo_steps), self._steps_to_deg(axis, hi_steps)
                 ulo, uhi = (float(v) for v in user[axis])
                 if ulo > uhi:
                     raise ValueError(f"ptu on {port}: {axis[:-4]}_limits_deg {list(user[axis])} is not [low, high]")
                 self.limits[axis] = (max(lo, ulo), min(hi, uhi))
                 speed = max(1, round(self.speed_deg_s * 3600.0 / self.arcsec_per_step[axis]))
-                self._ack(f"{letter}S{speed}")
+                self._set_speed(letter, word, speed)
             self._last, _ = self._read_position(self.axes)
         except Exception:
             self.close()
             raise
+
+    # -- verification ------------------------------------------------------------------
+
+    def _check_resolution(self, value: float) -> str | None:
+        if not value > 0:
+            return f"{value} arc-seconds per position is not positive"
+        known = self.resolutions_arcsec
+        if known and not any(abs(value - r) <= RESOLUTION_RTOL * r for r in known):
+            return (f"{value:g} arc-seconds per position is none of the controller model's resolutions "
+                    f"({', '.join(str(r) for r in known)}; set resolutions_arcsec for another model)")
+        return None
+
+    def _factory_limit(self, axis: str, letter: str, word: str, code: str, side: str) -> int:
+        command, pattern = f"{letter}{code}", _number(f"{side} {word} position is")
+
+        def check(steps: int) -> str | None:
+            deg = self._steps_to_deg(axis, steps)
+            return None if abs(deg) <= 360.0 else f"{steps} positions is {deg:.1f} deg, beyond a full turn"
+
+        return self._verified(f"{word.lower()} {side.lower()} position", command,
+                              lambda: self._query(command, pattern, int), check)
+
+    def _set_speed(self, letter: str, word: str, speed: int) -> None:
+        """``PS<n>``, then read it back; a mismatch (the command garbled on the way) is re-sent once."""
+        query = f"{letter}S"
+        read = None
+        for _ in range(2):
+            self._ack(f"{letter}S{speed}")
+            read = self._verified(f"{word.lower()} speed", query,
+                                  lambda: self._query(query, _number(f"Target {word} speed is"), int),
+                                  lambda v: None if v > 0 else f"speed {v} is not positive")
+            if read == speed:
+                return
+        raise ImplausibleReply(f"{word.lower()} speed reads back {read} positions/s after setting {speed}",
+                               readings=[read], device="ptu", port=self.port, command=query, received=self._raw)
 
     # -- protocol --------------------------------------------------------------------
 

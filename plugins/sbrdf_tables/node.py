@@ -23,7 +23,7 @@ from sbrdf_core.artifacts import SampledReflectance
 from sbrdf_core.nodes.base import BuildContext, NodeKind, Output
 from sbrdf_core.params import Param
 
-from .table import read_table
+from .table import TableError, read_table
 
 
 def table_arrays(table, distance_mm: float = 1e6) -> dict[str, np.ndarray]:
@@ -45,6 +45,19 @@ class MeasuredTableNode(NodeKind):
         Param("distance_mm", "float", 1e6, "distance of the light/camera positions standing for the directions",
               bounds=(1.0, None), unit="mm"),
     )
+
+    @staticmethod
+    def check_params(params) -> list[tuple[str, str]]:
+        """The table file is read when the graph is validated, so a bad row is reported before anything runs."""
+        if params.get("path") is None:
+            return [("path", "a MeasuredTable needs 'path': the table file")]
+        try:
+            read_table(params["path"])
+        except TableError as e:
+            return [("path", str(e))]
+        except UnicodeDecodeError as e:
+            return [("path", f"{params['path']}: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start})")]
+        return []
 
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:

@@ -2,37 +2,58 @@
 
 The node streams over texel tiles (one chunk of SampledReflectance = all poses
 of a tile), derives ω_i and ω_r per texel from the stored geometry, and calls
-the fitter plugin on a flat batch of texels.  Every fit writes an RMS error map
-and the sample count per texel beside the parameter maps; texels with no
-valid sample get the model's defaults and a sample count of 0 rather than NaN.
+the fitter plugin on a flat batch of texels.  Around the fitter, for every
+fitter alike, it makes the material trustworthy where it was not measured:
+
+- **held-out error**: a seeded fraction of each texel's samples (``holdout``)
+  is kept from the fitter and scored afterwards (``rms_holdout``); texels
+  whose held-out RMS is far above their training RMS are flagged as overfit;
+- **bounds**: each texel gets :class:`~sbrdf_core.constraints.Limits` (peak
+  from its own and its neighbours' samples, sharpness from its sampling,
+  albedo ≤ 1); fitters that take ``limits`` fit inside them, and whatever a
+  fitter returns is projected onto them (:func:`~sbrdf_core.constraints.enforce`)
+  and flagged if it moved;
+- **sparse texels borrow**: a texel with fewer than ``min_samples`` valid
+  samples is fitted to its own and its 3×3 neighbours' samples (a spatial
+  prior) and flagged, rather than keeping the model defaults.
 
 Fitter protocol: ``model_name`` and ``model_config`` attributes naming the
 BRDF model to fit (the node constructs it from the registry), and
-``fit(model, f_r, valid, wi, wo) -> FitResult``.
+``fit(model, f_r, valid, wi, wo[, limits]) -> FitResult``.
 """
 
 from __future__ import annotations
 
+import inspect
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance
+from ..constraints import Limits, angular_resolution, enforce, neighbourhood_max, sample_support
 from ..geometry import tile_directions
+from ..params import Param
 from .base import BuildContext, NodeKind, Output, Port
 
 
 #: Bits of the ``flags`` map: why a texel's fit is missing or doubtful.  Stored
 #: in the artifact's attributes too, so a reader needs no code to decode them.
 FLAGS = {
-    1: "no valid samples: parameters are the model defaults",
+    1: "no valid samples of its own: parameters borrowed from neighbours (flag 128) or the model defaults",
     2: "fewer valid samples than parameters: underdetermined, damped fit",
     4: "non-finite samples ignored",
     8: "iteration cap reached before convergence",
     16: "fitter produced non-finite values: parameters are the model defaults",
+    32: "overfit: held-out RMS far above training RMS",
+    64: "constrained: the unconstrained fit left the physical bounds (peak, sharpness or albedo)",
+    128: "too few samples: fitted to its own and its neighbours' samples",
 }
 NO_SAMPLES, UNDERDETERMINED, NONFINITE_INPUT, NOT_CONVERGED, NONFINITE_RESULT = 1, 2, 4, 8, 16
+OVERFIT, CONSTRAINED, BORROWED = 32, 64, 128
+#: Columns the kernel appends after the packed parameters.
+EXTRA = ("rms", "rms_holdout", "samples", "flags", "restarted", "fit_time_s")
 
 
 @dataclass
@@ -43,6 +64,29 @@ class FitResult:
     rms: np.ndarray  # (T,) sr^-1 over valid samples, RGB pooled
     samples: np.ndarray  # (T,) valid sample count
     flags: np.ndarray | None = None  # (T,) uint8 bits of FLAGS the fitter raised (e.g. NOT_CONVERGED)
+    restarted: np.ndarray | None = None  # (T,) bool: the best result came from a later start (multi-start)
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """The node's own parameters, as the kernel uses them (see :attr:`Fit.params`)."""
+
+    holdout: float = 0.1
+    holdout_seed: int = 0
+    peak_factor: float = 4.0
+    max_theta_deg: float = 89.0
+    albedo_limit: float = 1.0
+    resolve_sharpness: bool = True
+    min_samples: int = 0
+    overfit_ratio: float = 3.0
+    grazing_growth: float = 1.0
+
+    def limits(self, support: np.ndarray, resolution: np.ndarray) -> Limits:
+        return Limits(peak=self.peak_factor * support if self.peak_factor > 0 else None,
+                      resolution=resolution if self.resolve_sharpness else None,
+                      max_theta=float(np.radians(self.max_theta_deg)),
+                      albedo=self.albedo_limit if self.albedo_limit > 0 else None,
+                      growth=self.grazing_growth if self.grazing_growth > 0 else None)
 
 
 def usable(f_r: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -58,20 +102,52 @@ def usable(f_r: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def rms_error(model, params, f_r, valid, wi, wo) -> np.ndarray:
     """RMS of ``model − f_r`` over each texel's valid samples and RGB pooled (seed 000 §4.4), sr⁻¹."""
-    diff = np.where(valid[..., None], model.eval(params, wi, wo) - f_r, 0.0)
+    with np.errstate(all="ignore"):
+        diff = np.where(valid[..., None], model.eval(params, wi, wo) - f_r, 0.0)
     n = valid.sum(axis=1) * f_r.shape[-1]
     return np.sqrt(np.einsum("tsc,tsc->t", diff, diff) / np.maximum(n, 1))
 
 
-def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, block_info=None):
-    """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + 4)`` = packed parameters, rms, samples, flags, seconds.
+def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[int, int], min_train: int):
+    """``(train, test)`` masks: a seeded ``fraction`` of each texel's valid samples held out.
+
+    Seeded by the tile's position, so a tile gives the same split on every run
+    and on any worker.  A texel keeps all its samples for training when
+    holding some out would leave it fewer than ``2 · min_train``.
+    """
+    if fraction <= 0:
+        return valid, np.zeros_like(valid)
+    rng = np.random.default_rng([seed, *offset])
+    test = valid & (rng.random(valid.shape) < fraction)
+    enough = valid.sum(axis=1) >= 2 * max(min_train, 1)
+    test &= enough[:, None]
+    return valid & ~test, test
+
+
+def _neighbour_pool(grid: tuple[int, int], texels: np.ndarray, *arrays):
+    """Concatenate each listed texel's samples with its in-tile 3×3 neighbours' along the sample axis."""
+    V, U = grid
+    v, u = np.divmod(texels, U)
+    out = []
+    for a in arrays:
+        a = a.reshape((V, U) + a.shape[1:])
+        pad = np.pad(a, [(1, 1), (1, 1)] + [(0, 0)] * (a.ndim - 2))
+        parts = [pad[v + 1 + dv, u + 1 + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)]
+        out.append(np.concatenate(parts, axis=1))
+    return out
+
+
+def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, options=FitOptions(), block_info=None):
+    """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + 6)`` = packed parameters and :data:`EXTRA`.
 
     Non-finite samples are dropped before the fitter sees them, and whatever
-    the fitter returns, no NaN or inf reaches the maps: such texels get the
-    model's defaults and a flag saying why.
+    the fitter returns, no NaN or inf reaches the parameter maps: such texels
+    get the model's defaults and a flag saying why.  ``rms_holdout`` is NaN
+    where a texel had no held-out sample.
     """
     t0 = time.perf_counter()
     (v0, v1), (u0, u1) = block_info[0]["array-location"][:2]
+    grid = (v1 - v0, u1 - u0)
     wi, _, wo = tile_directions(texels, size_mm, (v0, v1), (u0, u1), light_pos, camera_pos)
     T = wi.shape[0]
     f_r = f_r.reshape(T, -1, 3).astype(np.float64)
@@ -79,31 +155,97 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     finite = np.isfinite(f_r).all(axis=-1)
     flags = np.where((valid & ~finite).any(axis=1), NONFINITE_INPUT, 0).astype(np.uint8)
     f_r, valid = usable(f_r, valid)
-    res: FitResult = fitter.fit(model, f_r, valid, wi, wo)
-    if res.flags is not None:
-        flags |= res.flags.astype(np.uint8)
-    x = model.pack(res.params)
-    bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(res.rms))
-    empty = res.samples == 0
-    flags |= np.where(bad, NONFINITE_RESULT, 0).astype(np.uint8) | np.where(empty, NO_SAMPLES, 0).astype(np.uint8)
-    flags |= np.where(~empty & (res.samples * 3 < model.size), UNDERDETERMINED, 0).astype(np.uint8)
+    min_samples = options.min_samples or model.size
+    support = neighbourhood_max(sample_support(f_r, valid).reshape(grid)).ravel()
+    limits = options.limits(support, angular_resolution(wi, wo, valid))
+    train, test = holdout_split(valid, options.holdout, options.holdout_seed, (v0, u0), min_samples)
+    takes_limits = "limits" in inspect.signature(fitter.fit).parameters
+
+    def run(f, w, a, b, lim):
+        return fitter.fit(model, f, w, a, b, limits=lim) if takes_limits else fitter.fit(model, f, w, a, b)
+
+    res: FitResult = run(f_r, train, wi, wo, limits)
+    params = {k: np.array(v, dtype=np.float64) for k, v in res.params.items()}
+    rflags = np.zeros(T, np.uint8) if res.flags is None else res.flags.astype(np.uint8)
+    restarted = np.zeros(T, bool) if res.restarted is None else np.asarray(res.restarted, bool)
+    sparse = np.flatnonzero(train.sum(axis=1) < min_samples)
+    if sparse.size:
+        pf, pw, pi, po = _neighbour_pool(grid, sparse, f_r, train, wi, wo)
+        pooled = run(pf, pw, pi, po, limits.take(sparse))
+        helped = pw.sum(axis=1) > train[sparse].sum(axis=1)
+        for k, v in pooled.params.items():
+            params[k][sparse[helped]] = np.asarray(v)[helped]
+        rflags[sparse[helped]] = 0 if pooled.flags is None else pooled.flags[helped]
+        flags[sparse[helped]] |= BORROWED
+    params, changed = enforce(model, params, limits)
+    flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint8)
+    x = model.pack(params)
+    rms = rms_error(model, params, f_r, train, wi, wo)
+    rms_holdout = np.where(test.any(axis=1), rms_error(model, params, f_r, test, wi, wo), np.nan)
+    own = valid.sum(axis=1)
+    bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(rms))
+    empty = (own == 0) & ~((flags & BORROWED) > 0)
+    flags |= np.where(bad, NONFINITE_RESULT, 0).astype(np.uint8) | np.where(own == 0, NO_SAMPLES, 0).astype(np.uint8)
+    flags |= np.where((own > 0) & (own * 3 < model.size), UNDERDETERMINED, 0).astype(np.uint8)
+    with np.errstate(invalid="ignore"):
+        overfit = rms_holdout > options.overfit_ratio * np.maximum(rms, 1e-3 * support + 1e-9)
+    flags |= np.where(overfit, OVERFIT, 0).astype(np.uint8)
     x[bad | empty] = model.pack(model.defaults(1))[0]
-    rms = np.where(bad | empty, 0.0, res.rms)
+    rms = np.where(bad | empty, 0.0, rms)
+    rms_holdout = np.where(bad | empty, np.nan, rms_holdout)
     seconds = np.full(T, (time.perf_counter() - t0) / T)
-    out = np.concatenate([x, rms[:, None], res.samples[:, None], flags[:, None], seconds[:, None]], axis=1)
-    return out.reshape(v1 - v0, u1 - u0, -1).astype(np.float32)
+    out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, seconds], axis=1)], axis=1)
+    return out.reshape(grid + (-1,)).astype(np.float32)
+
+
+FIT_PARAMS = (
+    Param("holdout", "float", 0.1, "fraction of each texel's valid samples kept from the fitter and scored as "
+          "held-out RMS (0 = fit all, no held-out error)", bounds=(0.0, 0.5)),
+    Param("holdout_seed", "int", 0, "seed of the held-out split"),
+    Param("peak_factor", "float", 4.0, "a texel's lobes may peak at most this times the largest sample of the texel "
+          "and its 8 neighbours, anywhere on the hemisphere (0 = unbounded: warns)", bounds=(0.0, None)),
+    Param("max_theta_deg", "float", 89.0, "the hemisphere the peak bound covers, degrees from the normal",
+          bounds=(1.0, 89.99)),
+    Param("albedo_limit", "float", 1.0, "directional albedo bound (energy conservation; 0 = off: warns)",
+          bounds=(0.0, None)),
+    Param("grazing_growth", "float", 1.0, "how much a lobe's shape may brighten from normal incidence toward grazing "
+          "(Lafortune: max (C·ω)^n ≤ this; 1 = |C_x|, |C_y| ≤ C_z, which also keeps renderers' bilinearly "
+          "interpolated parameters bounded; 0 = unbounded: warns)", bounds=(0.0, None)),
+    Param("resolve_sharpness", "bool", True, "bound exponents / roughness to what the angular sampling resolves"),
+    Param("min_samples", "int", 0, "texels with fewer valid samples are fitted with their neighbours' samples "
+          "(0 = the model's parameter count)", bounds=(0, None)),
+    Param("overfit_ratio", "float", 3.0, "flag a texel as overfit when its held-out RMS exceeds this times its "
+          "training RMS", bounds=(1.0, None)),
+)
 
 
 class Fit(NodeKind):
     name = "Fit"
-    doc = "Fit a BRDF model per texel; writes parameter maps, RMS error map and sample counts."
+    doc = ("Fit a BRDF model per texel inside its physical bounds; writes parameter maps, training and held-out "
+           "RMS maps, sample counts and flags.")
     inputs = (Port("samples", (SampledReflectance,), "sampled reflectance (a single BRDF is a 1x1 grid)"),)
     output = ParamMaps
     plugin_category = "fitter"
+    params = FIT_PARAMS
 
     @classmethod
     def model(cls, ctx: BuildContext):
         return ctx.registry.create("brdf-model", ctx.plugin.model_name, dict(ctx.plugin.model_config))
+
+    @classmethod
+    def options(cls, ctx: BuildContext) -> FitOptions:
+        """The node parameters; relaxing a physical bound is allowed, and said."""
+        opts = FitOptions(**{p.name: ctx.params.get(p.name, p.default) for p in FIT_PARAMS})
+        relaxed = [f"{name}: {getattr(opts, name)}" for name, default in
+                   (("peak_factor", 4.0), ("albedo_limit", 1.0), ("resolve_sharpness", True),
+                    ("grazing_growth", 1.0))
+                   if (getattr(opts, name) == 0 or getattr(opts, name) is False)
+                   or (name == "peak_factor" and opts.peak_factor > default)
+                   or (name in ("albedo_limit", "grazing_growth") and getattr(opts, name) > default)]
+        if relaxed:
+            warnings.warn(f"node {ctx.node!r}: physical bounds relaxed ({', '.join(relaxed)}): fitted lobes may "
+                          "exceed what the samples support where they were not measured", stacklevel=2)
+        return opts
 
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
@@ -111,31 +253,22 @@ class Fit(NodeKind):
 
         samples = ctx.inputs["samples"]
         model = cls.model(ctx)
+        options = cls.options(ctx)
         f_r, valid = samples.array("f_r"), samples.array("valid")
         K = model.size
         packed = da.map_blocks(
             fit_tile, f_r, valid[..., None], samples.read("light_pos"), samples.read("camera_pos"),
-            tuple(samples.attrs["texels"]), tuple(samples.attrs["size_mm"]), ctx.plugin, model,
-            drop_axis=[3], chunks=f_r.chunks[:2] + ((K + 4,),), dtype=np.float32, name=f"fit-{ctx.node}",
+            tuple(samples.attrs["texels"]), tuple(samples.attrs["size_mm"]), ctx.plugin, model, options,
+            drop_axis=[3], chunks=f_r.chunks[:2] + ((K + len(EXTRA),),), dtype=np.float32, name=f"fit-{ctx.node}",
         )
         arrays = {f"params/{name}": packed[..., s] for name, s in model.slices().items()}
-        arrays["rms"] = packed[..., K]
-        arrays["samples"] = packed[..., K + 1].astype(np.int32)
-        arrays["flags"] = packed[..., K + 2].astype(np.uint8)
-        arrays["fit_time_s"] = packed[..., K + 3]
-
-        def finalize(art):
-            rms, n, flags = art.read("rms"), art.read("samples"), art.read("flags")
-            fitted = n > 0
-            return {"summary": {
-                "rms_mean": float(rms[fitted].mean()) if fitted.any() else None,
-                "rms_max": float(rms[fitted].max()) if fitted.any() else None,
-                "rms_p95": float(np.percentile(rms[fitted], 95)) if fitted.any() else None,
-                "fit_time_s": float(art.read("fit_time_s").astype(np.float64).sum()),
-                "texels_without_samples": int((~fitted).sum()),
-                "texels_flagged": {FLAGS[b]: int(((flags & b) > 0).sum()) for b in FLAGS if ((flags & b) > 0).any()},
-            }}
-
+        column = {name: packed[..., K + i] for i, name in enumerate(EXTRA)}
+        arrays["rms"] = column["rms"]
+        arrays["rms_holdout"] = column["rms_holdout"]
+        arrays["samples"] = column["samples"].astype(np.int32)
+        arrays["flags"] = column["flags"].astype(np.uint8)
+        arrays["restarted"] = column["restarted"].astype(np.uint8)
+        arrays["fit_time_s"] = column["fit_time_s"]
         return Output(
             arrays=arrays,
             attrs={
@@ -146,6 +279,31 @@ class Fit(NodeKind):
                 "parameters": model.describe(),
                 "texels": samples.attrs["texels"],
                 "size_mm": samples.attrs["size_mm"],
+                "bounds": {"peak_factor": options.peak_factor, "max_theta_deg": options.max_theta_deg,
+                           "albedo_limit": options.albedo_limit, "resolve_sharpness": options.resolve_sharpness,
+                           "grazing_growth": options.grazing_growth},
+                "holdout": options.holdout,
             },
-            finalize=finalize,
+            finalize=summarize,
         )
+
+
+def summarize(art) -> dict:
+    """The ``summary`` attribute: training and held-out error, and how many texels each flag marks."""
+    rms, n, flags = art.read("rms"), art.read("samples"), art.read("flags")
+    held = art.read("rms_holdout") if "rms_holdout" in art.names() else np.full(rms.shape, np.nan)
+    restarted = art.read("restarted") if "restarted" in art.names() else np.zeros(rms.shape, np.uint8)
+    fitted = (n > 0) | ((flags & BORROWED) > 0)
+    scored = fitted & np.isfinite(held)
+    stat = lambda a, m, f: float(f(a[m])) if m.any() else None  # noqa: E731
+    return {"summary": {
+        "rms_mean": stat(rms, fitted, np.mean),
+        "rms_max": stat(rms, fitted, np.max),
+        "rms_p95": stat(rms, fitted, lambda a: np.percentile(a, 95)),
+        "rms_holdout_mean": stat(held, scored, np.mean),
+        "rms_holdout_p95": stat(held, scored, lambda a: np.percentile(a, 95)),
+        "fit_time_s": float(art.read("fit_time_s").astype(np.float64).sum()),
+        "texels_without_samples": int((n == 0).sum()),
+        "restart_won_fraction": float((restarted > 0).mean()) if restarted.size else 0.0,
+        "texels_flagged": {FLAGS[b]: int(((flags & b) > 0).sum()) for b in FLAGS if ((flags & b) > 0).any()},
+    }}

@@ -116,7 +116,24 @@ def _symlink_escape(data, dst):
     data["poses"][0]["exposures"][0]["file"] = "images/link.png"
 
 
+def _manifest_symlink_out(data, dst):
+    """capture.json is a link to a file outside the folder (_mutate then writes the manifest through it)."""
+    outside = dst.parent / "elsewhere.json"
+    outside.write_text("{}")
+    os.remove(dst / MANIFEST)
+    os.symlink(outside, dst / MANIFEST)
+
+
 BAD = {
+    "manifest_symlink": (_manifest_symlink_out, r"capture.json: the manifest capture.json is a link to '.*elsewhere.json' "
+                                                r"and resolves to .*, outside the capture folder"),
+    "light_at_origin": (_set(["poses", 1, "light_pos_mm"], [0, 0, 0]),
+                        r"capture.json: poses\[1\] \(id 1\)\.light_pos_mm: the light is at the origin"),
+    "light_below_sample": (_set(["poses", 2, "light_pos_mm"], [100.0, 50.0, -20.0]),
+                           r"capture.json: poses\[2\] \(id 2\)\.light_pos_mm: z = -20 mm: the light is at or below the "
+                           r"sample plane"),
+    "light_in_sample_plane": (_set(["poses", 3, "light_pos_mm"], [300.0, 0.0, 0.0]),
+                              r"poses\[3\] \(id 3\)\.light_pos_mm: z = 0 mm: the light is at or below"),
     "format": (_set(["format"], "sbrdf-capture/2"), r"capture.json: format: is 'sbrdf-capture/2'"),
     "dictionary": (_set(["sample", "fiducials", "dictionary"], "DICT_9X9_7"), r"sample.fiducials.dictionary: unknown fiducial dictionary 'DICT_9X9_7'.*DICT_4X4_50"),
     "rotation": (_set(["poses", 2, "camera", "R"], [[1, 0, 0], [0, 1, 0.1], [0, 0, 1]]), r"poses\[2\] \(id 2\)\.camera\.R: not orthonormal"),
@@ -244,3 +261,109 @@ def test_manifest_json_round_trip_is_stable(folder):
     m = load_manifest(folder)
     again = parse_manifest(copy.deepcopy(m.to_json()))
     assert again.to_json() == m.to_json()
+
+
+# -- issue 21: the manifest is inside the folder; physically impossible input is refused or counted ------------------
+
+
+def test_a_manifest_linked_inside_the_folder_is_fine_and_a_journal_linked_out_is_refused(folder, registry, tmp_path):
+    inside = tmp_path / "inside"
+    shutil.copytree(folder, inside)
+    (inside / "versions").mkdir()
+    os.replace(inside / MANIFEST, inside / "versions" / "v1.json")
+    os.symlink(Path("versions") / "v1.json", inside / MANIFEST)
+    assert [p.id for p in validate_folder(inside).poses] == [0, 1, 2, 3]
+
+    # A writer resuming a folder whose journal links elsewhere would append to that file: refused, nothing written.
+    cam = make_camera(registry, effects=["response", "falloff"])
+    w = CaptureFolderWriter(tmp_path / "scan", cam.sample_info(), cam.camera_info(), cam.light_info())
+    w.write_pose(0, [0, 0, 100], np.eye(3), [0, 0, 300], [(np.zeros((72, 96, 3), np.uint8), 0.1)])
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    os.remove(tmp_path / "scan" / JOURNAL)
+    os.symlink(victim, tmp_path / "scan" / JOURNAL)
+    with pytest.raises(CaptureFolderError, match=r"capture.journal: the journal capture.journal is a link to .*outside"):
+        CaptureFolderWriter(tmp_path / "scan", cam.sample_info(), cam.camera_info(), cam.light_info())
+    with pytest.raises(CaptureFolderError, match="outside the capture folder"):
+        read_journal(tmp_path / "scan")
+    assert victim.read_text() == "precious\n"
+
+
+@pytest.mark.parametrize("light,says", [([0, 0, 0], "the light is at the origin"), ([10, 20, -1], "z = -1 mm: the light is at or below")])
+def test_the_writer_refuses_a_light_at_the_origin_or_below_before_writing(registry, tmp_path, light, says):
+    cam = make_camera(registry, effects=["response", "falloff"])
+    w = CaptureFolderWriter(tmp_path / "scan", cam.sample_info(), cam.camera_info(), cam.light_info())
+    with pytest.raises(CaptureFolderError, match=rf"new pose 7 \(id 7\)\.light_pos_mm: {says}"):
+        w.write_pose(7, light, np.eye(3), [0, 0, 300], [(np.zeros((72, 96, 3), np.uint8), 0.1)])
+    assert w.done_ids == set() and not list((tmp_path / "scan" / "images").iterdir())
+
+
+def _float_folder(path: Path, images: list[np.ndarray], white_level=None) -> Path:
+    """A linear (EXR) capture folder with the given radiance images, one exposure of 1 s each."""
+    H, W, _ = images[0].shape
+    camera = {"width": W, "height": H, "K": [[20.0, 0, W / 2], [0, 20.0, H / 2], [0, 0, 1]], "dist": [0, 0, 0, 0, 0],
+              "response": "linear"}
+    if white_level is not None:
+        camera["white_level"] = white_level
+    w = CaptureFolderWriter(path, {"size_mm": [100, 100], "fiducials": None}, camera,
+                            {"type": "point", "intensity": 1.0}, durable=False)
+    for i, img in enumerate(images):
+        w.write_pose(i, [100.0 * i, 0, 600], np.eye(3), [0, 0, 500], [(img.astype(np.float32), 1.0)])
+    w.finish()
+    return path
+
+
+@pytest.mark.parametrize("white_level", [None, 1.0], ids=["no-white-level", "white-level"])
+def test_negative_radiance_beyond_the_noise_tolerance_is_invalid_and_counted(registry, tmp_path, caplog, white_level):
+    rng = np.random.default_rng(3)
+    img = (0.5 + 0.4 * rng.random((12, 16, 3))).astype(np.float32)
+    img[0, :4] = -1e-3               # noise around zero (0.1 % of full scale): not counted, kept as measured
+    img[5, 3:8, 1] = -0.2            # 5 pixels clearly negative in one channel: impossible, invalid
+    img[9, 9] = [-0.5, -0.4, -0.3]   # and one more
+    folder = _float_folder(tmp_path / "scan", [img, np.full((12, 16, 3), 0.3, np.float32)], white_level=white_level)
+    src = registry.create("capture", "folder", {"path": str(folder)})
+    src.describe()
+    with caplog.at_level("WARNING", logger="sbrdf.capture.folder"):
+        radiance, valid = src.read_pose(0)
+    assert not valid[5, 3:8].any() and not valid[9, 9]
+    assert np.allclose(radiance[0, :4], -1e-3)  # noise: unclamped
+    if white_level is None:  # valid too (with a white level they are under-exposed, hence invalid anyway)
+        assert valid[0, :4].all() and int((~valid).sum()) == 6
+    else:
+        assert int((~valid).sum()) == 10
+    assert src.negative_pixels == {0: 6}
+    assert "6 of 192 pixels have negative radiance" in caplog.text and "p00000_e0.exr" in caplog.text
+    _, valid1 = src.read_pose(1)
+    assert valid1.all() and src.negative_pixels == {0: 6}
+
+    # Through the Capture node: the stored validity mask says so.
+    from sbrdf_core.runner import run_graph
+
+    graph = tmp_path / "g.yaml"
+    graph.write_text(f"name: neg\nstore: {tmp_path / 'store'}\nnodes:\n"
+                     f"  capture: {{kind: Capture, plugin: folder, params: {{path: {folder}}}}}\n")
+    run_graph(str(graph))
+    import zarr
+
+    stored = zarr.open_group(str(tmp_path / "store" / "capture"), mode="r")["valid"][...]
+    assert np.array_equal(stored[0], valid) and stored[1].all()
+
+
+@pytest.mark.parametrize("white_level", [1.0, None], ids=["white-level", "no-white-level"])
+def test_a_pose_whose_every_pixel_is_negative_is_an_error_naming_pose_and_file(registry, tmp_path, white_level):
+    good = np.full((12, 16, 3), 0.4, np.float32)
+    flipped = -np.linspace(0.1, 0.9, 12 * 16 * 3, dtype=np.float32).reshape(12, 16, 3)  # a sign-flipped image
+    folder = _float_folder(tmp_path / "scan", [good, flipped], white_level=white_level)
+    src = registry.create("capture", "folder", {"path": str(folder)})
+    src.describe()
+    src.read_pose(0)
+    with pytest.raises(CaptureFolderError, match=r"capture.json: poses\[1\] \(id 1\): 192 of 192 pixels \(100.0%\) have "
+                                                 r"negative radiance .* in images/p00001_e0.exr"):
+        src.read_pose(1)
+    from sbrdf_core.runner import run_graph
+
+    graph = tmp_path / "g.yaml"
+    graph.write_text(f"name: neg\nstore: {tmp_path / 'store'}\nnodes:\n"
+                     f"  capture: {{kind: Capture, plugin: folder, params: {{path: {folder}}}}}\n")
+    with pytest.raises(Exception, match=r"poses\[1\] \(id 1\): 192 of 192 pixels"):
+        run_graph(str(graph))

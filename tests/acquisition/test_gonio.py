@@ -24,11 +24,11 @@ import pytest
 import zarr
 
 from sbrdf_capture.capture_folder import JOURNAL, MANIFEST, load_manifest, read_journal
-from sbrdf_core.errors import ArtifactError
+from sbrdf_core.errors import ArtifactError, ParameterError
 from sbrdf_core.graph import load_graph
 from sbrdf_core.runner import run_graph
 from sbrdf_core.store import open_artifact
-from sbrdf_rig.errors import PositionError, ReplyTimeout, SoftLimitError
+from sbrdf_rig.errors import LinkLost, PositionError, ReplyTimeout, SoftLimitError
 from sbrdf_rig.gonio import GonioCaptureError
 from sbrdf_rig.kinematics import RigGeometry, forward
 from sbrdf_rig.sim import Fault, SimulatedIndexer, SimulatedPTU
@@ -38,8 +38,9 @@ from ..conftest import assert_stores_equal
 REPO = Path(__file__).resolve().parents[2]
 
 #: [pan, tilt, roll, light] per pose: inside the PTU-46 ranges (tilt -47..31) and the light arm's 10..175.
-ANGLES = [[0.0, 0.0, 0.0, 30.0], [10.0, -10.0, 20.0, 45.0], [20.0, -20.0, 40.0, 60.0], [-10.0, 10.0, -30.0, 90.0],
-          [30.0, -30.0, 90.0, 120.0], [5.0, 5.0, -90.0, 20.0], [-25.0, 25.0, 150.0, 75.0], [15.0, -40.0, -150.0, 150.0]]
+#: Every pose keeps the light above the sample plane (z > 0): a light at or below it is refused (issue 21).
+ANGLES = [[0.0, 0.0, 0.0, 30.0], [10.0, -10.0, 20.0, 45.0], [20.0, -20.0, 40.0, 60.0], [-10.0, 10.0, -30.0, 60.0],
+          [30.0, -30.0, 90.0, 70.0], [5.0, 5.0, -90.0, 20.0], [-25.0, 25.0, 150.0, 40.0], [15.0, -40.0, -150.0, 50.0]]
 CAMERA = {"device": "virtual-camera",
           "params": {"width": 48, "height": 36, "focal_px": 180.0, "texels": [12, 12], "intensity": 4000000.0,
                      "effects": ["falloff", "saturation", "response", "noise"], "seed": 7}}
@@ -303,6 +304,37 @@ def test_persistent_motor_fault_stops_with_pose_port_and_command(tmp_path, start
     assert folder_files(folder) == folder_files(folder2)
 
 
+@pytest.mark.parametrize("victim", ["light", "tilt_roll"])
+def test_a_device_vanishing_mid_capture_names_motor_port_command_and_pose(tmp_path, start_simulator, victim):
+    """Issue 21: a serial adapter pulled out mid-capture was a bare ``termios.error`` naming nothing."""
+    sims = rig_sims(start_simulator)
+    graph, store, folder = write_graph(tmp_path, "unplugged", n_poses=5, motors=ports(sims, timeout_s=0.15))
+    injected = []
+
+    def progress(node, done, total):  # after pose 1 is stored, the victim's port disappears
+        if len(read_journal(folder)) >= 2 and not injected:
+            injected.append(sims[victim].add_fault(Fault("vanish", times=1)))
+
+    with pytest.raises(GonioCaptureError) as info:
+        run_graph(str(graph), progress=progress)
+    e = info.value
+    assert isinstance(e.cause, LinkLost) and sims[victim].unplugged
+    message = str(e)
+    motor = {"light": "light_arm", "tilt_roll": "sample_tilt_roll"}[victim]
+    assert e.pose == 2 and "pose 2 of 5" in message
+    assert e.motor == motor and repr(motor) in message
+    assert e.port == sims[victim].port and sims[victim].port in message
+    assert e.command and f"command {e.command!r}" in message
+    assert "serial link lost" in message and "every other motor halted" in message
+    assert "holds the 2 completed poses" in message
+    with pytest.raises(ArtifactError, match="incomplete"):
+        open_artifact(str(store / "capture"))
+    assert [p.id for p in read_journal(folder)] == [0, 1]
+    for key, halt in (("pan", "H"), ("tilt_roll", "H"), ("light", "!S")):
+        if key != victim:
+            assert halt in sims[key].received[-3:], f"{key} not halted: {sims[key].received[-5:]}"
+
+
 def test_soft_limits_in_the_plan_are_refused_before_any_motion(tmp_path, start_simulator):
     sims = rig_sims(start_simulator)
     bad = ANGLES[:3] + [[0.0, 40.0, 0.0, 45.0]]  # tilt 40 deg: beyond the PTU-46's +31 deg
@@ -321,6 +353,18 @@ def test_soft_limits_in_the_plan_are_refused_before_any_motion(tmp_path, start_s
     with pytest.raises(ArtifactError):
         open_artifact(str(store / "capture"))
     assert [s.received[-1] for s in sims.values()] == ["H", "H", "!S"]  # halted and released
+
+
+def test_a_plan_putting_the_light_below_the_sample_is_refused_before_connecting(tmp_path, start_simulator):
+    sims = rig_sims(start_simulator)
+    below = ANGLES[:2] + [[-10.0, 10.0, -30.0, 90.0], [30.0, -30.0, 90.0, 120.0]]  # light at z = -196 mm, -25 mm
+    graph, store, folder = write_graph(tmp_path, "below", motors=ports(sims), plan={"angles_deg": below})
+    with pytest.raises(ParameterError, match=r"2 of 4 poses put the light at or below the sample plane .* pose 2 "
+                                             r"\[pan, tilt, roll, light\] = \[-10.0, 10.0, -30.0, 90.0\] deg puts it at "
+                                             r"z = -196.4 mm \(poses \[2, 3\]\)"):
+        run_graph(str(graph))
+    assert all(not s.received for s in sims.values()), "nothing may even connect"
+    assert not folder.exists()
 
 
 def test_plan_outside_the_geometry_or_undriven_joints_is_refused(tmp_path):

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import pytest
 
 from sbrdf_core.errors import SbrdfError
-from sbrdf_rig.errors import (DeviceClosed, DeviceError, DeviceRefused, GarbledReply, PositionError, ReplyTimeout,
-                              SoftLimitError)
+from sbrdf_rig.errors import (DeviceClosed, DeviceError, DeviceRefused, GarbledReply, ImplausibleReply, LinkLost,
+                              PositionError, ReplyTimeout, SoftLimitError)
 from sbrdf_rig.indexer import Indexer
 from sbrdf_rig.ptu import PanTiltUnit
 from sbrdf_rig.sim import Fault, SimulatedIndexer, SimulatedPTU
@@ -260,3 +260,94 @@ def test_echoed_commands_are_skipped_and_stop_works_mid_session(start_simulator)
 def test_opening_a_missing_port_names_it():
     with pytest.raises(DeviceError, match=r"ptu on /dev/does-not-exist: cannot open serial port"):
         PanTiltUnit(port="/dev/does-not-exist")
+
+
+# -- values that can be verified are (issue 21): line noise that stays valid ASCII -------------------------------------
+
+
+def test_a_corrupted_but_ascii_resolution_reply_is_requeried_not_believed(start_simulator):
+    """``46.2857`` read once as ``41.2857`` (one digit changed, still a valid reply) must not skew every pan pose."""
+    sim = start_simulator(SimulatedPTU, faults=[Fault("corrupt", match="PR", times=1)])
+    with PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S, retries=2) as ptu:
+        assert sim.faults[0].fired == 1
+        assert ptu.arcsec_per_step == {"pan_deg": 46.2857, "tilt_deg": 46.2857}
+        assert ptu.reread == [("pan resolution", [41.2857, 46.2857, 46.2857])]
+        ptu.move_to(pan_deg=100.0)
+    assert sim.position_deg("pan") == pytest.approx(100.0, abs=0.0065)
+
+
+@pytest.mark.parametrize("query", ["PR", "PN"])
+def test_a_persistently_corrupted_constant_stops_before_any_motion(start_simulator, query):
+    """Every reading the same wrong value: the model check (resolution, limit range) refuses it, naming the readings."""
+    sim = start_simulator(SimulatedPTU, faults=[Fault("corrupt", match=query, times=None, digit=0)])
+    with pytest.raises(ImplausibleReply) as info:
+        PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S, retries=2)
+    message = str(info.value)
+    assert sim.port in message and f"command {query!r}" in message and "readings" in message
+    assert info.value.readings and len(set(info.value.readings)) == 1
+    if query == "PR":
+        assert "96.2857" in message and "none of the controller model's resolutions" in message
+    else:  # -12367 positions read as -62367: beyond a full turn
+        assert "-62367 positions is -801.9 deg, beyond a full turn" in message
+    assert not any(c.startswith(("PP", "TP")) and c[2:] for c in sim.received), "nothing may move"
+    assert sim.received[-1] == "H"
+
+
+def test_resolutions_of_another_model_are_accepted_when_declared(start_simulator):
+    sim = start_simulator(SimulatedPTU, resolution_arcsec=12.96)
+    with pytest.raises(ImplausibleReply, match="12.96 arc-seconds per position is none of"):
+        PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S)
+    with PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S, resolutions_arcsec=[12.96]) as ptu:
+        assert ptu.arcsec_per_step["pan_deg"] == 12.96
+    with PanTiltUnit(port=sim.port, timeout_s=TIMEOUT_S, resolutions_arcsec=[]) as ptu:  # agreement only
+        assert ptu.arcsec_per_step["tilt_deg"] == 12.96
+
+
+@pytest.mark.parametrize("rig,query", [(PTU, "PS"), (INDEXER, "1LSPOS")], ids=["ptu-speed", "indexer-soft-limit"])
+def test_a_setting_is_read_back_and_a_mismatch_refused(start_simulator, rig, query):
+    """A setting whose read-back (agreeing with itself) differs from what was sent is re-sent once, then refused."""
+    sim = start_simulator(rig.simulator, faults=[Fault("corrupt", match=query, times=None, digit=2)])
+    with pytest.raises(ImplausibleReply, match="reads back .* after setting") as info:
+        rig.connect(sim)
+    assert sim.port in str(info.value) and f"command {query!r}" in str(info.value)
+    assert sum(c.startswith(query) and c != query for c in sim.received) == 2, "the setting is re-sent once"
+    assert sim.received[-1] == rig.halt_command
+
+
+def test_indexer_resolution_is_requeried_after_a_corrupted_reading(start_simulator):
+    sim = start_simulator(SimulatedIndexer, faults=[Fault("corrupt", match="1DRES", times=1, digit=1)])
+    with Indexer(port=sim.port, timeout_s=TIMEOUT_S) as arm:
+        assert arm.steps_per_deg == 6250.0
+        assert arm.reread == [("drive resolution", [75000, 25000, 25000])]
+        assert arm.move_to(angle_deg=45.5) == {"angle_deg": 45.5}
+    assert sim.position_deg() == pytest.approx(45.5)
+
+
+# -- the device disappears (issue 21): an OS-level failure is a driver error -----------------------------------------------
+
+
+@pytest.mark.parametrize("rig", RIGS, ids=lambda r: r.name)
+@pytest.mark.parametrize("when", ["mid-move", "between-moves"])
+def test_a_vanishing_device_is_a_driver_error_naming_port_command_and_target(start_simulator, rig, when):
+    sim = start_simulator(rig.simulator)
+    driver = rig.connect(sim)
+    if when == "mid-move":  # the adapter is pulled out as the move command arrives: the reply read fails
+        sim.add_fault(Fault("vanish", match=rig.move_command, times=1))
+    else:  # it was pulled out while idle: the next write (tcflush) fails with termios.error EIO
+        sim.unplug()
+    with pytest.raises(LinkLost) as info:
+        driver.move_to(**rig.move)
+    e = info.value
+    message = str(e)
+    axis, target = next(iter(rig.move.items()))
+    assert isinstance(e, DeviceError) and isinstance(e, SbrdfError)
+    assert message.startswith(f"{rig.name} on {sim.port}: serial link lost")
+    assert e.port == sim.port and e.command and f"command {e.command!r}" in message
+    assert f"while moving to {axis}={target:.4f}" in message
+    assert "halt could not be sent" in message and "port closed" in message
+    if when == "between-moves":
+        assert "termios.error: [Errno 5] Input/output error" in message
+    assert not driver.is_open
+    with pytest.raises(DeviceClosed):
+        driver.position()
+    driver.close()

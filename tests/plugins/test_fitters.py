@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from sbrdf_core.brdf import luminance_weights
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.least_squares import LeastSquaresProblem
-from sbrdf_core.nodes.fit import NO_SAMPLES, NONFINITE_INPUT, UNDERDETERMINED, fit_tile
+from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, NO_SAMPLES, NONFINITE_INPUT, UNDERDETERMINED, fit_tile
 from sbrdf_fitters.lm import fit_model, levenberg_marquardt
 
 
@@ -294,14 +294,15 @@ def test_fit_tile_flags_reasons_and_never_writes_nan(registry, lafortune):
     valid[1, 0, 2:] = False  # 2 samples x 3 channels < 9 parameters
     info = [{"array-location": [(0, 2), (0, 2), (0, 20), (0, 3)]}]
     out = fit_tile(f, valid, light, camera, (2, 2), (10.0, 10.0), lm, model, block_info=info)
-    assert np.isfinite(out).all()
     K = model.size
-    flags = out[..., K + 2].astype(int)
+    assert np.isfinite(np.delete(out, K + 1, axis=-1)).all()  # all but rms_holdout (NaN: nothing held out)
+    flags = out[..., K + 3].astype(int)
     assert flags[0, 0] & NO_SAMPLES and flags[0, 0] & NONFINITE_INPUT
+    assert flags[0, 0] & BORROWED and flags[1, 0] & BORROWED  # fitted to their neighbours' samples
     assert flags[0, 1] & NONFINITE_INPUT and not flags[0, 1] & NO_SAMPLES
     assert flags[1, 0] & UNDERDETERMINED
-    assert flags[1, 1] == 0
-    assert out[0, 0, K + 1] == 0 and out[0, 1, K + 1] == 15
+    assert flags[1, 1] & ~CONSTRAINED == 0
+    assert out[0, 0, K + 2] == 0 and out[0, 1, K + 2] == 15
 
 
 def test_lm_core_leaves_texels_without_weight_alone(lafortune):

@@ -20,6 +20,17 @@ a regular expression, and are either transient (``times=N``) or persistent
 ``miss``
     A move command ends ``miss_deg`` away from its target (the encoder
     reports where the motor really is).
+``corrupt``
+    Line noise that stays valid ASCII: the reply is sent with one digit
+    changed into another (the ``digit``-th digit of the reply, counted from 0,
+    becomes ``(d + 5) mod 10``), so ``* 46.2857 seconds arc per position``
+    arrives as ``* 41.2857 ...``; only a repeated, cross-checked query can tell.
+``vanish``
+    The device disappears when the command arrives (a USB adapter pulled
+    out, the controller powered off): the simulator closes its end of the
+    pty without replying, and every later read or write on the port fails
+    with an I/O error (``termios.error`` / ``OSError`` / ``SerialException``).
+    :meth:`PtySimulator.unplug` does the same at any moment.
 """
 
 from __future__ import annotations
@@ -32,8 +43,8 @@ import time
 import tty
 from dataclasses import dataclass, field
 
-FAULT_KINDS = ("drop", "garble", "stall", "miss")
-REPLY_FAULTS = ("drop", "garble", "stall")
+FAULT_KINDS = ("drop", "garble", "stall", "miss", "corrupt", "vanish")
+REPLY_FAULTS = ("drop", "garble", "stall", "corrupt", "vanish")
 
 
 @dataclass
@@ -56,6 +67,8 @@ class Fault:
         Silence before a stalled reply.
     miss_deg
         How far a missed move ends from its target (signed).
+    digit
+        Which digit of the reply a ``corrupt`` fault changes (0 = the first).
     """
 
     kind: str
@@ -64,6 +77,7 @@ class Fault:
     skip: int = 0
     stall_s: float = 0.5
     miss_deg: float = 1.0
+    digit: int = 1
     seen: int = field(default=0, init=False)
     fired: int = field(default=0, init=False)
 
@@ -159,6 +173,7 @@ class PtySimulator:
         self._master = self._slave = -1
         self.port = ""
         self.error: BaseException | None = None
+        self.unplugged = False
 
     # -- lifecycle --------------------------------------------------------------------
 
@@ -188,6 +203,29 @@ class PtySimulator:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def unplug(self) -> None:
+        """The device disappears: the master end of the pty closes and nothing answers any more.
+
+        The driver's port (the slave) then fails every read, write and flush
+        with an I/O error, as a serial adapter does when it is pulled out.
+        Safe from any thread; :meth:`stop` still cleans up.
+        """
+        self.unplugged = True
+        if self._thread is None or threading.current_thread() is self._thread:
+            self._close_master()
+        else:
+            self._thread.join(timeout=5)  # the serving thread closes the master at its next poll
+            self._thread = None
+            self._close_master()
+
+    def _close_master(self) -> None:
+        if self._master >= 0:
+            try:
+                os.close(self._master)
+            except OSError:
+                pass
+            self._master = -1
 
     def add_fault(self, fault: Fault) -> Fault:
         """Inject a fault while running (e.g. after the driver has connected)."""
@@ -225,6 +263,9 @@ class PtySimulator:
         buffer = ""
         try:
             while not self._stop.is_set():
+                if self.unplugged:
+                    self._close_master()
+                    return
                 ready, _, _ = select.select([self._master], [], [], 0.02)
                 if not ready:
                     continue
@@ -235,6 +276,8 @@ class PtySimulator:
                 buffer += data.decode("ascii", errors="replace")
                 commands, buffer = self.split(buffer)
                 for command in commands:
+                    if self.unplugged:
+                        break
                     self._dispatch(command)
         except BaseException as e:  # surfaced to tests through .error
             self.error = e
@@ -242,9 +285,12 @@ class PtySimulator:
 
     def _dispatch(self, command: str) -> None:
         self.received.append(command)
+        fault = self.take_fault(REPLY_FAULTS, command.upper())
+        if fault is not None and fault.kind == "vanish":
+            self.unplug()
+            return
         if self.echo:
             self._send((command + self.eol).encode("ascii", errors="replace"))
-        fault = self.take_fault(REPLY_FAULTS, command.upper())
         reply = self.handle(command)
         if reply is None or self._stop.is_set():
             return
@@ -253,10 +299,22 @@ class PtySimulator:
             self._send(data)
         elif fault.kind == "garble":
             self._send(garble(data))
+        elif fault.kind == "corrupt":
+            self._send(corrupt(data, fault.digit))
         elif fault.kind == "stall":
             if self.wait(fault.stall_s):
                 self._send(data)
         # "drop": executed, never answered
+
+
+def corrupt(data: bytes, digit: int = 1) -> bytes:
+    """``data`` with its ``digit``-th decimal digit changed to ``(d + 5) mod 10``: still valid ASCII, still parses."""
+    body = bytearray(data)
+    positions = [i for i, b in enumerate(body) if 0x30 <= b <= 0x39]
+    if positions:
+        i = positions[min(digit, len(positions) - 1)]
+        body[i] = 0x30 + (body[i] - 0x30 + 5) % 10
+    return bytes(body)
 
 
 def garble(data: bytes) -> bytes:

@@ -1,0 +1,454 @@
+"""Fidelity of fitted materials at directions the fit never saw (issue 20, "Show").
+
+What it measures
+----------------
+Virtual captures, registration included, of spatially varying materials whose
+truth is one BRDF model, fitted by *other* models with the ``lm`` fitter's
+default parameters (only ``model``/``model_params`` are set: what a new user
+gets), then scored against the truth at direction pairs that were not in the
+capture.
+
+Materials (truth parameter maps written as a ``ParamMaps`` artifact and
+photographed by the ``virtual-camera`` device through its ``param_maps``
+parameter; the camera supports per-texel maps of any model, so no change to it
+was needed).  Both are split into three vertical bands of the sample, the
+parameters varying smoothly inside each band (``sbrdf_capture.synthetic.pattern``):
+
+``ct`` truth: Cook–Torrance, GGX D
+    band 0 (u < 1/3) rough dielectric: α 0.25–0.5, F0 0.02–0.08, ρ_d 0.05–0.25;
+    band 1 glossy metal: α 0.08–0.18, F0 0.5–0.95, ρ_d 0.01–0.04;
+    band 2 **near-mirror**: α 0.02–0.035, F0 0.6–0.95, ρ_d 0.02–0.08.
+``laf`` truth: Lafortune, 2 lobes (forward + back-scatter)
+    band 0 broad: n₁ 4–15; band 1 off-specular (C_z = 0.97 |C_xy|: the lobe grows toward grazing): n₁ 20–80;
+    band 2 **near-mirror**: n₁ 800–2500; lobe 2 C = (0.9, 0.9, 1), n₂ 2–6, ρ_s,₂ 0.05–0.2 everywhere.
+
+Scans (each a ``virtual-camera`` capture folder -> ``folder`` Capture -> ``aruco``
+Register -> Reflectance, exactly the path of ``graphs/virtual-scan.yaml``;
+effects falloff, blur, motor_error, noise; one linear EXR exposure per pose):
+
+``orbit``    ``orbit_poses`` (camera θ ≤ 50°, light θ ≤ 65°, Fibonacci spirals);
+``grazing``  the **grazing-heavy** scan: camera θ 40–68°, light θ 62–82°.  A flat sample under one
+             pose list gives every texel (nearly) the same directions, so a region with its own
+             sampling is a second scan of the ``ct`` material rather than a band of it.
+
+Fits (``Fit`` / ``lm``, defaults): ``laf1`` = Lafortune 1 lobe, ``laf2`` = 2 lobes, ``ward`` = Ward,
+each of the ``ct`` truth on both scans (pooled); ``ct`` = Cook–Torrance GGX of the ``laf`` truth (orbit).
+
+Metrics
+-------
+Scoring pairs, per texel, seeded and the same for every fit: ``PAIRS_RANDOM`` pairs with ω_i, ω_o
+independently uniform in solid angle over θ ≤ 85°, plus ``PAIRS_MIRROR`` mirror pairs
+(ω_o = mirror of ω_i, θ_i uniform in solid angle ≤ 85°).  None coincides with a captured pair.
+
+- ``X_median``, ``X_p90``: median and 90th percentile, pooled over **all texels of the sample ×
+  scoring pairs**, of the relative luminance error ``|Y(f_fit) − Y(f_true)| / Y(f_true)``
+  (Y = Rec. 709 weights of linear RGB; f_true > 0 everywhere since every truth has ρ_d ≥ 0.01 sr⁻¹,
+  so no floor is needed).  Texels the fit left at model defaults count: that is what the user gets.
+  ``X_p90_sampled`` (extra key) pools only texels with at least one valid sample, ``X_mirror_median``
+  only their mirror pairs.  The relative error of an underestimate saturates at 1: where a fit misses a
+  peak it never sampled (the near-mirror band's mirror pairs) it scores ≈ 1, so mirror pairs are kept
+  to one pair in eight lest they pin the p90 at 1.
+- ``fireflies``: texels, summed over all fits, whose maximum luminance over the hemisphere exceeds
+  10× the truth's maximum at that texel.  The maximum is taken over a dense set: the planes
+  Δφ = 0 and Δφ = 180° (where an isotropic lobe peaks: Lafortune's x is linear in cos Δφ, and
+  Cook–Torrance's and Ward's half vector is nearest the normal at Δφ = 180°)
+  with θ_i, θ_o on a 2.5° grid up to 85° (mirror pairs included), the scoring pairs, and a
+  0.25° refinement (±2.5°) around each texel's coarse argmax — for the fit and the truth alike.
+  ``X_fireflies`` per fit (extra keys).
+- ``unsampled``: largest over the fits of the fraction of the sample's texels whose ``samples`` map
+  (Fit node) is 0.
+- ``render_max``: maximum pixel (any channel, linear) of a ``cpu`` Render of the ``laf2`` fit
+  (orbit scan) in ``scenes/objects.yaml`` at a small resolution.
+
+Sizes: full = 64×64 texels, 640×480 images, 90 orbit + 60 grazing poses (a few minutes on
+2 cores); ``--quick`` = 32×32 texels, 480×360 images, 40 + 30 poses (about a minute).
+
+Run::
+
+    python benchmarks/fidelity.py [--quick] [--keep DIR]
+
+Materials, captures and fits are written to a temporary folder (kept in ``DIR`` with ``--keep``).
+A second run into the same ``DIR`` reuses its capture folders and the Runner's cached nodes, whose
+tokens do not change with the code: compare code versions in fresh folders.
+Last line::
+
+    fidelity: laf1_median=... laf1_p90=... laf2_median=... laf2_p90=... ct_median=... ct_p90=...
+    fireflies=... unsampled=... render_max=... ward_median=... ward_p90=... X_p90_sampled=...
+    X_mirror_median=... X_fireflies=... X_s=...      (X = laf1, laf2, ward, ct; X_s = Fit node wall time, s)
+
+Progress, per-scan figures, per-band medians and the first firefly texels (v, u, band, valid samples,
+fit max / truth max) go to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+MAX_THETA = 85.0
+PAIRS_RANDOM, PAIRS_MIRROR = 112, 16
+SIZE_MM = (100.0, 100.0)
+EFFECTS = ["falloff", "blur", "motor_error", "noise"]
+INTENSITY = 1.5e5
+
+FULL = {"texels": 64, "width": 640, "height": 480, "focal": 900.0, "orbit": 90, "grazing": 60, "render": [320, 240]}
+QUICK = {"texels": 32, "width": 480, "height": 360, "focal": 675.0, "orbit": 40, "grazing": 30, "render": [160, 120]}
+
+#: fit name -> (truth material, scans, model, model_params)
+FITS = {
+    "laf1": ("ct", ("orbit", "grazing"), "lafortune", {"lobes": 1}),
+    "laf2": ("ct", ("orbit", "grazing"), "lafortune", {"lobes": 2}),
+    "ward": ("ct", ("orbit", "grazing"), "ward", {}),
+    "ct": ("laf", ("orbit",), "cook-torrance", {"distribution": "ggx"}),
+}
+TRUTH = {"ct": ("cook-torrance", {"distribution": "ggx"}), "laf": ("lafortune", {"lobes": 2})}
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------
+# truth materials
+# ---------------------------------------------------------------------------
+
+
+def _bands(n: int, k: int, c: int, ranges) -> np.ndarray:
+    """(n, n) map: per vertical band b of three, ranges[b] = (lo, hi) spanned by a smooth pattern."""
+    from sbrdf_capture.synthetic import pattern
+
+    p = pattern(n, n, k, c)
+    band = np.minimum((np.arange(n) * 3) // n, 2)[None, :].repeat(n, 0)
+    lo = np.choose(band, [r[0] for r in ranges])
+    hi = np.choose(band, [r[1] for r in ranges])
+    return lo + (hi - lo) * p
+
+
+def truth_maps(kind: str, n: int) -> dict[str, np.ndarray]:
+    """Parameter maps ``name -> (V, U, C)`` of the truth material ``kind``."""
+    def rgb(k, ranges):
+        return np.stack([_bands(n, k, c, ranges) for c in range(3)], axis=-1)
+
+    def one(k, ranges):
+        return _bands(n, k, 0, ranges)[..., None]
+
+    if kind == "ct":
+        return {"rho_d": rgb(0, [(0.05, 0.25), (0.01, 0.04), (0.02, 0.08)]),
+                "f0": rgb(1, [(0.02, 0.08), (0.5, 0.95), (0.6, 0.95)]),
+                "alpha": one(2, [(0.25, 0.5), (0.08, 0.18), (0.02, 0.035)])}
+    n1 = one(3, [(4.0, 15.0), (20.0, 80.0), (800.0, 2500.0)])
+    # Peak lobe value ≈ albedo·(n+2)/(2π): keep each band's lobe albedo plausible (≤ ~0.6).
+    albedo = one(4, [(0.3, 0.6), (0.3, 0.6), (0.4, 0.6)])
+    tint = rgb(5, [(0.7, 1.0)] * 3)
+    cz = np.ones((n, n, 1))
+    cz1 = np.where(np.arange(n)[None, :, None] * 3 // n == 1, 0.97, 1.0) * np.ones((n, n, 1))
+    return {"rho_d": rgb(6, [(0.03, 0.2), (0.02, 0.1), (0.01, 0.05)]),
+            "rho_s_1": albedo * (n1 + 2) / (2 * np.pi) * tint, "c_xy_1": -np.ones((n, n, 1)), "c_z_1": cz1, "exponent_1": n1,
+            "rho_s_2": rgb(7, [(0.05, 0.2)] * 3), "c_xy_2": np.full((n, n, 1), 0.9), "c_z_2": cz.copy(),
+            "exponent_2": one(8, [(2.0, 6.0)] * 3)}
+
+
+def write_param_maps(url: str, model, model_config: dict, maps: dict[str, np.ndarray]) -> None:
+    """A minimal complete ParamMaps artifact (what the virtual camera's ``param_maps`` reads)."""
+    import zarr
+
+    V, U = next(iter(maps.values())).shape[:2]
+    g = zarr.open_group(store=url, mode="w")
+    for p in model.parameters:
+        a = np.asarray(maps[p.name], np.float32)
+        g.create_array(f"params/{p.name}", shape=a.shape, dtype="float32")[...] = a
+    g.attrs.update({"kind": "ParamMaps", "version": 1, "complete": True, "token": "fidelity-truth", "model": model.name,
+                    "model_config": model_config, "parameters": model.describe(), "texels": [U, V],
+                    "size_mm": list(SIZE_MM), "fitter": None, "provenance": {"made_by": "benchmarks/fidelity.py"}})
+
+
+# ---------------------------------------------------------------------------
+# captures
+# ---------------------------------------------------------------------------
+
+
+def band_fibonacci(n: int, lo_deg: float, hi_deg: float, offset: float = 0.0) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    z = np.cos(np.radians(lo_deg)) - (np.cos(np.radians(lo_deg)) - np.cos(np.radians(hi_deg))) * i / n
+    phi = np.pi * (3 - np.sqrt(5)) * i + offset
+    s = np.sqrt(np.clip(1 - z * z, 0, None))
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+
+
+def poses(scan: str, n: int):
+    from sbrdf_cameras.virtual import orbit_poses
+    from sbrdf_core.geometry import look_at
+
+    if scan == "orbit":
+        return orbit_poses(n)
+    cams = band_fibonacci(n, 40.0, 68.0, offset=2.0) * 350.0
+    lights = band_fibonacci(n, 62.0, 82.0)[::-1] * 450.0
+    Rt = [look_at(c) for c in cams]
+    return lights, np.stack([R for R, _ in Rt]), np.stack([t for _, t in Rt])
+
+
+def capture(folder: Path, truth_url: str, scan: str, size: dict, seed: int) -> None:
+    from sbrdf_cameras.virtual import capture_to_folder
+    from sbrdf_core.registry import default_registry
+
+    reg = default_registry()
+    cam = reg.create("device", "virtual-camera", {
+        "width": size["width"], "height": size["height"], "focal_px": size["focal"], "param_maps": truth_url,
+        "effects": EFFECTS, "intensity": INTENSITY, "seed": seed})
+    cam.bind(reg)
+    light, R, t = poses(scan, size[scan])
+    capture_to_folder(cam, folder, light, R, t, 1.0, durable=False)
+
+
+# ---------------------------------------------------------------------------
+# the graph
+# ---------------------------------------------------------------------------
+
+
+def graph_text(scans: dict[str, Path], texels: int, scene: Path) -> str:
+    lines = ["name: fidelity-benchmark", "store: ./store", "nodes:"]
+    for key, folder in scans.items():
+        lines += [f"  cap_{key}: {{kind: Capture, plugin: folder, params: {{path: {json.dumps(str(folder))}}}}}",
+                  f"  reg_{key}: {{kind: Register, plugin: aruco, in: {{capture: cap_{key}}}, "
+                  f"params: {{texels: [{texels}, {texels}], max_rms_mm: 0.5}}}}",
+                  f"  refl_{key}: {{kind: Reflectance, in: {{stack: reg_{key}}}}}"]
+    for name, (truth, scan_list, model, mp) in FITS.items():
+        for scan in scan_list:
+            params = {"model": model, "model_params": mp}
+            lines.append(f"  {name}_{scan}: {{kind: Fit, plugin: lm, in: {{samples: refl_{truth}_{scan}}}, "
+                         f"params: {json.dumps(params)}}}")
+    lines.append(f"  render: {{kind: Render, plugin: cpu, in: {{material: laf2_orbit}}, "
+                 f"params: {{scene: {json.dumps(str(scene))}}}}}")
+    return "\n".join(lines) + "\n"
+
+
+def write_scene(path: Path, resolution) -> None:
+    import yaml
+
+    scene = yaml.safe_load((ROOT / "scenes" / "objects.yaml").read_text())
+    scene["camera"]["resolution"] = list(resolution)
+    path.write_text(yaml.safe_dump(scene))
+
+
+# ---------------------------------------------------------------------------
+# scoring
+# ---------------------------------------------------------------------------
+
+
+def _uniform_dirs(rng, shape) -> np.ndarray:
+    z = 1 - rng.random(shape) * (1 - np.cos(np.radians(MAX_THETA)))
+    phi = rng.random(shape) * 2 * np.pi
+    s = np.sqrt(1 - z * z)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+
+
+def scoring_pairs(T: int, seed: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    wi = _uniform_dirs(rng, (T, PAIRS_RANDOM + PAIRS_MIRROR))
+    wo = _uniform_dirs(rng, (T, PAIRS_RANDOM + PAIRS_MIRROR))
+    m = wi[:, PAIRS_RANDOM:]
+    wo[:, PAIRS_RANDOM:] = np.stack([-m[..., 0], -m[..., 1], m[..., 2]], axis=-1)
+    return wi, wo
+
+
+def _plane_dirs(ti, to, plane):
+    """ω_i in the xz plane at θ_i, ω_o at θ_o with Δφ = 0 (plane 0) or 180° (plane 1); radians, broadcast."""
+    sgn = np.where(plane == 1, -1.0, 1.0)
+    wi = np.stack([np.sin(ti), np.zeros_like(ti), np.cos(ti)], axis=-1)
+    wo = np.stack([sgn * np.sin(to), np.zeros_like(to), np.cos(to)], axis=-1)
+    return wi, wo
+
+
+def _lum(model, params, wi, wo) -> np.ndarray:
+    return np.einsum("tsc,c->ts", model.eval(params, wi, wo), LUMA)
+
+
+def hemisphere_max(model, params, wi_s, wo_s) -> np.ndarray:
+    """Per-texel maximum luminance over the dense set described in the module docstring, ``(T,)``."""
+    T = wi_s.shape[0]
+    g = np.radians(np.arange(0.0, MAX_THETA + 1e-9, 2.5))
+    ti, to, pl = np.meshgrid(g, g, np.array([0, 1]), indexing="ij")
+    ti, to, pl = ti.ravel(), to.ravel(), pl.ravel()
+    wi, wo = _plane_dirs(ti, to, pl)
+    y = _lum(model, params, np.broadcast_to(wi, (T,) + wi.shape), np.broadcast_to(wo, (T,) + wo.shape))
+    best = y.argmax(axis=1)
+    out = np.maximum(y.max(axis=1), _lum(model, params, wi_s, wo_s).max(axis=1))
+    d = np.radians(np.arange(-2.5, 2.5 + 1e-9, 0.25))
+    dti, dto = np.meshgrid(d, d, indexing="ij")
+    lim = np.radians(MAX_THETA)
+    fti = np.clip(ti[best][:, None] + dti.ravel()[None], 0.0, lim)
+    fto = np.clip(to[best][:, None] + dto.ravel()[None], 0.0, lim)
+    wi, wo = _plane_dirs(fti, fto, np.broadcast_to(pl[best][:, None], fti.shape))
+    return np.maximum(out, _lum(model, params, wi, wo).max(axis=1))
+
+
+def score(fit_url: str, truth_url: str, chunk: int = 256) -> dict:
+    """Relative luminance errors ``(T, S)``, firefly mask ``(T,)``, sample counts ``(T,)`` of one fit."""
+    from sbrdf_core.registry import default_registry
+    from sbrdf_core.store import open_artifact
+
+    reg = default_registry()
+    out = {}
+    models, params = {}, {}
+    for key, url in (("fit", fit_url), ("truth", truth_url)):
+        art = open_artifact(url, kind="ParamMaps")
+        models[key] = reg.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
+        params[key] = {p.name: np.asarray(art.read(f"params/{p.name}"), np.float64) for p in models[key].parameters}
+        if key == "fit":
+            out["samples"] = np.asarray(art.read("samples")).reshape(-1)
+            out["flags"] = np.asarray(art.read("flags")).reshape(-1)
+    V, U = next(iter(params["fit"].values())).shape[:2]
+    tv, tu = next(iter(params["truth"].values())).shape[:2]
+    if (tv, tu) != (V, U):
+        raise RuntimeError(f"truth grid {tu}x{tv} differs from the fitted grid {U}x{V}")
+    T = V * U
+    flat = {k: {n: a.reshape(T, -1) for n, a in p.items()} for k, p in params.items()}
+    wi_all, wo_all = scoring_pairs(T)
+    rel = np.empty(wi_all.shape[:2])
+    fmax, tmax = np.empty(T), np.empty(T)
+    for s in range(0, T, chunk):
+        sl = slice(s, min(s + chunk, T))
+        pf = {n: a[sl] for n, a in flat["fit"].items()}
+        pt = {n: a[sl] for n, a in flat["truth"].items()}
+        wi, wo = wi_all[sl], wo_all[sl]
+        yf, yt = _lum(models["fit"], pf, wi, wo), _lum(models["truth"], pt, wi, wo)
+        rel[sl] = np.abs(yf - yt) / yt
+        fmax[sl] = hemisphere_max(models["fit"], pf, wi, wo)
+        tmax[sl] = hemisphere_max(models["truth"], pt, wi, wo)
+    out.update(rel=rel, fmax=fmax, tmax=tmax, firefly=~(fmax <= 10 * tmax), grid=(V, U))
+    return out
+
+
+def warm(workdir: Path) -> None:
+    """Fit each model once on a tiny ``SampleModel`` grid, so JIT compilation is not charged to the first fit."""
+    from sbrdf_core.graph import load_graph
+    from sbrdf_core.registry import Registry
+    from sbrdf_core.runner import Runner
+
+    workdir.mkdir(parents=True, exist_ok=True)
+    sample = {"model": "lafortune", "model_params": {"lobes": 2}, "texels": [8, 8], "poses": 50, "noise": 0.01,
+              "seed": 0, "directions": "random", "max_theta_deg": 80.0}
+    lines = ["name: fidelity-warm", "store: ./store", "nodes:", f"  samples: {{kind: SampleModel, params: {json.dumps(sample)}}}"]
+    for name, (_, _, model, mp) in FITS.items():
+        lines.append(f"  {name}: {{kind: Fit, plugin: lm, in: {{samples: samples}}, "
+                     f"params: {json.dumps({'model': model, 'model_params': mp})}}}")
+    (workdir / "graph.yaml").write_text("\n".join(lines) + "\n")
+    reg = Registry()
+    Runner(reg, progress=False).run(load_graph(workdir / "graph.yaml", reg))
+
+
+# ---------------------------------------------------------------------------
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="32x32 texels, fewer poses and pixels (about a minute)")
+    ap.add_argument("--keep", metavar="DIR", default=None, help="write materials, captures and fits here and keep them")
+    args = ap.parse_args(argv)
+    size = QUICK if args.quick else FULL
+    n = size["texels"]
+    t_start = time.perf_counter()
+    if args.keep:
+        workdir = Path(args.keep).resolve()
+        workdir.mkdir(parents=True, exist_ok=True)
+    else:
+        workdir = Path(tempfile.mkdtemp(prefix="sbrdf-fidelity-"))
+    try:
+        from sbrdf_core.graph import load_graph
+        from sbrdf_core.registry import Registry, default_registry
+        from sbrdf_core.runner import Runner
+        from sbrdf_core.store import open_artifact
+
+        reg0 = default_registry()
+        truth_urls = {}
+        for kind, (model_name, mp) in TRUTH.items():
+            url = str(workdir / f"truth_{kind}")
+            write_param_maps(url, reg0.create("brdf-model", model_name, mp), mp, truth_maps(kind, n))
+            truth_urls[kind] = url
+        scans = {}
+        for k, (truth, scan) in enumerate((("ct", "orbit"), ("ct", "grazing"), ("laf", "orbit"))):
+            folder = workdir / f"capture_{truth}_{scan}"
+            t0 = time.perf_counter()
+            if not (folder / "capture.json").exists() or args.keep is None:
+                capture(folder, truth_urls[truth], scan, size, seed=k)
+            scans[f"{truth}_{scan}"] = folder
+            log(f"capture {truth}/{scan}: {size[scan]} poses, {time.perf_counter() - t0:.1f} s")
+        scene = workdir / "scene.yaml"
+        write_scene(scene, size["render"])
+        gpath = workdir / "graph.yaml"
+        gpath.write_text(graph_text(scans, n, scene))
+        warm(workdir / "warm")  # import and JIT-compile the fitters' kernels off the clock
+        reg = Registry()
+        graph = load_graph(gpath, reg)
+        t0 = time.perf_counter()
+        report = Runner(reg, progress=False).run(graph)
+        log(f"graph: {time.perf_counter() - t0:.1f} s")
+
+        figures: dict[str, float] = {}
+        unsampled, fireflies, seconds = [], 0, {}
+        for name, (truth, scan_list, _, _) in FITS.items():
+            rels, sampled_rels, mirror_rels, ff = [], [], [], 0
+            seconds[name] = 0.0
+            for scan in scan_list:
+                node = f"{name}_{scan}"
+                seconds[name] += report[node].wall_s
+                s = score(graph.url(node), truth_urls[truth])
+                rels.append(s["rel"].ravel())
+                sampled_rels.append(s["rel"][s["samples"] > 0].ravel())
+                mirror_rels.append(s["rel"][s["samples"] > 0][:, PAIRS_RANDOM:].ravel())
+                unsampled.append(float((s["samples"] == 0).mean()))
+                bad = np.flatnonzero(s["firefly"])
+                ff += bad.size
+                V, U = s["grid"]
+                where = ", ".join(f"(v={b // U},u={b % U},band={min(3 * (b % U) // U, 2)},n={s['samples'][b]},"
+                                  f"max={s['fmax'][b]:.3g}/{s['tmax'][b]:.3g})" for b in bad[:8])
+                summary = open_artifact(graph.url(node)).attrs.get("summary", {})
+                log(f"{node}: {report[node].wall_s:.1f} s, median {np.median(s['rel']):.4f}, "
+                    f"p90 {np.percentile(s['rel'], 90):.4f}, no samples {int((s['samples'] == 0).sum())}, "
+                    f"fireflies {bad.size}{': ' + where if bad.size else ''}; flagged {summary.get('texels_flagged', {})}")
+                per_band = [np.median(s["rel"].reshape(V, U, -1)[:, b * U // 3:(b + 1) * U // 3]) for b in range(3)]
+                log(f"    median per band (0 rough, 1 glossy, 2 near-mirror): "
+                    + " ".join(f"{x:.4f}" for x in per_band))
+            rel = np.concatenate(rels)
+            srel = np.concatenate(sampled_rels)
+            figures[f"{name}_median"] = float(np.median(rel))
+            figures[f"{name}_p90"] = float(np.percentile(rel, 90))
+            figures[f"{name}_p90_sampled"] = float(np.percentile(srel, 90)) if srel.size else float("nan")
+            mrel = np.concatenate(mirror_rels)
+            figures[f"{name}_mirror_median"] = float(np.median(mrel)) if mrel.size else float("nan")
+            figures[f"{name}_fireflies"] = ff
+            fireflies += ff
+        img = np.asarray(open_artifact(graph.url("render")).read("image"), np.float64)
+        render_max = float(np.nanmax(img)) if np.isfinite(img).any() else float("inf")
+        log(f"render: {report['render'].wall_s:.1f} s, max {render_max:.4g}, pixels > 1e6: {int((img > 1e6).any(-1).sum())}")
+        log(f"total {time.perf_counter() - t_start:.1f} s; work in {workdir}")
+
+        def g(x):
+            return f"{x:.6g}"
+
+        head = " ".join(f"{k}={g(figures[k])}" for k in
+                        ("laf1_median", "laf1_p90", "laf2_median", "laf2_p90", "ct_median", "ct_p90"))
+        extra = " ".join([f"{k}={g(figures[k])}" for k in ("ward_median", "ward_p90") if k in figures]
+                         + [f"{k}_p90_sampled={g(figures[f'{k}_p90_sampled'])}" for k in FITS]
+                         + [f"{k}_mirror_median={g(figures[f'{k}_mirror_median'])}" for k in FITS]
+                         + [f"{k}_fireflies={figures[f'{k}_fireflies']}" for k in FITS]
+                         + [f"{k}_s={seconds[k]:.2f}" for k in FITS])
+        print(f"fidelity: {head} fireflies={fireflies} unsampled={g(max(unsampled))} render_max={g(render_max)} {extra}",
+              flush=True)
+    finally:
+        if args.keep is None:
+            shutil.rmtree(workdir, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

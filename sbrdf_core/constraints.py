@@ -1,0 +1,164 @@
+"""What keeps a fitted texel physical and bounded where it was not measured.
+
+A least-squares fit sees only the sampled direction pairs.  Between and
+beyond them a lobe is free: a Lafortune lobe parked at n = 20000 with
+|C_x| just above C_z is invisible at θ ≤ 75° and reaches 10²⁵ sr⁻¹ at
+grazing, and a lobe narrower than the sampling can resolve can take any
+height between two samples.  Those texels are the white specks of a render
+and stretch every quantization range.  So each model declares, in
+:meth:`BRDFModel.constrain <sbrdf_core.brdf.BRDFModel.constrain>`, how it
+stays inside three bounds, all taken per texel from :class:`Limits`:
+
+- **peak**: the largest f_r the lobes may reach anywhere on the hemisphere up
+  to ``max_theta``, a stated factor times the largest value the texel's own
+  valid samples and its 8 neighbours' show (:func:`sample_support`);
+- **resolution**: the finest angular detail the samples resolve, from how
+  close they come to the mirror configuration (:func:`angular_resolution`);
+  exponents and roughness are bounded so a lobe's half width at half maximum
+  is at least half of it;
+- **albedo**: directional albedo ≤ ``albedo`` (energy conservation), checked
+  by quadrature and enforced by scaling the ``magnitude`` parameters
+  (:func:`enforce_energy`).
+
+Fitters project onto the first two at every iteration (in the fit form); the
+Fit node applies all three to whatever any fitter returns and flags the
+texels it moved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .brdf_checks import directional_albedo
+
+#: A cosine lobe cos^n α falls to half its peak at α = √(2 ln 2 / n).
+HALF_MAX = 2.0 * np.log(2.0)
+#: Samples counted when measuring how close the data comes to the mirror configuration.
+NEAREST = 3
+#: Incident elevations (degrees) where the energy bound is checked.
+ENERGY_THETAS = (0.0, 45.0, 75.0)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Per-texel bounds for a batch of T texels (``None``: that bound is off)."""
+
+    #: Largest f_r (sr⁻¹, any channel) the model may reach on the hemisphere up to ``max_theta``, ``(T,)``.
+    peak: np.ndarray | None = None
+    #: Finest angular detail (radians) the texel's samples resolve, ``(T,)``.
+    resolution: np.ndarray | None = None
+    #: The hemisphere the peak bound covers, radians from the normal.
+    max_theta: float = float(np.radians(89.0))
+    #: Directional albedo bound (1: reflect at most what arrives), or ``None``.
+    albedo: float | None = 1.0
+    #: How much a lobe's *shape* may grow from normal incidence toward grazing (Lafortune m^n), or ``None``.
+    growth: float | None = None
+
+    def take(self, idx) -> Limits:
+        """The limits of the texels ``idx`` (an index array or a mask)."""
+        pick = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
+        return replace(self, peak=pick(self.peak), resolution=pick(self.resolution))
+
+    def max_cosine_exponent(self) -> np.ndarray | float:
+        """The sharpest cosine lobe cos^n α the sampling resolves: HWHM ≥ resolution / 2, ``(T, 1)``."""
+        if self.resolution is None:
+            return np.inf
+        r = np.maximum(np.asarray(self.resolution, np.float64), 1e-4)[:, None]
+        return 4.0 * HALF_MAX / (r * r)
+
+    def min_roughness(self) -> np.ndarray | float:
+        """The smallest microfacet slope α (Beckmann/GGX/Ward) the sampling resolves, ``(T, 1)``.
+
+        A Gaussian in tan θ_h of width α has HWHM α√ln2 in θ_h, twice that in
+        the mirror angle; requiring that to be ≥ resolution / 2 gives the bound.
+        """
+        if self.resolution is None:
+            return 0.0
+        return np.asarray(self.resolution, np.float64)[:, None] / (4.0 * np.sqrt(np.log(2.0)))
+
+
+def sample_support(f_r: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Largest valid sample value of each texel over poses and channels, ``(T,)`` (0 with none)."""
+    return np.where(valid[..., None], np.nan_to_num(f_r, nan=0.0, posinf=0.0, neginf=0.0), 0.0).max(axis=(1, 2),
+                                                                                                    initial=0.0)
+
+
+def neighbourhood_max(support: np.ndarray) -> np.ndarray:
+    """3×3 maximum of a ``(V, U)`` map: a texel may be as bright as its neighbours show (edges clipped)."""
+    from scipy.ndimage import maximum_filter
+
+    return maximum_filter(np.asarray(support), size=3, mode="nearest")
+
+
+def angular_resolution(wi: np.ndarray, wo: np.ndarray, valid: np.ndarray, nearest: int = NEAREST) -> np.ndarray:
+    """How close each texel's samples come to the mirror configuration, radians, ``(T,)``.
+
+    The ``nearest``-th smallest angle between ω_o and the mirror direction of
+    ω_i over the valid samples: a specular lobe narrower than this has no
+    sample on its flanks, so its width and height are not measured.  π/2 for
+    a texel with fewer valid samples.
+    """
+    cos_a = wi[..., 2] * wo[..., 2] - wi[..., 0] * wo[..., 0] - wi[..., 1] * wo[..., 1]
+    angle = np.where(valid, np.arccos(np.clip(cos_a, -1.0, 1.0)), np.pi / 2)
+    k = min(nearest, angle.shape[1]) - 1
+    if k < 0:
+        return np.full(angle.shape[0], np.pi / 2)
+    return np.minimum(np.partition(angle, k, axis=1)[:, k], np.pi / 2)
+
+
+def clip_shape(params, names, low=None, high=None) -> tuple[dict, np.ndarray]:
+    """Clip the named shape parameters to per-texel ``(T, 1)`` bounds; returns ``(params, changed)``."""
+    out = dict(params)
+    changed = np.zeros(next(iter(out.values())).shape[0], bool)
+    for name in names:
+        v = np.asarray(out[name], np.float64)
+        c = v if low is None else np.maximum(v, low)
+        c = c if high is None else np.minimum(c, high)
+        changed |= (c != v).any(axis=-1)
+        out[name] = c
+    return out, changed
+
+
+def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi: int = 48):
+    """Scale each texel's ``magnitude`` parameters so its directional albedo stays ≤ ``albedo``.
+
+    Albedo by :func:`~sbrdf_core.brdf_checks.directional_albedo` at
+    :data:`ENERGY_THETAS` (and a second azimuth for anisotropic models), on a
+    coarse grid: exact for the diffuse term and smooth lobes, approximate for
+    lobes sharper than the grid (whose albedo is small once their peak is
+    bounded).  Returns ``(params, changed)``.
+    """
+    T = next(iter(params.values())).shape[0]
+    out = {k: np.asarray(v, np.float64) for k, v in params.items()}
+    changed = np.zeros(T, bool)
+    mags = [p.name for p in model.parameters if p.magnitude]
+    if albedo is None or not mags or T == 0:
+        return out, changed
+    phis = (0.0, np.pi / 2) if getattr(model, "anisotropic", True) else (0.0,)
+    dirs = [(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)) for t in np.radians(ENERGY_THETAS) for p in phis]
+    for _ in range(2):  # F0 is affine, not linear: a second pass catches what the first scale left
+        with np.errstate(all="ignore"):
+            a = np.max([directional_albedo(model, out, np.array(d), n_theta, n_phi).max(axis=1) for d in dirs], axis=0)
+        over = np.isfinite(a) & (a > albedo * (1.0 + 1e-3))
+        if not over.any():
+            break
+        scale = np.where(over, albedo / np.where(over, a, 1.0), 1.0)[:, None]
+        for name in mags:
+            out[name] = out[name] * scale
+        changed |= over
+    return out, changed
+
+
+def enforce(model, params, limits: Limits):
+    """All three bounds on model-form ``params``: ``model.constrain`` then the energy bound.
+
+    Returns ``(params, changed)``.  What every fitted texel goes through in the
+    Fit node, whatever fitter produced it.
+    """
+    out, changed = model.constrain(params, limits)
+    if changed.size == 0:
+        changed = np.zeros(next(iter(out.values())).shape[0], bool)
+    out, energy = enforce_energy(model, out, limits.albedo)
+    return out, changed | energy

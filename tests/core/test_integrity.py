@@ -1,0 +1,301 @@
+"""A store no graph can escape or corrupt silently (issue 21): node names, path
+confinement, chunk checksums, the reuse check, ``sbrdf verify``, the store lock.
+
+Each damage test starts from a copy of one finished store and compares the
+repaired store with the undamaged one.  On the code before issue 21 each of
+them fails: bad node names validated, a damaged artifact was reported
+``cached`` (or read back as other numbers), and there was no lock.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zarr
+
+from sbrdf_core.cli import main as cli
+from sbrdf_core.errors import ArtifactError, GraphError, RunError
+from sbrdf_core.graph import load_graph
+from sbrdf_core.integrity import StoreBusy, StoreLock, check_artifact
+from sbrdf_core.runner import Runner
+from sbrdf_core.store import ArtifactWriter, inside_store, open_artifact
+
+from ..conftest import assert_stores_equal, graph_yaml
+
+CHANGED_FIT = {"model": "lambert", "iterations": 7}
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory, registry) -> Path:
+    """One finished six-node store, never modified (tests damage copies)."""
+    root = tmp_path_factory.mktemp("finished")
+    g = root / "g.yaml"
+    g.write_text(graph_yaml(root / "s"))
+    Runner(registry).run(load_graph(g, registry))
+    return root / "s"
+
+
+@pytest.fixture
+def store(finished, tmp_path, write_graph, registry):
+    """A copy of the finished store, and ``run(**graph_changes)`` on it."""
+    s = tmp_path / "s"
+    shutil.copytree(finished, s)
+
+    def run(fit=None, **kw):
+        return Runner(registry, **kw).run(load_graph(write_graph(graph_yaml(s, fit=fit)), registry))
+
+    return s, run
+
+
+def chunk(store: Path, array: str) -> Path:
+    """The first chunk file of an array."""
+    return sorted(p for p in (store / array / "c").rglob("*") if p.is_file())[0]
+
+
+# -- node names and confinement ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["../../victim", ".", "", "a/b", "..", "x" * 65, "-lead"])
+def test_node_names_are_identifiers_checked_with_their_line(write_graph, registry, tmp_path, name):
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "zarr.json").write_text("{}")
+    (victim / "beside.txt").write_text("precious")
+    text = graph_yaml(tmp_path / "a" / "b" / "s").replace("  render: {kind", f"  {json.dumps(name)}: {{kind")
+    with pytest.raises(GraphError) as e:
+        load_graph(write_graph(text), registry)
+    assert f"graph.yaml:9: node name {name!r} is not an identifier" in str(e.value)
+    assert (victim / "beside.txt").read_text() == "precious"
+
+
+def test_every_written_or_deleted_path_is_proven_inside_the_store(tmp_path, registry, write_graph):
+    store = tmp_path / "s"
+    store.mkdir()
+    (tmp_path / "outside").mkdir()
+    (store / "link").symlink_to(tmp_path / "outside")
+    for bad in (str(store), str(store) + "/.", str(store) + "/../victim", str(store / "link" / "x"), str(tmp_path)):
+        with pytest.raises(ArtifactError, match="outside the store"):
+            inside_store(str(store), bad)
+    assert inside_store(str(store), str(store / "fit")) == str(store / "fit")
+    with pytest.raises(ArtifactError, match="outside the store"):
+        inside_store("memory://b/s", "memory://b/s/../t")
+    # a graph built by hand (no validation) still cannot write outside: the runner checks again
+    g = load_graph(write_graph(graph_yaml(store)), registry)
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "zarr.json").write_text('{"zarr_format": 3, "node_type": "group", "attributes": {}}')
+    node = g.nodes.pop("capture")
+    node.name = "../victim"
+    g.nodes = {"../victim": node}
+    with pytest.raises(ArtifactError, match="outside the store"):
+        Runner(registry).run(g)
+    assert (victim / "zarr.json").exists()
+
+
+def test_only_this_nodes_marked_artifact_is_ever_removed(tmp_path):
+    from sbrdf_core.artifacts import ParamMaps
+    from sbrdf_core.store import ArrayLayout
+
+    store = tmp_path / "s"
+    foreign = store / "fit"
+    foreign.mkdir(parents=True)
+    (foreign / "zarr.json").write_text('{"zarr_format": 3, "node_type": "group", "attributes": {}}')
+    (foreign / "data.txt").write_text("not ours")
+    w = ArtifactWriter(str(foreign), ParamMaps, "t", store=str(store), node="fit")
+    assert w.state() == "stale"
+    with pytest.raises(ArtifactError, match="not the artifact of node 'fit'.*refusing to delete"):
+        w.prepare({"rms": ArrayLayout((2,), (2,), "float32")}, {})
+    assert (foreign / "data.txt").read_text() == "not ours"
+    # our own artifact (its marker names the node) is replaced when its token changes
+    own = ArtifactWriter(str(store / "own"), ParamMaps, "t", store=str(store), node="own")
+    own.prepare({"rms": ArrayLayout((2,), (2,), "float32")}, {})
+    assert ArtifactWriter(str(store / "own"), ParamMaps, "u", store=str(store), node="own").state() == "stale"
+    ArtifactWriter(str(store / "own"), ParamMaps, "u", store=str(store), node="own").prepare({}, {})
+    # ... but another node's artifact is not (a node renamed onto it)
+    with pytest.raises(ArtifactError, match="not the artifact of node 'other'"):
+        ArtifactWriter(str(store / "own"), ParamMaps, "v", store=str(store), node="other").prepare({}, {})
+
+
+# -- damage: found on reuse, at read time, by verify ---------------------------------------------------
+
+
+def test_every_array_is_written_with_a_crc32c_checksum(finished):
+    meta = json.loads((finished / "fit" / "params" / "rho_d" / "zarr.json").read_text())
+    assert [c["name"] for c in meta["codecs"]][-1] == "crc32c"
+    assert not check_artifact(str(finished / "fit"), full=True)
+
+
+@pytest.mark.parametrize("array", ["fit/params/rho_d", "reflectance/f_r"])
+def test_a_deleted_chunk_is_recomputed_on_reuse(store, finished, array):
+    s, run = store
+    chunk(s, array).unlink()
+    node = array.split("/")[0]
+    rep = run()
+    assert rep[node].status == "resumed" and rep[node].chunks_written == 1
+    assert "lost" in rep[node].notes[0] and array.split("/", 1)[1] in rep[node].notes[0]
+    assert all(r.status == "cached" for r in rep.nodes if r.node != node)  # same token: downstream still valid
+    assert_stores_equal(s, finished)
+
+
+def test_a_bit_flip_fails_the_read_naming_artifact_array_and_chunk(store, finished):
+    s, run = store
+    c = chunk(s, "reflectance/f_r")
+    data = bytearray(c.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    c.write_bytes(bytes(data))
+    key = ".".join(c.relative_to(s / "reflectance" / "f_r" / "c").parts)
+    with pytest.raises(RunError, match=rf"node 'fit': damaged artifact .*reflectance: array 'f_r', chunk {key}: "
+                                       r"crc32c checksum mismatch.*re-run"):
+        run(fit=CHANGED_FIT)  # fit must read the samples again
+    rep = run(fit=CHANGED_FIT)
+    assert rep["reflectance"].status == "resumed" and rep["reflectance"].chunks_written == 1
+    rep = run()
+    assert_stores_equal(s, finished)
+
+
+def test_an_edited_shape_in_zarr_json_recomputes_the_artifact(store, finished):
+    s, run = store
+    meta_path = s / "fit" / "params" / "rho_d" / "zarr.json"
+    meta = json.loads(meta_path.read_text())
+    meta["shape"] = [64, 64, 3]
+    meta_path.write_text(json.dumps(meta))
+    rep = run()
+    assert rep["fit"].status == "computed" and "shape" in rep["fit"].notes[0]
+    assert rep["quantize"].status == "cached"
+    assert open_artifact(str(s / "fit")).read("params/rho_d").shape == (20, 24, 3)
+    assert_stores_equal(s, finished)
+
+
+def test_random_bytes_in_a_chunk_are_reported_by_verify_and_repaired(store, finished, capsys):
+    s, run = store
+    c = chunk(s, "quantize/error")
+    c.write_bytes(os.urandom(c.stat().st_size))
+    assert run()["quantize"].status == "cached"  # the reuse check reads no chunk
+    assert cli(["verify", str(s)]) == 1
+    out = capsys.readouterr().out
+    key = ".".join(c.relative_to(s / "quantize" / "error" / "c").parts)
+    assert f"quantize  TextureSet  DAMAGED\n    array 'error', chunk {key}:" in out
+    assert "sbrdf verify --repair" in out and "1 damaged" in out
+    assert cli(["verify", "--repair", str(s)]) == 1
+    assert "repaired: the next run recomputes 1 chunk of 'error' of node 'quantize'" in capsys.readouterr().out
+    rep = run()
+    assert rep["quantize"].status == "resumed" and rep["quantize"].chunks_written == 1
+    assert cli(["verify", str(s)]) == 0
+    assert_stores_equal(s, finished)
+
+
+def test_a_deleted_side_file_is_written_again(store, finished):
+    s, run = store
+    (s / "render" / "image.png").unlink()
+    rep = run()
+    assert rep["render"].status == "resumed" and rep["render"].chunks_written == 0
+    assert "image.png is missing" in rep["render"].notes[0]
+    assert (s / "render" / "image.png").read_bytes() == (finished / "render" / "image.png").read_bytes()
+    assert not check_artifact(str(s / "render"), full=True)
+
+
+def test_a_deleted_group_zarr_json_recomputes_only_a_marked_artifact(store, finished):
+    s, run = store
+    (s / "quantize" / "zarr.json").unlink()
+    rep = run()
+    assert rep["quantize"].status == "computed" and "zarr.json" in rep["quantize"].notes[0]
+    assert_stores_equal(s, finished)
+
+
+def test_artifacts_written_without_checksums_still_read_and_verify(tmp_path):
+    """Stores written before issue 21: no crc32c codec, no layout, no marker file."""
+    url = str(tmp_path / "s" / "fit")
+    g = zarr.open_group(url, mode="w", attributes={"kind": "ParamMaps", "version": 1, "token": "t", "complete": True,
+                                                      "provenance": {"node": "fit"}})
+    g.create_array("rms", shape=(4,), chunks=(2,), dtype="float32")[...] = [1, 2, 3, 4]
+    assert open_artifact(url).read("rms").tolist() == [1, 2, 3, 4]
+    assert not check_artifact(url) and not check_artifact(url, full=True)
+    assert ArtifactWriter(url, None, "", store=str(tmp_path / "s"), node="fit").owned()
+
+
+# -- two runs on one store ---------------------------------------------------------------------------
+
+
+SLOW = {"poses": 30, "pose_delay_s": 0.1}
+
+
+def test_a_second_run_in_another_thread_is_refused_naming_the_holder(tmp_path, write_graph, registry):
+    g = load_graph(write_graph(graph_yaml(tmp_path / "s")), registry)
+    errors = []
+    with StoreLock(str(tmp_path / "s"), what="graph 'first'"):
+        t = threading.Thread(target=lambda: errors.append(_catch(lambda: Runner(registry).run(g))))
+        t0 = time.monotonic()
+        t.start()
+        t.join()
+        assert time.monotonic() - t0 < 5
+    assert isinstance(errors[0], StoreBusy)
+    assert f"in use by pid {os.getpid()}" in str(errors[0]) and "graph 'first'" in str(errors[0]) and "--wait" in str(errors[0])
+    assert not (tmp_path / "s" / "capture").exists()
+
+
+def _catch(fn):
+    try:
+        fn()
+    except Exception as e:
+        return e
+
+
+def test_a_second_process_refuses_clearly_or_waits(tmp_path, write_graph, registry):
+    graph = write_graph(graph_yaml(tmp_path / "s", SLOW))
+    cmd = [sys.executable, "-m", "sbrdf_core.cli", "run", "-q", str(graph)]
+    first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    holder = tmp_path / "s" / ".sbrdf.lock.json"
+    deadline = time.monotonic() + 60
+    while not holder.exists() and time.monotonic() < deadline:
+        assert first.poll() is None, first.communicate()
+        time.sleep(0.05)
+    waiting = subprocess.Popen(cmd + ["--wait"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    refused = subprocess.run(cmd, capture_output=True, text=True)
+    assert refused.returncode == 2 and time.monotonic() - t0 < 30
+    assert f"is in use by pid {first.pid}" in refused.stderr and "Traceback" not in refused.stderr
+    with pytest.raises(StoreBusy, match=f"pid {first.pid}"):
+        Runner(registry).run(load_graph(graph, registry))
+    out1, err1 = first.communicate(timeout=300)
+    out2, err2 = waiting.communicate(timeout=300)
+    assert first.returncode == 0, err1
+    assert waiting.returncode == 0, err2
+    assert "Traceback" not in err1 + err2 and "cached" in out2  # the waiting run found the first one's work
+    assert all(open_artifact(str(tmp_path / "s" / n)).complete for n in ("capture", "fit", "render"))
+
+
+def test_fill_valued_chunks_are_written_so_a_missing_file_means_a_lost_chunk(tmp_path):
+    import numpy as np
+
+    from sbrdf_core.artifacts import ParamMaps
+    from sbrdf_core.store import ArrayLayout, write_chunk
+
+    url = str(tmp_path / "s" / "a")
+    lay = {"rms": ArrayLayout((4,), (2,), "float32", float("nan"))}
+    w = ArtifactWriter(url, ParamMaps, "t")
+    w.prepare(lay, {})
+    for i in (0, 1):
+        write_chunk(np.full(2, np.nan), url, "rms", "t", (i,), (slice(2 * i, 2 * i + 2),))
+    w.mark_complete(lay, {})
+    assert (tmp_path / "s" / "a" / "rms" / "c" / "1").exists()
+    assert not check_artifact(url, full=True)
+    (tmp_path / "s" / "a" / "rms" / "c" / "1").unlink()
+    assert check_artifact(url).chunks == {"rms": {"1"}}
+
+
+def test_a_damaged_chunk_read_on_a_cluster_is_named_too(store, cluster):
+    _, client = cluster
+    s, run = store
+    c = chunk(s, "reflectance/f_r")
+    c.write_bytes(c.read_bytes()[:-7])  # truncated
+    with pytest.raises(RunError, match=r"reflectance: array 'f_r', chunk [0-9.]+: .*re-run"):
+        run(fit=CHANGED_FIT, scheduler=client.scheduler.address)
+    assert run(fit=CHANGED_FIT)["reflectance"].status == "resumed"
