@@ -151,6 +151,8 @@ class _Converter:
         raise LoadError(message, node.start_mark.line, node.start_mark.column)
 
     def convert(self, node: yaml.Node, path: Path) -> Any:
+        if len(path) > MAX_DEPTH:  # aliases can nest what each anchor kept shallow
+            self.refuse(node, f"nesting deeper than {MAX_DEPTH} levels of lists and mappings (through aliases)")
         key = id(node)
         if key in self.active:
             self.refuse(node, "recursive alias: an anchor's value contains an alias of itself")

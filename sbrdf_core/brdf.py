@@ -193,7 +193,8 @@ class BRDFModel:
         resolves.  Returns ``(params, changed)`` with ``changed`` a ``(T,)``
         mask of the texels the projection moved.  Fitters call it on every
         iteration (in the fit form), the Fit node once more on what any fitter
-        returns.  Default: clip to the declared bounds; models whose lobes can
+        returns.  Default: clip to the declared bounds and ρ_d to the peak
+        bound; models whose lobes can
         grow without bound (Lafortune) or resolve finer than the sampling
         (exponents, roughness) override it.
         """
@@ -205,6 +206,10 @@ class BRDFModel:
             changed = moved if changed is None else changed | moved
             out[p.name] = c
         out.update({k: v for k, v in params.items() if k not in out})
+        if limits.peak is not None and "rho_d" in out:  # no diffuse term brighter than any lobe may be
+            cap = np.asarray(limits.peak, np.float64)[:, None]
+            changed = changed | (out["rho_d"] > cap).any(axis=-1)
+            out["rho_d"] = np.minimum(out["rho_d"], cap)
         return out, changed if changed is not None else np.zeros(0, bool)
 
     def defaults(self, T: int) -> dict[str, np.ndarray]:

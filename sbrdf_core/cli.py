@@ -1,7 +1,7 @@
 """``sbrdf``: run, validate, list plugins, inspect artifacts.
 
-    sbrdf run GRAPH [--scheduler tcp://host:8786] [--store URL] [--only NODE ...] [--wait [SECONDS]]
-    sbrdf verify STORE [--repair] [--wait [SECONDS]]
+    sbrdf run GRAPH [--scheduler tcp://host:8786] [--store URL] [--only NODE ...] [--wait] [--wait-timeout S]
+    sbrdf verify STORE [--repair] [--wait] [--wait-timeout S]
     sbrdf validate GRAPH
     sbrdf plugins [--category fitter]
     sbrdf info STORE_OR_ARTIFACT
@@ -46,7 +46,7 @@ def cmd_run(args) -> int:
 
     reg = _registry(args)
     g = load_graph(args.graph, reg, store=args.store)
-    runner = Runner(reg, scheduler=args.scheduler, num_workers=args.workers, progress=not args.quiet, wait=args.wait)
+    runner = Runner(reg, scheduler=args.scheduler, num_workers=args.workers, progress=not args.quiet, wait=_wait(args))
     t0 = time.perf_counter()
     report = runner.run(g, only=args.only)
     print(report.table())
@@ -62,13 +62,16 @@ def cmd_verify(args) -> int:
     of bad chunks dropped, broken artifacts removed); without it nothing is written.
     """
     from .integrity import StoreLock, artifact_dirs, check_artifact, repair
-    from .store import open_artifact
+    from .store import ARTIFACT_MARKER, open_artifact
 
-    urls = artifact_dirs(args.store)
-    if not urls:
+    urls, unproven = artifact_dirs(args.store)
+    if not urls and not unproven:
         raise SbrdfError(f"{args.store}: no sbrdf artifacts here")
-    damaged = 0
-    with StoreLock(args.store, args.wait, "sbrdf verify"):
+    damaged = len(unproven)
+    with StoreLock(args.store, _wait(args), "sbrdf verify"):
+        for url in unproven:
+            print(f"{url}  ?  DAMAGED\n    holds zarr arrays but no group zarr.json and no {ARTIFACT_MARKER}: nothing "
+                  f"proves it is an artifact, so a run refuses to delete it; move it away, then a re-run recomputes it")
         for url in urls:
             node = url.rstrip("/").rsplit("/", 1)[-1]
             try:
@@ -95,7 +98,7 @@ def cmd_verify(args) -> int:
                       f"`sbrdf verify --repair {args.store}` marks it, then a re-run recomputes {d.plan()} of node {node!r}")
             else:
                 print(f"    a re-run recomputes {d.plan()} of node {node!r}")
-    print(f"{args.store}: {len(urls)} artifacts, {damaged} damaged"
+    print(f"{args.store}: {len(urls) + len(unproven)} artifacts, {damaged} damaged"
           + ("; nodes downstream of a recomputed one stay cached (same inputs, same token)" if damaged else ""))
     return 1 if damaged else 0
 
@@ -155,7 +158,7 @@ def cmd_info(args) -> int:
         for name in art.names():
             z: zarr.Array = art.zarr_array(name)
             print(f"  {name:<22} {str(z.shape):<22} {str(z.dtype):<8} chunks {z.chunks}")
-        skip = {"provenance", "kind", "version", "token", "complete"}
+        skip = {"provenance", "kind", "version", "token", "complete", "node", "layout", "file_digests"}
         for k, v in art.attrs.items():
             if k not in skip:
                 print(f"  @{k}: {json.dumps(v)[:200]}")
@@ -203,6 +206,16 @@ def cmd_bench(args) -> int:
     return bench(args.stages, args.full, not args.no_images, args.log)
 
 
+def _wait_options(p, help: str) -> None:
+    p.add_argument("--wait", action="store_true", help=help)
+    p.add_argument("--wait-timeout", type=float, default=None, metavar="SECONDS",
+                   help="wait at most this long for the store (implies --wait)")
+
+
+def _wait(args) -> bool | float:
+    return args.wait_timeout if args.wait_timeout is not None else args.wait
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="sbrdf", description="Measured surface appearance pipelines.")
     ap.add_argument("-p", dest="plugin", action="append", default=[], metavar="MODULE",
@@ -217,16 +230,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--store", default=None, help="override the graph's store")
     p.add_argument("--only", nargs="+", help="run only these nodes (and what they need)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--wait", type=float, nargs="?", const=True, default=False, metavar="SECONDS",
-                   help="if another run holds the store, wait for it (for ever, or SECONDS) instead of refusing")
+    _wait_options(p, "if another run holds the store, wait for it instead of refusing")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("verify", help="read every chunk of a store's artifacts; report damage (exit 1) and what a re-run recomputes")
+    p = sub.add_parser("verify", help="read every chunk of a store's artifacts; report damage (exit 1) "
+                       "and what a re-run recomputes")
     p.add_argument("store")
     p.add_argument("--repair", action="store_true",
                    help="drop the done markers of damaged chunks (remove broken artifacts) so the next run recomputes them")
-    p.add_argument("--wait", type=float, nargs="?", const=True, default=False, metavar="SECONDS",
-                   help="wait for a run holding the store instead of refusing")
+    _wait_options(p, "wait for a run holding the store instead of refusing")
     p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("validate", help="check a graph without running anything")

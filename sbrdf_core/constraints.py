@@ -36,9 +36,9 @@ from .brdf_checks import directional_albedo
 #: A cosine lobe cos^n α falls to half its peak at α = √(2 ln 2 / n).
 HALF_MAX = 2.0 * np.log(2.0)
 #: Samples counted when measuring how close the data comes to the mirror configuration.
-NEAREST = 3
-#: Incident elevations (degrees) where the energy bound is checked.
-ENERGY_THETAS = (0.0, 45.0, 75.0)
+NEAREST = 2
+#: Incident elevations (degrees) where the energy bound is checked (those of brdf_checks.energy_report).
+ENERGY_THETAS = (0.0, 30.0, 60.0, 75.0, 85.0)
 
 
 @dataclass(frozen=True)
@@ -55,11 +55,14 @@ class Limits:
     albedo: float | None = 1.0
     #: How much a lobe's *shape* may grow from normal incidence toward grazing (Lafortune m^n), or ``None``.
     growth: float | None = None
+    #: Largest f_r·cos θ_i·cos θ_o a microfacet lobe may reach, ``(T,)``: its peak with the 1/cos² growth toward
+    #: grazing (the model's physics, not an artefact of the fit) divided out.
+    peak_cosine: np.ndarray | None = None
 
     def take(self, idx) -> Limits:
         """The limits of the texels ``idx`` (an index array or a mask)."""
         pick = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
-        return replace(self, peak=pick(self.peak), resolution=pick(self.resolution))
+        return replace(self, peak=pick(self.peak), resolution=pick(self.resolution), peak_cosine=pick(self.peak_cosine))
 
     def max_cosine_exponent(self) -> np.ndarray | float:
         """The sharpest cosine lobe cos^n α the sampling resolves: HWHM ≥ resolution / 2, ``(T, 1)``."""
@@ -79,10 +82,15 @@ class Limits:
         return np.asarray(self.resolution, np.float64)[:, None] / (4.0 * np.sqrt(np.log(2.0)))
 
 
-def sample_support(f_r: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Largest valid sample value of each texel over poses and channels, ``(T,)`` (0 with none)."""
-    return np.where(valid[..., None], np.nan_to_num(f_r, nan=0.0, posinf=0.0, neginf=0.0), 0.0).max(axis=(1, 2),
-                                                                                                    initial=0.0)
+def sample_support(f_r: np.ndarray, valid: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    """Largest valid sample value of each texel over poses and channels, ``(T,)`` (0 with none).
+
+    ``weight`` ``(T, S)`` multiplies each sample first (cos θ_i cos θ_o for :attr:`Limits.peak_cosine`).
+    """
+    f = np.nan_to_num(f_r, nan=0.0, posinf=0.0, neginf=0.0)
+    if weight is not None:
+        f = f * weight[..., None]
+    return np.where(valid[..., None], f, 0.0).max(axis=(1, 2), initial=0.0)
 
 
 def neighbourhood_max(support: np.ndarray) -> np.ndarray:
@@ -121,33 +129,91 @@ def clip_shape(params, names, low=None, high=None) -> tuple[dict, np.ndarray]:
     return out, changed
 
 
+def mirror_peak(model, params, max_theta, n: int = 24, cosine: bool = False) -> np.ndarray:
+    """Largest f_r over mirror pairs with θ ≤ ``max_theta`` (radians), in two azimuths, ``(T,)``.
+
+    Where a microfacet or Phong-like lobe peaks.  ``cosine``: of f_r·cos²θ
+    instead, which divides out the 1/(4 cos θ_i cos θ_o) growth toward grazing.
+    """
+    T = next(iter(params.values())).shape[0]
+    th = np.linspace(0.0, max_theta, n)
+    d = np.concatenate([np.stack([np.sin(th) * np.cos(p), np.sin(th) * np.sin(p), np.cos(th)], -1) for p in (0, np.pi / 2)])
+    with np.errstate(all="ignore"):
+        f = model.eval(params, np.broadcast_to(d, (T,) + d.shape), np.broadcast_to(d * [-1, -1, 1], (T,) + d.shape))
+    if cosine:
+        f = f * (d[:, 2] ** 2)[None, :, None]
+    return np.where(np.isfinite(f), f, np.inf).max(axis=(1, 2))
+
+
+def widen_to_peak(model, params, names, limits: Limits, steps: int = 16) -> tuple[dict, np.ndarray]:
+    """Raise the roughness parameters ``names`` (one common factor) until the lobe's peak fits the limits.
+
+    For models whose peak is set by a width rather than a magnitude
+    (Cook–Torrance: F → 1 at grazing whatever F0): a wider lobe keeps its
+    energy and loses height.  The peak compared is that of f_r·cos θ_i·cos θ_o
+    against ``limits.peak_cosine`` where given: a microfacet lobe's growth
+    toward grazing (1/cos², Fresnel) is the model's physics, and bounding it
+    by the samples' largest f_r would bend the fit where it was measured.
+    Bisection in log space up to each parameter's upper bound; a texel still
+    over there keeps the widest lobe.
+    """
+    out = dict(params)
+    T = next(iter(out.values())).shape[0]
+    cosine = limits.peak_cosine is not None
+    bound = limits.peak_cosine if cosine else limits.peak
+    if bound is None:
+        return out, np.zeros(T, bool)
+    bound = np.asarray(bound, np.float64)
+    over = np.flatnonzero(mirror_peak(model, out, limits.max_theta, cosine=cosine) > bound * (1 + 1e-6))
+    if over.size == 0:
+        return out, np.zeros(T, bool)
+    caps = {p.name: p.bounds[1] for p in model.parameters}
+    sub = {k: np.asarray(v, np.float64)[over] for k, v in out.items()}
+    room = np.max([np.log(caps[n] / np.maximum(sub[n][:, 0], 1e-300)) for n in names], axis=0)
+    lo, hi = np.zeros(over.size), np.maximum(room, 0.0)  # log of the factor: lo fails, hi is the widest allowed
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        trial = {**sub, **{n: np.minimum(sub[n] * np.exp(mid)[:, None], caps[n]) for n in names}}
+        fits = mirror_peak(model, trial, limits.max_theta, cosine=cosine) <= bound[over]
+        hi, lo = np.where(fits, mid, hi), np.where(fits, lo, mid)
+    for n in names:
+        v = np.array(out[n], np.float64)
+        v[over] = np.minimum(sub[n] * np.exp(hi)[:, None], caps[n])
+        out[n] = v
+    changed = np.zeros(T, bool)
+    changed[over] = hi > 1e-9  # a texel already at its widest does not move
+    return out, changed
+
+
 def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi: int = 48):
     """Scale each texel's ``magnitude`` parameters so its directional albedo stays ≤ ``albedo``.
 
     Albedo by :func:`~sbrdf_core.brdf_checks.directional_albedo` at
-    :data:`ENERGY_THETAS` (and a second azimuth for anisotropic models), on a
+    :data:`ENERGY_THETAS` (and three azimuths for anisotropic models), on a
     coarse grid: exact for the diffuse term and smooth lobes, approximate for
     lobes sharper than the grid (whose albedo is small once their peak is
     bounded).  Returns ``(params, changed)``.
     """
     T = next(iter(params.values())).shape[0]
-    out = {k: np.asarray(v, np.float64) for k, v in params.items()}
+    out = {k: np.array(v, np.float64) for k, v in params.items()}
     changed = np.zeros(T, bool)
     mags = [p.name for p in model.parameters if p.magnitude]
     if albedo is None or not mags or T == 0:
         return out, changed
-    phis = (0.0, np.pi / 2) if getattr(model, "anisotropic", True) else (0.0,)
+    phis = (0.0, np.pi / 4, np.pi / 2) if model.anisotropic else (0.0,)
     dirs = [(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)) for t in np.radians(ENERGY_THETAS) for p in phis]
-    for _ in range(2):  # F0 is affine, not linear: a second pass catches what the first scale left
+    todo = np.arange(T)
+    for _ in range(6):  # F0 is affine, not linear: later passes (on the texels still over) catch what is left
+        sub = {k: v[todo] for k, v in out.items()}
         with np.errstate(all="ignore"):
-            a = np.max([directional_albedo(model, out, np.array(d), n_theta, n_phi).max(axis=1) for d in dirs], axis=0)
-        over = np.isfinite(a) & (a > albedo * (1.0 + 1e-3))
+            a = np.max([directional_albedo(model, sub, np.array(d), n_theta, n_phi).max(axis=1) for d in dirs], axis=0)
+        over = np.isfinite(a) & (a > albedo * (1.0 + 1e-4))
         if not over.any():
             break
-        scale = np.where(over, albedo / np.where(over, a, 1.0), 1.0)[:, None]
+        todo, a = todo[over], a[over]
         for name in mags:
-            out[name] = out[name] * scale
-        changed |= over
+            out[name][todo] = out[name][todo] * (albedo / a)[:, None]
+        changed[todo] = True
     return out, changed
 
 

@@ -246,14 +246,23 @@ class _Validator:
 
         A plugin implementation may define ``check_params(params) -> [(name or
         None, message)]``, a cheap check without side effects (devices are not
-        opened), so the problem is reported with its line before anything runs.
+        opened), so the problem is reported with its line before anything runs;
+        one with a ``registry`` keyword gets the validating registry.
         """
         try:
             impl = self.reg.load(spec)
         except Exception:  # the registry reports broken plugins itself
             return
         check = getattr(impl, "check_params", None)
-        for key, msg in (check(params) if check else []):
+        if check is None:
+            return
+        try:  # a check that takes ``registry`` sees the plugins of this validation (``sbrdf -p MODULE``)
+            import inspect
+
+            wants = "registry" in inspect.signature(check).parameters
+        except (TypeError, ValueError):
+            wants = False
+        for key, msg in (check(params, registry=self.reg) if wants else check(params)):
             self.problem(f"{owner}: {msg}", path + (key,) if key else path)
 
     def _params(self, declared: list[Param], given: dict, owner: str, path: tuple) -> dict:

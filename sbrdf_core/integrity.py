@@ -35,7 +35,7 @@ import zarr
 
 from .errors import ArtifactError, RunError
 from .store import (
-    _ARRAY_NAME, _CHUNK_KEY, ARTIFACT_MARKER, MARKERS, ArrayLayout, _fs, _is_local, _marker_name, chunk_key, done_keys,
+    _ARRAY_NAME, _CHUNK_KEY, ARTIFACT_MARKER, MARKERS, ArrayLayout, _fs, _is_local, _marker_name, chunk_crc, chunk_key, done_keys,
     inside_store, join, members,
 )
 
@@ -104,7 +104,8 @@ class Damage:
 
 
 def _layouts(attrs: dict) -> dict[str, ArrayLayout]:
-    return {name: ArrayLayout(tuple(r["shape"]), tuple(r["chunks"]), r["dtype"], inner=tuple(r["inner"]) if r.get("inner") else None)
+    return {name: ArrayLayout(tuple(r["shape"]), tuple(r["chunks"]), r["dtype"],
+                              inner=tuple(r["inner"]) if r.get("inner") else None)
             for name, r in (attrs.get("layout") or {}).items()}
 
 
@@ -153,16 +154,21 @@ def check_artifact(url: str, full: bool = False) -> Damage:
                       f"(file missing or truncated, or no done marker): {', '.join(sorted(lost)[:5])}"
                       + (" ..." if len(lost) > 5 else ""), array=name, keys=lost)
         if full:
+            crcs = _marker_crcs(url, name, d) if not legacy else None
             for index in (np.ndindex(*lay.grid) if lay.shape else [()]):
                 key = chunk_key(index)
                 if key in d.chunks.get(name, ()):
                     continue
                 region = tuple(slice(i * c, min((i + 1) * c, n)) for i, c, n in zip(index, lay.chunks, lay.shape))
                 try:
-                    z[region]
+                    values = z[region]
                 except Exception as e:
-                    d.add(f"array {name!r}, chunk {key}: {type(e).__name__}: {str(e)[:120]}", array=name, keys=[key],
-                          deep=True)
+                    why = "crc32c checksum mismatch" if "checksum" in str(e) else f"{type(e).__name__}: {str(e)[:120]}"
+                    d.add(f"array {name!r}, chunk {key}: {why}", array=name, keys=[key], deep=True)
+                    continue
+                if crcs is not None and chunk_crc(values) != crcs[index or (0,)]:
+                    d.add(f"array {name!r}, chunk {key}: its values are not the ones written there (crc32c differs "
+                          f"from its done marker's)", array=name, keys=[key], deep=True)
     recorded = attrs.get("file_digests") or {}
     for f in attrs.get("files") or []:
         path = join(root, str(f))
@@ -178,6 +184,28 @@ def check_artifact(url: str, full: bool = False) -> Damage:
         elif full and rec and file_digest(fs, path)["sha256"] != rec["sha256"]:
             d.add(f"file {f}: its sha256 differs from the one recorded when it was written", files=True, deep=True)
     return d
+
+
+def _marker_crcs(url: str, name: str, d: Damage) -> np.ndarray | None:
+    """The crc32c each chunk had when written (None for stores whose markers hold 1);
+    a marker chunk that cannot be read is damage of its data chunk (-1)."""
+    try:
+        m = zarr.open_array(store=join(url, _marker_name(name)), mode="r")
+    except Exception:
+        return None
+    if m.dtype != np.uint32:
+        return None
+    try:
+        return m[...].astype(np.int64)
+    except Exception:
+        out = np.full(m.shape, -1, np.int64)
+        for index in np.ndindex(*m.shape):
+            try:
+                out[index] = m[index]
+            except Exception:
+                key = chunk_key(index)
+                d.add(f"array {name!r}, chunk {key}: its done marker cannot be read", array=name, keys=[key], deep=True)
+        return out
 
 
 def drop_chunks(url: str, chunks: dict[str, set[str] | None]) -> None:
@@ -216,17 +244,23 @@ def repair(damage: Damage, store: str, node: str) -> None:
         drop_chunks(damage.url, damage.chunks)
 
 
-def artifact_dirs(store: str) -> list[str]:
-    """URLs of the store's artifacts: directories with a ``zarr.json`` or an artifact marker."""
+def artifact_dirs(store: str) -> tuple[list[str], list[str]]:
+    """URLs of the store's artifacts (directories with a ``zarr.json`` or an artifact marker),
+    and of directories holding zarr data but neither: broken beyond proof of whose they are."""
     fs, root = _fs(store)
     if not fs.exists(root):
-        return []
-    out = []
+        return [], []
+    ours, unproven = [], []
     for p in sorted(fs.ls(root, detail=False)):
         name = p.rstrip("/").rsplit("/", 1)[-1]
-        if fs.isdir(p) and (fs.exists(join(p, "zarr.json")) or fs.exists(join(p, ARTIFACT_MARKER))):
-            out.append(store.rstrip("/") + "/" + name)
-    return out
+        if not fs.isdir(p) or name.startswith("."):
+            continue
+        url = store.rstrip("/") + "/" + name
+        if fs.exists(join(p, "zarr.json")) or fs.exists(join(p, ARTIFACT_MARKER)):
+            ours.append(url)
+        elif fs.glob(join(p, "*", "zarr.json")):
+            unproven.append(url)
+    return ours, unproven
 
 
 # ---------------------------------------------------------------------------
@@ -270,8 +304,9 @@ class StoreLock:
             self.lock.acquire()
         except Timeout:
             self.lock = None
-            raise StoreBusy(f"store {root} is in use by {self._holder_text()}; wait for that run to finish, "
-                            f"or run with --wait") from None
+            waited = f" (waited {self.timeout:g} s)" if self.timeout > 0 else ""
+            raise StoreBusy(f"store {root} is in use by {self._holder_text()}{waited}; wait for that run to "
+                            f"finish, or run with --wait") from None
         self.me = {"pid": os.getpid(), "host": socket.gethostname(), "user": _user(), "what": self.what,
                    "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
         tmp = f"{self.holder}.{os.getpid()}.{id(self)}.tmp"

@@ -241,15 +241,17 @@ class Runner:
         writer = ArtifactWriter(url, node.kind.output, token, store=graph.store, node=node.name)
         state = writer.state()
         rep = NodeReport(node.name, "cached", url=url, token=token)
-        if state == "complete" or (state == "missing" and writer.fs.exists(writer.root)):
+        if (state == "complete" or (state == "missing" and writer.fs.isdir(writer.root) and writer.fs.ls(writer.root))
+                or (state == "stale" and writer.attrs() is None)):  # a zarr.json that does not parse
             damage = check_artifact(url)
-            if not damage:
+            if not damage and state == "complete":
                 rep.wall_s = time.perf_counter() - t0
                 return rep
             note = f"damaged: {'; '.join(damage.problems)}; recomputing {damage.plan()}"
             log.warning("node %r: %s", node.name, note)
             rep.notes.append(note)
-            repair(damage, graph.store, node.name)
+            if damage:
+                repair(damage, graph.store, node.name)
         try:
             out = self._build(node, ctx)
         except SbrdfError:

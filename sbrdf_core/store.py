@@ -12,7 +12,8 @@ Every artifact is a zarr group with attributes
     graph, node, parameters, plugin name and version, input digests.
 
 Chunks are written by dask tasks, each followed by a *done marker*: one chunk
-of the array ``_done/<name>``, whose grid mirrors the data array's chunk grid.  A run killed part-way leaves the markers of the
+of the array ``_done/<name>``, whose grid mirrors the data array's chunk grid
+(its value is the crc32c of the chunk's values: see :func:`write_chunk`).  A run killed part-way leaves the markers of the
 chunks it finished, and a re-run with the same token writes only the others.
 The marker, not the chunk file, is the proof: a killed writer can leave a torn
 chunk file, but a marker is only created after its chunk was written whole.
@@ -241,6 +242,9 @@ class CheckedArray:
     def __len__(self) -> int:
         return len(self.z)
 
+    def __dask_tokenize__(self):  # cheap and deterministic (no pickling of the zarr array)
+        return ("sbrdf-stored-array", self.url, self.name, tuple(self.z.shape), str(self.z.dtype))
+
     def __array__(self, dtype=None, copy=None):
         return np.asarray(self[...], dtype=dtype)
 
@@ -414,8 +418,8 @@ class ArtifactWriter:
     def remove(self) -> None:
         """Delete the artifact, once proven inside the store and this node's."""
         inside_store(self.store, self.url)
-        if not self.fs.exists(self.root):
-            return
+        if not self.fs.exists(self.root) or (self.fs.isdir(self.root) and not self.fs.ls(self.root)):
+            return  # nothing, or an empty directory: zarr creates the group in it
         if not self.owned():
             raise ArtifactError(f"{self.url} exists but is not the artifact of node {self.node!r} "
                                 f"(no {ARTIFACT_MARKER} naming it); refusing to delete it: move it away")
@@ -430,8 +434,10 @@ class ArtifactWriter:
                                     f"letters, digits, '_', '-' and '/'")
         record = {name: lay.record() for name, lay in layouts.items()}
         state = self.state()
-        if state == "partial" and (self.attrs() or {}).get("layout", record) != record:
-            state = "stale"  # the node now declares other shapes: its chunks do not fit
+        if state == "partial" and (self.attrs() or {}).get("layout") != record:
+            # The node now declares other shapes (its chunks do not fit), or the artifact was
+            # begun before checksums and layouts were recorded: start it again.
+            state = "stale"
         if state == "partial":
             for leftover in (p for p in self.fs.find(self.root) if p.endswith(".partial")):
                 self.fs.rm(leftover)  # a killed writer's temporary file; its chunk is rewritten
@@ -449,7 +455,7 @@ class ArtifactWriter:
             group.create_array(name, shape=lay.shape, chunks=lay.inner or lay.chunks, shards=lay.chunks if lay.inner else None,
                                dtype=lay.dtype, fill_value=lay.fill_value, compressors=_codecs())
             grid = lay.grid or (1,)
-            group.create_array(_marker_name(name), shape=grid, chunks=(1,) * len(grid), dtype="uint8", fill_value=0,
+            group.create_array(_marker_name(name), shape=grid, chunks=(1,) * len(grid), dtype="uint32", fill_value=0,
                                compressors=_codecs())
         return {name: set() for name in layouts}
 
@@ -486,16 +492,27 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
     """Write one chunk then its done marker.  Runs inside dask tasks, on any worker.
 
     Idempotent: a task re-run after a lost worker rewrites the same bytes.
+    The marker holds the crc32c of the chunk's values, so ``sbrdf verify``
+    also notices a chunk that decodes but is not the one written there (a
+    chunk file copied or swapped from elsewhere passes its own checksum).
     """
     arr = _open_cached(url, name, token)
     block = np.asarray(block)
     expected = tuple(s.stop - s.start for s in region)
     if block.shape != expected:
         raise ArtifactError(f"{url}/{name}: chunk {index} has shape {block.shape}, expected {expected}")
-    arr[region] = block.astype(arr.dtype, copy=False)
+    data = np.ascontiguousarray(block.astype(arr.dtype, copy=False))
+    arr[region] = data
     marker = _open_cached(url, _marker_name(name), token)
-    marker[tuple(index) or (0,)] = 1
+    marker[tuple(index) or (0,)] = chunk_crc(data)
     return int(block.nbytes)
+
+
+def chunk_crc(data: np.ndarray) -> int:
+    """crc32c of a chunk's values (C order), as its done marker keeps it."""
+    import google_crc32c
+
+    return int(google_crc32c.value(np.ascontiguousarray(data).tobytes()))
 
 
 def _open_cached(url: str, name: str, token: str) -> zarr.Array:

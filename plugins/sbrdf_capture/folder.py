@@ -44,7 +44,8 @@ import numpy as np
 
 from sbrdf_core.nodes.capture import CaptureDescription
 
-from .capture_folder import MANIFEST, CaptureFolderError, Manifest, PoseRecord, resolve_image, validate_folder
+from .capture_folder import (MANIFEST, CaptureFolderError, Manifest, PoseRecord, inside_folder, resolve_image,
+                             validate_folder)
 from .hdr import merge_exposures, subtract_dark
 from .response import (ResponseCurve, ResponseError, bracket_samples, cubic_curve, recover_cubic_loglog,
                        recover_debevec)
@@ -128,9 +129,11 @@ class FolderCapture:
     def fingerprint(self) -> str:
         """Changes when capture.json or any image file changes (size, mtime)."""
         h = hashlib.sha256()
-        manifest = self.path / MANIFEST
         try:
+            manifest = inside_folder(self.path, MANIFEST, "manifest capture.json")
             h.update(manifest.read_bytes())
+        except CaptureFolderError:
+            return "outside"  # never read a file outside the folder; describe() reports it
         except OSError:
             return "missing"
         images = self.path / "images"

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
-from sbrdf_core.constraints import clip_shape
+from sbrdf_core.constraints import clip_shape, widen_to_peak
 from sbrdf_core.params import Param
 
 
@@ -173,7 +173,9 @@ class CookTorranceModel(BRDFModel):
         return LogFitForm(self, ("alpha",))
 
     def constrain(self, params, limits):
-        """F0 ≤ 1 bounds the lobe's energy; α may not be narrower than the sampling resolves."""
+        """F0 ≤ 1 bounds the lobe's energy; α no narrower than the sampling resolves, and wide enough that
+        the peak (at the mirror pair nearest grazing: F → 1, 1/cos² grows) stays within ``limits.peak``."""
         out, changed = super().constrain(params, limits)
         out, finer = clip_shape(out, ("alpha",), low=limits.min_roughness())
-        return out, changed | finer
+        out, wider = widen_to_peak(self, out, ("alpha",), limits)
+        return out, changed | finer | wider

@@ -105,12 +105,12 @@ class PhongModel(BRDFModel):
                 n_peak = np.where(rho > 0, 2 * np.pi * budget / np.where(rho > 0, rho, 1.0) - 2.0, np.inf)
             n = out["exponent"]
             low = EXPONENT_BOUNDS[0]
-            over = n > n_peak
+            over = n > n_peak * (1 + 1e-9)
             out["exponent"] = np.where(over, np.maximum(n_peak, low), n)
             lobe_peak = rho * (out["exponent"] + 2.0) / (2 * np.pi)
             shrink = np.where(lobe_peak > budget, budget / np.where(lobe_peak > 0, lobe_peak, 1.0), 1.0)
             out["rho_s"] = out["rho_s"] * shrink
-            changed |= over[:, 0] | (shrink[:, 0] < 1.0)
+            changed |= over[:, 0] | (shrink[:, 0] < 1 - 1e-9)
         return out, changed
 
 

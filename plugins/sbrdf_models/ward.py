@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
-from sbrdf_core.constraints import clip_shape
+from sbrdf_core.constraints import clip_shape, widen_to_peak
 from sbrdf_core.params import Param
 
 
@@ -132,8 +132,10 @@ class WardModel(BRDFModel):
         return LogFitForm(self, ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",))
 
     def constrain(self, params, limits):
-        """ρ_s ≤ 1 bounds the lobe's energy; no slope narrower than the sampling resolves."""
+        """ρ_s ≤ 1 bounds the lobe's energy; no slope narrower than the sampling resolves, and wide enough
+        that the mirror peak stays within ``limits.peak``."""
         out, changed = super().constrain(params, limits)
-        out, finer = clip_shape(out, ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",),
-                                low=limits.min_roughness())
-        return out, changed | finer
+        names = ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",)
+        out, finer = clip_shape(out, names, low=limits.min_roughness())
+        out, wider = widen_to_peak(self, out, names, limits)
+        return out, changed | finer | wider

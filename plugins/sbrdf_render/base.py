@@ -8,7 +8,7 @@ from sbrdf_core.scene import check_scene_param, load_scene, scene_fingerprint
 from . import materials as mat
 
 
-def check_scene(params) -> list[tuple[str, str]]:
+def check_scene(params, registry=None) -> list[tuple[str, str]]:
     """``check_params`` of the scene renderers: everything a render would fail on that can be checked up front.
 
     The scene file and its effects (:func:`sbrdf_core.scene.check_scene_param`),
@@ -22,7 +22,8 @@ def check_scene(params) -> list[tuple[str, str]]:
 
     from .shapes import load_obj
 
-    problems = check_scene_param(params)
+    registry = registry if registry is not None else default_registry()
+    problems = check_scene_param(params, registry)
     if problems:
         return problems
     scene = load_scene(params["scene"])
@@ -36,7 +37,6 @@ def check_scene(params) -> list[tuple[str, str]]:
             except UnicodeDecodeError as e:
                 out.append(f"{scene.file}:{o.line}: mesh: {o.params['file']}: not a UTF-8 OBJ file (byte "
                            f"0x{e.object[e.start]:02x} at offset {e.start})")
-    registry = default_registry()
     for name in sorted({o.material for o in scene.objects}):
         ref = scene.materials.get(name)
         if ref is None or ref.model is None:
@@ -62,9 +62,9 @@ class SceneRenderer:
         self.registry = registry
 
     @staticmethod
-    def check_params(params) -> list[tuple[str, str]]:
+    def check_params(params, registry=None) -> list[tuple[str, str]]:
         """The scene file, its effects, meshes and uniform materials, checked when the graph is validated."""
-        return check_scene(params)
+        return check_scene(params, registry)
 
     def fingerprint(self) -> str:
         return scene_fingerprint(self.scene_path)

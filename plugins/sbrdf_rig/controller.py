@@ -62,6 +62,8 @@ class MotorController:
         #: Outcome of the last halt attempted by :meth:`close`: ``None`` (none yet), ``""`` (acknowledged)
         #: or why it failed.
         self.halt_outcome: str | None = None
+        #: Whether that halt got through only after reopening a port that had vanished.
+        self.halt_reopened = False
 
     # -- public API -------------------------------------------------------------------
 
@@ -122,6 +124,20 @@ class MotorController:
         try:
             self._halt(best_effort=True)
             self.halt_outcome = ""
+        except LinkLost as e:
+            # The port is gone.  A device that came straight back under the same name (a USB glitch) can
+            # still be halted through a fresh port; one that is really gone fails to open at once.
+            self.halt_outcome = e.reason or _head(e)
+            problem = self.link.reopen()
+            if problem is not None:
+                self.halt_outcome += f"; reopening {self.port} failed: {problem}"
+            else:
+                try:
+                    self._halt(best_effort=True)
+                    self.halt_outcome = ""
+                    self.halt_reopened = True
+                except Exception as again:  # noqa: BLE001 - best effort
+                    self.halt_outcome += f"; after reopening {self.port}: {getattr(again, 'reason', '') or again}"
         except DeviceError as e:
             self.halt_outcome = getattr(e, "reason", None) or _head(e)
         except Exception as e:  # noqa: BLE001 - closing must release the port whatever the halt raised
@@ -175,7 +191,8 @@ class MotorController:
         """
         self.close()
         if isinstance(error, LinkLost):
-            halt = ("halt acknowledged" if self.halt_outcome == "" else
+            halt = (f"halt acknowledged{' after reopening the port' if self.halt_reopened else ''}"
+                    if self.halt_outcome == "" else
                     f"halt could not be sent ({self.halt_outcome})" if self.halt_outcome else "halt not attempted")
             lost = LinkLost(f"{_head(error)}{' while ' + doing if doing else ''}; {halt}; port closed",
                             device=error.device, port=error.port, command=error.command, received=error.received)

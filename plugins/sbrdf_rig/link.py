@@ -70,6 +70,7 @@ class SerialLink:
                  retries: int = 3, terminator: str = "\r\n"):
         self.port = port
         self.device = device
+        self.baudrate = int(baudrate)
         self.timeout_s = float(timeout_s)
         self.retries = int(retries)
         self.terminator = terminator
@@ -95,6 +96,20 @@ class SerialLink:
                 pass  # a port that is gone cannot be closed any further
             finally:
                 self._serial = None
+
+    def reopen(self) -> str | None:
+        """Close the port and open it again (a device back under the same name); ``None``, or why it failed.
+
+        Only for a best-effort halt after :class:`LinkLost`; a port that is
+        really gone fails at once (``ENOENT``, or ``EIO`` for a pty whose master closed).
+        """
+        self.close()
+        try:
+            self._serial = serial.Serial(self.port, baudrate=self.baudrate, timeout=self.timeout_s,
+                                         write_timeout=self.timeout_s)
+        except (*OS_LINK_ERRORS, ValueError) as e:
+            return os_reason(e)
+        return None
 
     def _lost(self, what: str, error: BaseException, command: str | None, received: bytes | None = None) -> LinkLost:
         lost = LinkLost(f"serial link lost: {what} failed ({os_reason(error)}); the device disappeared "

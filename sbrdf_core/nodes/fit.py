@@ -81,8 +81,10 @@ class FitOptions:
     overfit_ratio: float = 3.0
     grazing_growth: float = 1.0
 
-    def limits(self, support: np.ndarray, resolution: np.ndarray) -> Limits:
-        return Limits(peak=self.peak_factor * support if self.peak_factor > 0 else None,
+    def limits(self, support: np.ndarray, resolution: np.ndarray, support_cosine: np.ndarray | None = None) -> Limits:
+        on = self.peak_factor > 0
+        return Limits(peak=self.peak_factor * support if on else None,
+                      peak_cosine=self.peak_factor * support_cosine if on and support_cosine is not None else None,
                       resolution=resolution if self.resolve_sharpness else None,
                       max_theta=float(np.radians(self.max_theta_deg)),
                       albedo=self.albedo_limit if self.albedo_limit > 0 else None,
@@ -157,8 +159,15 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     f_r, valid = usable(f_r, valid)
     min_samples = options.min_samples or model.size
     support = neighbourhood_max(sample_support(f_r, valid).reshape(grid)).ravel()
-    limits = options.limits(support, angular_resolution(wi, wo, valid))
     train, test = holdout_split(valid, options.holdout, options.holdout_seed, (v0, u0), min_samples)
+    resolution = angular_resolution(wi, wo, train)
+    sparse = np.flatnonzero(train.sum(axis=1) < min_samples)
+    if sparse.size:  # fitted to the pooled samples: bounded by what the pool resolves
+        pf, pw, pi, po = _neighbour_pool(grid, sparse, f_r, train, wi, wo)
+        resolution[sparse] = angular_resolution(pi, po, pw)
+    cosines = np.clip(wi[..., 2], 0, 1) * np.clip(wo[..., 2], 0, 1)
+    support_cosine = neighbourhood_max(sample_support(f_r, valid, cosines).reshape(grid)).ravel()
+    limits = options.limits(support, resolution, support_cosine)
     takes_limits = "limits" in inspect.signature(fitter.fit).parameters
 
     def run(f, w, a, b, lim):
@@ -168,9 +177,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     params = {k: np.array(v, dtype=np.float64) for k, v in res.params.items()}
     rflags = np.zeros(T, np.uint8) if res.flags is None else res.flags.astype(np.uint8)
     restarted = np.zeros(T, bool) if res.restarted is None else np.asarray(res.restarted, bool)
-    sparse = np.flatnonzero(train.sum(axis=1) < min_samples)
     if sparse.size:
-        pf, pw, pi, po = _neighbour_pool(grid, sparse, f_r, train, wi, wo)
         pooled = run(pf, pw, pi, po, limits.take(sparse))
         helped = pw.sum(axis=1) > train[sparse].sum(axis=1)
         for k, v in pooled.params.items():

@@ -351,3 +351,18 @@ def test_a_vanishing_device_is_a_driver_error_naming_port_command_and_target(sta
     with pytest.raises(DeviceClosed):
         driver.position()
     driver.close()
+
+
+def test_a_device_back_under_the_same_name_is_still_halted(start_simulator, tmp_path):
+    """A USB glitch: the port vanishes and the controller reappears under the same path; the halt reaches it."""
+    first, back = start_simulator(SimulatedPTU), start_simulator(SimulatedPTU)
+    port = tmp_path / "ttyPTU"
+    port.symlink_to(first.port)
+    ptu = PanTiltUnit(port=str(port), timeout_s=TIMEOUT_S, retries=2)
+    first.unplug()
+    port.unlink()
+    port.symlink_to(back.port)  # what udev does when the adapter re-enumerates
+    with pytest.raises(LinkLost, match=r"while moving to pan_deg=20.0000; halt acknowledged after reopening the port; "
+                                       r"port closed \(command 'PP1556'"):
+        ptu.move_to(pan_deg=20.0)
+    assert back.received == ["H"] and not ptu.is_open

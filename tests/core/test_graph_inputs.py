@@ -85,6 +85,12 @@ def test_deep_nesting_is_an_error_not_a_recursion_error(write_graph, registry, t
     only(err, 4, "nesting deeper than")
 
 
+def test_aliases_cannot_nest_deeper_than_anchors_may(write_graph, registry, tmp_path):
+    deep = lambda body: "[" * 40 + body + "]" * 40  # noqa: E731
+    extra = f"description:\n  a: &a {deep('1')}\n  b: &b {deep('*a')}\n  c: {deep('*b')}\n"
+    only(invalid(write_graph(pipeline(tmp_path, extra=extra)), registry), None, "nesting deeper than 64", "aliases")
+
+
 def test_recursive_anchor_is_an_error(write_graph, registry, tmp_path):
     err = invalid(write_graph(header(tmp_path) + "nodes: &n\n  x: {kind: Capture, in: *n}\n"), registry)
     only(err, 3, "recursive alias")  # the anchor's line
@@ -247,6 +253,16 @@ def test_scene_problems_are_found_before_anything_runs(tmp_path, registry, scene
     p = only(err, 8, needle)
     assert "Render plugin 'cpu'" in p.message and "scene.yaml" in p.message
     assert not (tmp_path / "store").exists()  # nothing ran
+
+
+def test_scene_checks_use_the_validating_registry(tmp_path):
+    from sbrdf_core.registry import Registry
+
+    shutil.copy(SKY, tmp_path / "sky.exr")
+    path = render_graph(tmp_path, SCENE + "environment: {file: sky.exr}\n")
+    load_graph(path, Registry())
+    err = invalid(path, Registry(disabled=["envmap"]))
+    only(err, 8, "environment lighting needs the environment scene effect, which is not installed")
 
 
 def test_a_good_scene_with_environment_and_mesh_validates(tmp_path, registry):
