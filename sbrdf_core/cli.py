@@ -180,12 +180,14 @@ def cmd_plot(args) -> int:
 
 
 def fit_table(fits) -> str:
-    """Seed 000 Table 3.4's fitting columns (time, average and maximum RMS) for ParamMaps artifacts.
+    """Seed 000 Table 3.4's fitting columns (time, average and maximum RMS) for ParamMaps artifacts, and the
+    mean RMS at held-out samples (``held_out``: error where the fit was not trained).
 
     Time is the fitter's compute time summed over tiles (CPU seconds across
     workers), not the node's wall time.
     """
-    head = f"{'artifact':<28} {'fitter':<12} {'model':<22} {'texels':>9} {'fit_s':>9} {'avg_rms':>10} {'max_rms':>10} {'flagged':>8}"
+    head = (f"{'artifact':<28} {'fitter':<12} {'model':<22} {'texels':>9} {'fit_s':>9} {'avg_rms':>10} {'max_rms':>10} "
+            f"{'held_out':>10} {'flagged':>8}")
     rows = [head, "-" * len(head)]
     for url, art in fits:
         summary = art.attrs.get("summary", {})
@@ -196,7 +198,7 @@ def fit_table(fits) -> str:
         fmt = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
         rows.append(f"{url.rstrip('/').rsplit('/', 1)[-1]:<28} {art.attrs.get('fitter') or '?':<12} {model:<22} {u * v:>9} "
                     f"{fmt(summary.get('fit_time_s')):>9} {fmt(summary.get('rms_mean')):>10} {fmt(summary.get('rms_max')):>10} "
-                    f"{flagged:>8}")
+                    f"{fmt(summary.get('rms_holdout_mean')):>10} {flagged:>8}")
     return "\n".join(rows)
 
 

@@ -206,4 +206,42 @@ def plot_views(samples_url: str, out_dir: str | Path, params_url: str | None = N
     paths.append(out / "incidence-plane.png")
     fig.savefig(paths[-1], dpi=100)
     plt.close(fig)
+    if view.model is not None:
+        paths.append(error_maps(view.maps, out / "fit-error.png"))
     return paths
+
+
+def error_maps(maps, path: Path) -> Path:
+    """``fit-error.png``: training RMS beside held-out RMS (one colour scale) and the texels each flag marks.
+
+    Held-out error is what the fit does where it was not trained; a texel much
+    brighter on the right than on the left is overfit.
+    """
+    import matplotlib.pyplot as plt
+
+    rms = maps.read("rms").astype(float)
+    names = maps.names()
+    held = maps.read("rms_holdout").astype(float) if "rms_holdout" in names else np.full(rms.shape, np.nan)
+    flags = maps.read("flags").astype(int)
+    bits = {int(b): text for b, text in maps.attrs.get("flag_bits", {}).items()}
+    finite = np.concatenate([rms[np.isfinite(rms)], held[np.isfinite(held)]])
+    vmax = float(np.percentile(finite, 99)) if finite.size else 1.0
+    fig, ax = plt.subplots(1, 3, figsize=(14, 4.4))
+    for a, data, title in ((ax[0], rms, "training RMS"), (ax[1], held, "held-out RMS (NaN: none held out)")):
+        im = a.imshow(data, origin="lower", cmap="magma", vmin=0, vmax=vmax, interpolation="nearest")
+        shown = data[np.isfinite(data)]
+        a.set_title(f"{title}\nmean {shown.mean():.3g} sr⁻¹" if shown.size else title, fontsize=9)
+        a.set_xlabel("u")
+        a.set_ylabel("v")
+    fig.colorbar(im, ax=ax[:2], label="sr⁻¹")
+    labels = ["fine"] + [f"{b}: {bits.get(b, '')[:38]}" for b in sorted(bits) if (flags & b).any()]
+    code = np.zeros(flags.shape)
+    for i, b in enumerate(b for b in sorted(bits) if (flags & b).any()):
+        code = np.where(flags & b, i + 1, code)  # the highest set bit shown
+    im = ax[2].imshow(code, origin="lower", cmap="tab10", vmin=-0.5, vmax=9.5, interpolation="nearest")
+    ax[2].set_title("flags (highest bit per texel)", fontsize=9)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=plt.cm.tab10(i)) for i in range(len(labels))]
+    ax[2].legend(handles, labels, fontsize=6, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
