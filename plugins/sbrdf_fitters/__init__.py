@@ -1,4 +1,5 @@
-"""Built-in fitters (generic batched LM, McAllister's procedure, his line search) and the SampleModel node."""
+"""Built-in fitters (generic batched LM, McAllister's procedure, his line search), the SampleModel node and the
+Select node (the model with the lowest held-out error)."""
 
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -64,8 +65,9 @@ LINE_SEARCH_PARAMS = _SHARED + (
 @hookimpl
 def sbrdf_node_kinds():
     from .sample_model import SampleModel
+    from .select import Select
 
-    return [SampleModel]
+    return [SampleModel, Select]
 
 
 @hookimpl

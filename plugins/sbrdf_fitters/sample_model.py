@@ -55,7 +55,30 @@ def material_maps(model, texels, params=None) -> dict[str, np.ndarray]:
         else:
             lo, hi = p.typical
             out[p.name] = np.stack([lo + (hi - lo) * pattern(n_u, n_v, k, c) for c in range(p.channels)], axis=-1)
-    return out
+    return physical(model, out, given=set(params or ()))
+
+
+def physical(model, maps: dict[str, np.ndarray], given=frozenset()) -> dict[str, np.ndarray]:
+    """Procedural maps scaled where they would reflect more than they receive (directional albedo > 1).
+
+    Typical ranges drawn independently (a bright ρ_d beside a strong lobe)
+    are not energy conserving; a fitter that honours the bound would then be
+    judged against an impossible truth.  Parameters the graph gave are kept.
+    """
+    from sbrdf_core.constraints import enforce_energy
+
+    if given & {p.name for p in model.parameters if p.magnitude}:
+        return maps
+    shape = next(iter(maps.values())).shape[:2]
+    flat = {k: v.reshape(-1, v.shape[-1]) for k, v in maps.items()}
+    fixed = {}
+    step = 4096
+    for s in range(0, flat[next(iter(flat))].shape[0], step):
+        # coarse quadrature, so a margin below 1: the Fit node checks on a finer grid
+        part, _ = enforce_energy(model, {k: v[s:s + step] for k, v in flat.items()}, 0.9, n_theta=12, n_phi=24)
+        for k, v in part.items():
+            fixed.setdefault(k, []).append(v)
+    return {k: np.concatenate(v).reshape(shape + (-1,)) for k, v in fixed.items()}
 
 
 def pose_positions(directions: str, poses: int, max_theta: float, light_mm: float, camera_mm: float, seed: int):

@@ -87,3 +87,27 @@ def test_graph_names_the_line_of_an_impossible_fitter_configuration(tmp_path, re
         path.write_text(text)
         load_graph(path, registry)
     assert "exactly one lobe" in str(err.value)
+
+
+SELECT = textwrap.dedent("""\
+    name: select
+    store: {store}
+    nodes:
+      samples: {{kind: SampleModel, params: {{model: cook-torrance, texels: [8, 8], poses: 150, noise: 0.005,
+                directions: random}}}}
+      laf: {{kind: Fit, plugin: lm, in: {{samples: samples}}, params: {{model: lafortune}}}}
+      ct: {{kind: Fit, plugin: lm, in: {{samples: samples}}, params: {{model: cook-torrance}}}}
+      best: {{kind: Select, in: {{a: laf, b: ct}}}}
+    """)
+
+
+def test_select_keeps_the_model_with_the_lowest_held_out_error(tmp_path):
+    """Cook–Torrance data: the Cook–Torrance fit is kept, says why, and its held-out RMS is the noise level."""
+    run_graph(SELECT.format(store=tmp_path / "s"), progress=False)
+    best, ct = open_artifact(f"{tmp_path}/s/best"), open_artifact(f"{tmp_path}/s/ct")
+    sel = best.attrs["selection"]
+    assert sel["chosen"] == "b" and best.attrs["model"] == "cook-torrance"
+    assert "held-out RMS" in sel["why"] and set(sel["candidates"]) == {"a", "b"}
+    np.testing.assert_array_equal(best.read("params/alpha"), ct.read("params/alpha"))
+    held = best.attrs["summary"]["rms_holdout_mean"]
+    assert 0.004 < held < 0.007 < sel["candidates"]["a"]["score"]
