@@ -143,13 +143,18 @@ def sbrdf_fitters() -> list[PluginSpec]:
 
     :returns: specs whose ``impl`` provides
 
-        - ``model`` (attribute): the :class:`~sbrdf_core.brdf.BRDFModel`
-          instance it fits.
-        - ``fit(f_r, valid, wi, wo) -> FitResult``: per-texel parameters for a
-          batch of T texels with S samples each: ``f_r (T, S, 3)`` in sr^-1,
-          ``valid (T, S)``, directions ``(T, S, 3)`` in the sample frame.
-          Vectorised over texels; called inside dask tasks, one texel tile
-          at a time.
+        - ``model_name``, ``model_config`` (attributes): the BRDF model it
+          fits; the Fit node creates it from the registry.
+        - ``fit(model, f_r, valid, wi, wo, limits=None) -> FitResult``:
+          per-texel parameters for a batch of T texels with S samples each:
+          ``f_r (T, S, 3)`` in sr^-1, ``valid (T, S)`` (held-out samples are
+          already removed), directions ``(T, S, 3)`` in the sample frame.
+          ``limits`` (:class:`~sbrdf_core.constraints.Limits`, optional
+          keyword) are the texels' physical bounds: a fitter that takes it
+          should fit inside them (``model.fit_form().constrain`` projects a
+          trial point); the node projects whatever a fitter returns onto
+          them anyway.  Vectorised over texels; called inside dask tasks,
+          one texel tile at a time.
 
     Call semantics: collected; called once when the registry loads.
     """

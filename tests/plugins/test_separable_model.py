@@ -156,7 +156,7 @@ GRAPH = textwrap.dedent("""\
                   params: {{rho_d: [0.3183, 0.0, 0.0], rho_s: [0.3, 0.3, 0.3], alpha_x: 0.21, alpha_y: 0.048}},
                   poses: 3000, directions: random, max_theta_deg: 80.0, size_mm: [0.001, 0.001]}}}}
       nd: {{kind: Fit, plugin: nd, in: {{samples: material}},
-            params: {{factors: {factors}, size: 16, clamp_max: 5.0, encoding: unorm8}}}}
+            params: {{factors: {factors}, size: 16, clamp_max: 5.0, encoding: unorm8, holdout: 0}}}}
     """)
 
 
