@@ -69,6 +69,9 @@ class BRDFModel:
     #: Whether f_r depends on the azimuth of the tangent frame, not only on relative azimuth.  Renderers skip
     #: per-pixel tangent frames for models that set it False; the safe default is True.
     anisotropic: bool = True
+    #: LM runs per texel when a fitter's ``starts`` is 0 (auto): more than one where the model's cost has local
+    #: minima a single good guess can miss (Cook–Torrance, Phong and Ward did on 3–7 of 64 texels with one).
+    suggested_starts: int = 2
 
     # -- required ---------------------------------------------------------------
 

@@ -9,9 +9,10 @@ _MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model",
 _ITERATIONS = Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000))
 _TOLERANCE = Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
                    bounds=(0.0, 1.0))
-_STARTS = Param("starts", "int", 2, "LM runs per texel, from its best-scoring starting points (the model's guess and "
-                "a Sobol set over typical shapes, magnitudes solved); the texel keeps its best (1 = the guess alone)",
-                bounds=(1, 64))
+_STARTS = Param("starts", "int", 0, "LM runs per texel, from its best-scoring starting points (the model's guess and "
+                "a Sobol set over typical shapes, magnitudes solved); the texel keeps its best. 0 = the model's "
+                "suggestion (2 for Cook-Torrance, Phong, Ward and 3+ Lafortune lobes: 4); 1 = the guess alone",
+                bounds=(0, 64))
 
 LM_PARAMS = (
     _MODEL,

@@ -167,7 +167,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
 
     ``initial``: fit-form parameters to start from (default: the best of
     ``scan`` scored candidates, :func:`candidate_starts`).  ``starts``: LM
-    runs per texel, from its best candidates.  ``limits``: per-texel
+    runs per texel, from its best candidates (0: ``model.suggested_starts``).  ``limits``: per-texel
     :class:`~sbrdf_core.constraints.Limits` every iterate is projected onto.
     ``fixed``: fit-form parameter names held constant.  ``stats``, a dict, gets
     ``restarted`` (``(T,)`` mask of texels whose best result came from a start
@@ -175,6 +175,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     """
     if loss not in LOSSES:
         raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
+    starts = starts or model.suggested_starts
     form = model.fit_form()
     T = f_r.shape[0]
     f_r, valid = usable(f_r, valid)
@@ -239,7 +240,7 @@ class LevenbergMarquardtFitter:
         self.iterations, self.tolerance, self.damping = iterations, tolerance, damping
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
         self.loss, self.loss_scale = loss, loss_scale
-        if model == "lafortune" and int(model_params.get("lobes", 1)) >= 3 and starts < 4:
+        if model == "lafortune" and int(model_params.get("lobes", 1)) >= 3 and 0 < starts < 4:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
 

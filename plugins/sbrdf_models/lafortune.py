@@ -76,6 +76,8 @@ class LafortuneModel(BRDFModel):
             raise ValueError("lafortune: beta: true needs anisotropic: true (an isotropic lobe has no direction)")
         self.lobes, self.anisotropic, self.has_beta, self.mirror = lobes, anisotropic, beta, mirror
         self.parameters = self._declare(fit_form=False)
+        # The compiled exponent scan of the initial guess finds 1-2 lobes' basin; 3+ lobes need starts (§4.3.1).
+        self.suggested_starts = 1 if lobes <= 2 else 4
 
     # -- declarations ------------------------------------------------------------------
 

@@ -203,14 +203,18 @@ def test_line_search_refuses_two_lobes(registry):
 
 def test_three_lobes_warn_and_multistart_never_worsens(registry, lafortune):
     with pytest.warns(UserWarning, match="3 or more Lafortune lobes"):
-        registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}})
+        registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}, "starts": 1})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the default (starts: 0) takes the model's suggestion, 4 for 3 lobes
+        auto = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}})
     model = lafortune(lobes=3)
+    assert model.suggested_starts == 4
     _, f, valid, wi, wo = data(lafortune(lobes=2), T=12, noise=1e-3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        one = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}}).fit(model, f, valid, wi, wo)
-    many = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}, "starts": 4}).fit(
-        model, f, valid, wi, wo)
+        one = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}, "starts": 1}).fit(
+            model, f, valid, wi, wo)
+    many = auto.fit(model, f, valid, wi, wo)
     assert (many.rms <= one.rms + 1e-12).all()
 
 
