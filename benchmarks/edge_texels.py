@@ -27,8 +27,9 @@ Run from the repository root::
     .venv/bin/python benchmarks/edge_texels.py --work runs/edge-texels --poses 60  # now
     .venv/bin/python benchmarks/edge_texels.py --work runs/edge-texels --poses 60 --edge strict --margin 1  # before
 
-Last line: ``edge_texels: unsampled=... ring0=<unsampled>/<texels> ring1=... ring2=... interior=... err_ring0=...
-err_ring1=... err_interior=... err_p90_ring0=... err_p90_interior=...``
+Last line: ``edge_texels: unsampled=... ring0=... ring1=... ring2=... interior=... err_ring0=...
+err_ring1=... err_interior=... err_p90_ring0=... err_p90_interior=...`` (``ringK``: texels of the ring with no
+valid sample; the ring sizes are in the JSON printed before it).  ``--quick``: 24 poses, about a minute.
 """
 
 from __future__ import annotations
@@ -67,12 +68,14 @@ def main(argv=None) -> dict:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--work", default="runs/edge-texels")
-    ap.add_argument("--poses", type=int, default=60)
+    ap.add_argument("--poses", type=int, default=None, help="poses of the orbit (default 60; --quick 24)")
+    ap.add_argument("--quick", action="store_true", help="24 poses: about a minute")
     ap.add_argument("--edge", default=None, help="aruco's edge parameter (default: the plugin's default)")
     ap.add_argument("--margin", type=float, default=None, help="aruco's edge_margin_px (default: the plugin's)")
     ap.add_argument("--min-weight", type=float, default=None, help="aruco's edge_min_weight (default: the plugin's)")
     ap.add_argument("--effects", default=",".join(EFFECTS), help="virtual-camera effects, comma-separated")
     a = ap.parse_args(argv)
+    a.poses = a.poses or (24 if a.quick else 60)
     work = Path(a.work).resolve()
     effects = [e for e in a.effects.split(",") if e]
     tag = "" if effects == EFFECTS else "-" + "-".join(effects)
@@ -107,7 +110,8 @@ def main(argv=None) -> dict:
     out = {"poses": int(P), "unsampled": float((n == 0).mean()), "unsampled_texels": int((n == 0).sum())}
     for label, sel in (("ring0", ring == 0), ("ring1", ring == 1), ("ring2", ring == 2), ("interior", ring >= 3)):
         vs = valid & sel[..., None]
-        out[label] = f"{int((n[sel] == 0).sum())}/{int(sel.sum())}"
+        out[f"{label}_texels"] = int(sel.sum())
+        out[label] = int((n[sel] == 0).sum())
         out[f"valid_per_texel_{label}"] = round(float(n[sel].mean()), 2)
         out[f"err_{label}"] = round(float(np.nanmedian(rel[vs])), 4) if vs.any() else float("nan")
         out[f"err_p90_{label}"] = round(float(np.nanpercentile(rel[vs], 90)), 4) if vs.any() else float("nan")
