@@ -20,6 +20,7 @@ from .errors import SbrdfError
 #: Stage -> (script, what it measures), in report order.
 STAGES = {
     "fit": ("fit.py", "fitting: ms per texel against RMS, LM vs line search vs SciPy"),
+    "fidelity": ("fidelity.py", "fitted materials at unseen directions: error, fireflies, unsampled texels"),
     "quantize": ("quantize.py", "quantizing: error against bytes per texel and time"),
     "separable": ("separable.py", "separable approximations: SVD vs ND, error, time, memory"),
     "shadingmap": ("shadingmap.py", "shading maps: linearisation and compression time, RMS, render ms"),
