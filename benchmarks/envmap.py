@@ -67,6 +67,7 @@ camera: {{position: {eye}, look_at: {look}, fov_deg: 40, resolution: [{res[0]}, 
 materials: {{m: {MATERIALS[material]}}}
 objects: [{obj}]
 environment: {{file: {env}, options: {{{OPTIONS}, {method}}}}}
+antialias: 1  # one sample per pixel: the timings and errors stay those of the lighting methods alone
 """
 
 

@@ -24,12 +24,24 @@ scene in view; here the whole mesh is in view, no AA, at 800×600 and
 triangles, 2 lobes, 2 lights), over pixels both hit, silhouette and
 object-boundary pixels (3×3 neighbourhoods) excluded.
 
+Antialiasing (``aa_edge_err``, ``aa_off_edge_err``): a plane and a sphere
+with a high-contrast 16×16 checker Lafortune SBRDF (``nearest`` lookups,
+ρ_d and ρ_s 10:1 between neighbouring texels), 160×120, two lights, drawn by
+``cpu`` with the scene's default antialiasing (``antialias: 4``, 2×2) and
+with ``antialias: 1``, against ``cpu`` at 8×8 samples per pixel.  The figure
+is the mean absolute error over texel-edge pixels (those whose 8×8 sub-samples
+land in more than one texel of one object, ``cpu.texel_edges``) divided by
+the reference's mean there.  The timing cells and ``gl_vs_cpu_rel_rms`` draw
+with ``antialias: 1`` (one sample per pixel, as before antialiasing existed,
+so the figures stay comparable and the cpu render cheap); the tests check
+that gl and cpu agree with antialiasing on.
+
 ``--quick``: 320×240 with a ~20k-triangle terrain and fewer frames, plus the
 two 1080p cells the last line reports (same 20k mesh).  ``--docs`` rewrites
 the rendering section of docs/accuracy-vs-time.md and its figure.
 
 Last line: ``render: gl_vs_cpu_rel_rms=... fps_1080p_1lobe_1light=...
-fps_1080p_3lobe_3light=... device=...``
+fps_1080p_3lobe_3light=... aa_edge_err=... aa_off_edge_err=... device=...``
 """
 
 from __future__ import annotations
@@ -49,9 +61,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from report import machine, replace_section  # noqa: E402
 
 from sbrdf_core.registry import Registry  # noqa: E402
-from sbrdf_core.scene import load_scene  # noqa: E402
+from sbrdf_core.scene import ANTIALIAS_DEFAULT, load_scene  # noqa: E402
 from sbrdf_render import materials as mat  # noqa: E402
-from sbrdf_render.cpu import cast, render_scene  # noqa: E402
+from sbrdf_render.cpu import cast, render_scene, texel_edges  # noqa: E402
 from sbrdf_render.gf4 import GF4Scene  # noqa: E402
 from sbrdf_render.gl import Drawer, Frame, GLScene, clip_planes, context  # noqa: E402
 
@@ -233,7 +245,7 @@ def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> 
     drawers = {}
     try:
         for lights in (1, 2, 3):
-            scene = load_scene(scene_text(obj, lights, resolution))
+            scene = load_scene(scene_text(obj, lights, resolution) + "antialias: 1\n")  # fps without antialiasing
             meshes.setdefault(0, tessellate(scene.objects[0]))
             for lobes in (1, 2, 3):
                 if cells is None or ("float", lobes, lights) in cells:
@@ -263,7 +275,7 @@ def gl_vs_cpu(obj: Path) -> tuple[float, float, int]:
     """Relative RMS (and max relative error) of gl against cpu over interior pixels both renderers hit."""
     extra = ("  - {shape: plane, size: [6, 6], material: s, transform: {translate: [0, 0, -0.3]}}\n"
              "  - {shape: sphere, radius: 0.35, material: s, transform: {translate: [0.9, -0.7, 0.4]}}\n")
-    scene = load_scene(scene_text(obj, 2, (320, 240), extra, background=-1.0))
+    scene = load_scene(scene_text(obj, 2, (320, 240), extra, background=-1.0) + "antialias: 1\n")
     materials = {"s": sbrdf_material(2, seed=1)}
     meshes: dict = {}
     d = GLScene(scene, materials, meshes)
@@ -290,6 +302,49 @@ def gl_vs_cpu(obj: Path) -> tuple[float, float, int]:
     return rel_rms, rel_max, int(interior.sum())
 
 
+# -- antialiasing -----------------------------------------------------------------------------------------------------
+
+AA_SCENE = """
+camera: {position: [0.5, -1.7, 1.0], look_at: [0, 0.1, 0.15], fov_deg: 45, resolution: [160, 120]}
+materials: {s: {model: lafortune}}
+objects:
+  - {shape: plane, size: [2.4, 2.4], material: s, uv_repeat: [2, 2]}
+  - {shape: sphere, radius: 0.35, material: s, transform: {translate: [-0.35, 0.3, 0.4]}}
+lights:
+  - {type: point, position: [1.5, -1.5, 1.6], intensity: 4}
+  - {type: directional, direction: [-0.6, -0.4, 1.0], irradiance: 0.6}
+"""
+
+
+def checker_material(size: int = 16) -> mat.SceneMaterial:
+    """A 1-lobe Lafortune SBRDF whose ρ_d and ρ_s jump 10:1 between neighbouring texels, nearest lookups."""
+    m = sbrdf_material(1, size=size, seed=2)
+    model = m.model
+    check = 0.1 + 0.9 * (np.add.outer(np.arange(size), np.arange(size)) % 2)
+    maps, offset = m.maps.copy(), 0
+    for p in model.parameters:
+        if p.name.startswith("rho"):
+            maps[..., offset:offset + p.channels] *= check[..., None].astype(np.float32)
+        offset += p.channels
+    return mat.SceneMaterial("s", model, maps, None, "nearest")
+
+
+def aa_edges(reference: int = 8) -> dict:
+    """Error at texel edges against a ``reference``²-sample cpu render: the default antialiasing, and none."""
+    materials = {"s": checker_material()}
+    ref, _ = render_scene(load_scene(AA_SCENE + f"antialias: {reference * reference}\n"), materials)
+    edges = texel_edges(load_scene(AA_SCENE), materials, reference)
+    scale = float(np.abs(ref[edges]).mean())
+    out = {"edge_pixels": int(edges.sum()), "pixels": int(edges.size)}
+    for key, text in (("on", AA_SCENE), ("off", AA_SCENE + "antialias: 1\n")):
+        t0 = time.perf_counter()
+        img, _ = render_scene(load_scene(text), materials)
+        out[f"{key}_s"] = time.perf_counter() - t0
+        out[key] = float(np.abs(img - ref)[edges].mean()) / scale
+        out[f"{key}_all"] = float(np.abs(img - ref).mean()) / float(np.abs(ref).mean())
+    return out
+
+
 # -- report ---------------------------------------------------------------------------------------------------------
 
 
@@ -311,7 +366,8 @@ def table(results: dict, res) -> list[str]:
     return rows
 
 
-def write_docs(results: dict, triangles: int, rel: tuple, device: str, main_line: str, quick: bool) -> None:
+def write_docs(results: dict, triangles: int, rel: tuple, device: str, main_line: str, quick: bool,
+               aa: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -367,6 +423,11 @@ def write_docs(results: dict, triangles: int, rel: tuple, device: str, main_line
         f"gl against the cpu reference (320×240: plane, sphere, the terrain at ~5k triangles, 2 lobes, 2 "
         f"lights): relative RMS {rel[0]:.3g}, max relative error {rel[1]:.3g}, over {rel[2]} interior pixels both hit.",
         "",
+        *([f"Antialiasing ([scenes.md](scenes.md#antialiasing)): on a high-contrast checker SBRDF (160×120, plane and "
+           f"sphere), the mean error over the {aa['edge_pixels']} pixels a texel edge crosses, against an 8×8-supersampled "
+           f"cpu render and relative to its mean there, is {aa['on']:.3g} with the default `antialias: "
+           f"{ANTIALIAS_DEFAULT}` and {aa['off']:.3g} point-sampled (over all pixels {aa['on_all']:.3g} and "
+           f"{aa['off_all']:.3g}); the cpu render took {aa['on_s']:.2f} s and {aa['off_s']:.2f} s.", ""] if aa else []),
         "Headline:",
         "",
         f"    {main_line}",
@@ -404,6 +465,10 @@ def main(argv=None):
         rel = gl_vs_cpu(small)
         print(f"gl vs cpu: rel rms {rel[0]:.4g}, rel max {rel[1]:.4g} over {rel[2]} pixels "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        aa = aa_edges()
+        print(f"texel edges ({aa['edge_pixels']} of {aa['pixels']} pixels) against 8×8 cpu: antialias "
+              f"{ANTIALIAS_DEFAULT} {aa['on']:.4g} (all pixels {aa['on_all']:.3g}, {aa['on_s']:.2f} s), "
+              f"antialias 1 {aa['off']:.4g} (all pixels {aa['off_all']:.3g}, {aa['off_s']:.2f} s)", flush=True)
         results = {}
         for res in resolutions:
             results[res] = measure(obj, res, frames)
@@ -415,9 +480,10 @@ def main(argv=None):
                                             cells={("float", 1, 1), ("float", 3, 3)})
     hd = results[(1920, 1080)]
     main_line = (f"render: gl_vs_cpu_rel_rms={rel[0]:.4g} fps_1080p_1lobe_1light={hd[('float', 1, 1)]:.4g} "
-                 f"fps_1080p_3lobe_3light={hd[('float', 3, 3)]:.4g} device={device}")
+                 f"fps_1080p_3lobe_3light={hd[('float', 3, 3)]:.4g} aa_edge_err={aa['on']:.4g} "
+                 f"aa_off_edge_err={aa['off']:.4g} device={device}")
     if args.docs:
-        write_docs(results, triangles, rel, device, main_line, args.quick)
+        write_docs(results, triangles, rel, device, main_line, args.quick, aa)
     print(f"total {time.perf_counter() - t0:.0f} s")
     print(main_line)
 

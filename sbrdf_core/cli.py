@@ -6,6 +6,7 @@
     sbrdf plugins [--category fitter]
     sbrdf info STORE_OR_ARTIFACT
     sbrdf plot SAMPLED_REFLECTANCE [--params PARAM_MAPS] [--out DIR] [--texel U V] [--wi θ φ] [--wo θ φ]
+    sbrdf bench [STAGE ...] [--quick | --full] [--no-images] [--log FILE]
 
 ``-p MODULE`` registers an extra plugin module (pytest's ``-p``), and
 ``-p no:NAME`` disables an installed plugin by entry-point name.
@@ -130,9 +131,16 @@ def cmd_plugins(args) -> int:
 
 
 def cmd_info(args) -> int:
-    import fsspec
-    import zarr
+    """Describe every artifact of a store (or one artifact), then the fit table of its ParamMaps.
 
+    Zarr groups that are not sbrdf artifacts (a plugin's side store, such as the
+    ``factors:`` store of the ``nd`` and ``svd`` fitters in graphs/separable.yaml)
+    are described as such: what they hold and which artifact names them, never
+    an error.
+    """
+    import fsspec
+
+    from .errors import ArtifactError
     from .store import open_artifact
 
     fs, root = fsspec.core.url_to_fs(args.store)
@@ -143,37 +151,95 @@ def cmd_info(args) -> int:
                       for p in fs.ls(root, detail=False) if fs.exists(p.rstrip("/") + "/zarr.json"))
         if not urls:
             raise SbrdfError(f"{args.store}: no sbrdf artifacts here")
-    fits = []
+    opened = []
     for url in urls:
-        art = open_artifact(url, require_complete=False)
-        prov = art.provenance
-        plugin = prov.get("plugin") or {}
-        print(f"{url}\n  {art.kind} v{art.version}  {'complete' if art.complete else 'INCOMPLETE'}  "
-              f"{art.nbytes_stored() / 2**20:.2f} MiB stored  token {art.token}")
-        print(f"  node {prov.get('node')!r} ({prov.get('node_kind')}) of graph {prov.get('graph', {}).get('name')!r}"
-              + (f", plugin {plugin.get('name')} {plugin.get('distribution', '')} {plugin.get('version', '')}" if plugin else ""))
-        print(f"  parameters: {json.dumps(prov.get('parameters', {}))}")
-        for port, i in prov.get("inputs", {}).items():
-            print(f"  input {port}: {i['kind']} {i['url']} (token {i['token']})")
-        for name in art.names():
-            z: zarr.Array = art.zarr_array(name)
-            print(f"  {name:<22} {str(z.shape):<22} {str(z.dtype):<8} chunks {z.chunks}")
-        skip = {"provenance", "kind", "version", "token", "complete", "node", "layout", "file_digests"}
-        for k, v in art.attrs.items():
-            if k not in skip:
-                print(f"  @{k}: {json.dumps(v)[:200]}")
+        try:
+            opened.append((url, open_artifact(url, require_complete=False), None))
+        except ArtifactError as e:
+            opened.append((url, None, str(e)))
+    fits = []
+    for url, art, err in opened:
+        if art is None:
+            _describe_other_zarr(url, err, [(u, a) for u, a, _ in opened if a is not None])
+            continue
+        _describe_artifact(url, art)
         if art.kind == "ParamMaps" and art.complete:
             fits.append((url, art))
     if fits:
         print(fit_table(fits))
+    others = sum(art is None for _, art, _ in opened)
+    if others and len(opened) > 1:
+        print(f"{args.store}: {len(opened) - others} sbrdf artifacts and {others} other zarr store"
+              f"{'s' if others != 1 else ''} (described above as not sbrdf artifacts)")
     return 0
+
+
+def _describe_artifact(url: str, art) -> None:
+    import zarr
+
+    prov = art.provenance
+    plugin = prov.get("plugin") or {}
+    print(f"{url}\n  {art.kind} v{art.version}  {'complete' if art.complete else 'INCOMPLETE'}  "
+          f"{art.nbytes_stored() / 2**20:.2f} MiB stored  token {art.token}")
+    print(f"  node {prov.get('node')!r} ({prov.get('node_kind')}) of graph {prov.get('graph', {}).get('name')!r}"
+          + (f", plugin {plugin.get('name')} {plugin.get('distribution', '')} {plugin.get('version', '')}" if plugin else ""))
+    print(f"  parameters: {json.dumps(prov.get('parameters', {}))}")
+    for port, i in prov.get("inputs", {}).items():
+        print(f"  input {port}: {i['kind']} {i['url']} (token {i['token']})")
+    for name in art.names():
+        z: zarr.Array = art.zarr_array(name)
+        print(f"  {name:<22} {str(z.shape):<22} {str(z.dtype):<8} chunks {z.chunks}")
+    skip = {"provenance", "kind", "version", "token", "complete", "node", "layout", "file_digests"}
+    for k, v in art.attrs.items():
+        if k not in skip:
+            print(f"  @{k}: {json.dumps(v)[:200]}")
+
+
+def _same_place(a: str, b: str) -> bool:
+    import os
+
+    if "://" in a or "://" in b:
+        return a.rstrip("/") == b.rstrip("/")
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _describe_other_zarr(url: str, why: str, artifacts) -> None:
+    """A zarr store that is not an sbrdf artifact: say so, say what names it, list what it holds."""
+    import zarr
+
+    try:
+        node = zarr.open(store=url, mode="r")
+    except Exception as e:  # noqa: BLE001  (a damaged or foreign store: describe, never crash)
+        print(f"{url}\n  not an sbrdf artifact, and not readable as zarr: {type(e).__name__}: {e}")
+        return
+    attrs = dict(node.attrs)
+    kind = attrs.get("kind")
+    what = f"a zarr {'group' if isinstance(node, zarr.Group) else 'array'}" + (f" of kind {kind!r}" if kind else "")
+    print(f"{url}\n  not an sbrdf artifact: {what}, with no sbrdf provenance or token (not a node's output: "
+          f"a plugin's side store, or written by hand)")
+    names = [u for u, a in artifacts
+             if any(isinstance(v, str) and _same_place(v, url)
+                    for v in list(a.attrs.get("model_config", {}).values())
+                    + list(a.provenance.get("parameters", {}).values()))]
+    if names:
+        print(f"  named by: {', '.join(names)} (their model reads it: keep it beside them)")
+    if isinstance(node, zarr.Group):
+        arrays = sorted(node.arrays(), key=lambda kv: kv[0])
+        for name, z in arrays:
+            print(f"  {name:<22} {str(z.shape):<22} {str(z.dtype):<8} chunks {z.chunks}")
+    else:
+        print(f"  {'(array)':<22} {str(node.shape):<22} {str(node.dtype):<8} chunks {node.chunks}")
+    for k, v in attrs.items():
+        if k != "kind":
+            print(f"  @{k}: {json.dumps(v, default=str)[:200]}")
 
 
 def cmd_plot(args) -> int:
     from .plot import plot_views
 
     paths = plot_views(args.samples, args.out, params_url=args.params, texel=tuple(args.texel) if args.texel else None,
-                       wi=tuple(args.wi), wo=tuple(args.wo), tol_deg=args.tol, registry=_registry(args))
+                       wi=tuple(args.wi) if args.wi else None, wo=tuple(args.wo) if args.wo else None, tol_deg=args.tol,
+                       registry=_registry(args))
     for p in paths:
         print(p)
     return 0
@@ -261,17 +327,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--params", default=None, help="a ParamMaps artifact whose fitted model is drawn over the samples")
     p.add_argument("--out", default="plots", help="folder for spatial.png, hemisphere.png, incidence-plane.png")
     p.add_argument("--texel", type=int, nargs=2, metavar=("U", "V"), help="texel of views (b) and (c); default the centre")
-    p.add_argument("--wi", type=float, nargs=2, default=[30.0, 0.0], metavar=("THETA", "PHI"), help="incident direction, deg")
-    p.add_argument("--wo", type=float, nargs=2, default=[30.0, 180.0], metavar=("THETA", "PHI"),
-                   help="exitant direction of the spatial image, deg")
-    p.add_argument("--tol", type=float, default=15.0, help="angular tolerance of views (b) and (c), deg")
+    p.add_argument("--wi", type=float, nargs=2, default=None, metavar=("THETA", "PHI"),
+                   help="incident direction, deg; default: the texel's most populated one")
+    p.add_argument("--wo", type=float, nargs=2, default=None, metavar=("THETA", "PHI"),
+                   help="exitant direction of the spatial image, deg; default: that of the pose nearest ω_i")
+    p.add_argument("--tol", type=float, default=None,
+                   help="angular tolerance of views (b) and (c), deg; default 15, widened (up to 45) where too few samples")
     p.set_defaults(func=cmd_plot)
 
-    p = sub.add_parser("bench", help="run the benchmarks (quick sizes) and regenerate docs/accuracy-vs-time.md")
-    p.add_argument("stages", nargs="*", help="stages to run (default all): fit quantize separable shadingmap "
+    p = sub.add_parser("bench", help="run the benchmarks (quick sizes) and regenerate docs/accuracy-vs-time.md; "
+                       "says what it will cost before it starts")
+    p.add_argument("stages", nargs="*", help="stages to run (default all): fit fidelity quantize separable shadingmap "
                    "bsdf_tables render envmap")
-    p.add_argument("--full", action="store_true", help="full sizes (about an hour on 2 cores) instead of quick ones")
-    p.add_argument("--no-images", action="store_true", help="do not re-render the documentation's images")
+    sizes = p.add_mutually_exclusive_group()
+    sizes.add_argument("--quick", dest="full", action="store_false",
+                       help="quick sizes (the default; a few minutes on 2 idle cores)")
+    sizes.add_argument("--full", dest="full", action="store_true",
+                       help="full sizes (about an hour on 2 cores) instead of quick ones")
+    p.set_defaults(full=False)
+    p.add_argument("--no-images", action="store_true",
+                   help="leave docs/img untouched: no docs renders, and the scripts run without --docs (their sections "
+                   "and charts stay as they are; only the summary is rewritten)")
     p.add_argument("--log", default=None, help="the scripts' output (default runs/bench.log)")
     p.set_defaults(func=cmd_bench)
 
@@ -282,7 +358,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sbrdf: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("sbrdf: interrupted; re-run to resume from the chunks already written", file=sys.stderr)
+        if args.command == "bench":
+            print("sbrdf: bench interrupted; the summary was not rewritten (the scripts' output is in the log)",
+                  file=sys.stderr)
+        else:
+            print("sbrdf: interrupted; re-run to resume from the chunks already written", file=sys.stderr)
         return 130
 
 

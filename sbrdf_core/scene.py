@@ -15,6 +15,7 @@ environment map and a camera (``docs/scenes.md``)::
       - {type: point, position: [2, -2, 3], intensity: 10, falloff: true}
       - {type: directional, direction: [0, 0, 1], irradiance: [1, 0.9, 0.8]}
     shadows: false
+    antialias: 4          # samples per pixel, n² (2×2 here; 1 = off); the default
 
 Every key is declared once below as :class:`~sbrdf_core.params.Param` data,
 so an unknown key, a wrong type or a missing value is reported with the
@@ -24,6 +25,7 @@ decide which effects (and which shader code) the scene needs.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -111,7 +113,13 @@ DISPLAY = (
     Param("gamma", "str", "srgb", "display transfer of the PNG", choices=("srgb", "2.2")),
 )
 
-TOP_KEYS = ("camera", "materials", "objects", "lights", "environment", "shadows", "display", "background", "effects")
+TOP_KEYS = ("camera", "materials", "objects", "lights", "environment", "shadows", "display", "background", "effects",
+            "antialias")
+
+#: Samples per pixel when a scene does not say (``antialias:``): a 2×2 stratified pattern.
+ANTIALIAS_DEFAULT = 4
+#: Most samples per pixel a scene may ask for (16×16 would be 256: the cpu renderer's memory grows with it).
+ANTIALIAS_MAX = 64
 
 
 class SceneError(SbrdfError):
@@ -120,6 +128,18 @@ class SceneError(SbrdfError):
     def __init__(self, problems: list[Problem]):
         self.problems = list(problems)
         super().__init__("scene is invalid:\n" + "\n".join(f"  {p}" for p in self.problems))
+
+
+def downsample(image: np.ndarray, n: int) -> np.ndarray:
+    """The box average of n×n pixel blocks of ``(H·n, W·n, C)`` ``image`` (linear radiance), in its dtype.
+
+    Blocks are summed in float64, so a float32 image averages without its rounding growing with n².
+    """
+    if n == 1:
+        return image
+    Hn, Wn = image.shape[:2]
+    blocks = image.reshape(Hn // n, n, Wn // n, n, *image.shape[2:]).astype(np.float64)
+    return blocks.mean(axis=(1, 3)).astype(image.dtype, copy=False)
 
 
 def rgb(value: Any) -> np.ndarray:
@@ -240,6 +260,27 @@ class Scene:
     gamma: str = "srgb"
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     effects: dict[str, dict] = field(default_factory=dict)  # scene-effect name -> options, for plugins' effects
+    antialias: int = ANTIALIAS_DEFAULT  # samples per pixel, a square n²: an n×n stratified sub-pixel grid
+
+    @property
+    def subpixels(self) -> int:
+        """n of the n×n stratified sub-pixel grid (``antialias`` = n²)."""
+        return int(round(self.antialias ** 0.5))
+
+    def supersampled(self) -> Scene:
+        """The scene its antialiased render rasterises: the resolution × n in each direction, antialias 1.
+
+        Pixel (i, j) of this scene's image is sub-sample (i mod n, j mod n) of pixel (i // n, j // n) of
+        the scene's: the stratified n×n pattern with sub-sample centres at ((a + ½)/n, (b + ½)/n) inside
+        every pixel.  Both renderers draw it and average n×n blocks in linear radiance
+        (:func:`downsample`), so ``cpu`` and ``gl`` sample the same points.
+        """
+        n = self.subpixels
+        if n == 1:
+            return self
+        W, H = self.camera.resolution
+        return dataclasses.replace(self, camera=dataclasses.replace(self.camera, resolution=(W * n, H * n)),
+                                   antialias=1)
 
     def features(self, materials: dict[str, Any] | None = None) -> Features:
         """The effects this scene needs; ``materials`` (name -> resolved material) adds per-material flags."""
@@ -385,6 +426,13 @@ class _SceneValidator:
         except (ValueError, TypeError, AssertionError):
             self.problem(f"background must be a number or an RGB triple, got {doc.get('background')!r}", ("background",))
             background = np.zeros(3)
+        antialias = doc.get("antialias", ANTIALIAS_DEFAULT)
+        if (not isinstance(antialias, int) or isinstance(antialias, bool) or not 1 <= antialias <= ANTIALIAS_MAX
+                or round(antialias ** 0.5) ** 2 != antialias):
+            squares = ", ".join(str(k * k) for k in range(1, int(ANTIALIAS_MAX ** 0.5) + 1))
+            self.problem(f"antialias must be a number of samples per pixel that is a square (an n×n sub-pixel "
+                         f"grid): one of {squares} (1: off), got {doc.get('antialias')!r}", ("antialias",))
+            antialias = 1
         effects = doc.get("effects") or {}
         if not isinstance(effects, dict) or not all(isinstance(v, (dict, type(None))) for v in effects.values()):
             self.problem(f"effects must map scene-effect names to their options, e.g. {{ambient: {{radiance: 0.1}}}}, "
@@ -395,7 +443,8 @@ class _SceneValidator:
         if self.problems:
             raise SceneError(sorted(self.problems, key=lambda p: (p.line or 0, p.message)))
         return Scene(self.file, camera, tuple(objects), materials, tuple(lights), env, shadows,
-                     display["exposure"], display["gamma"], background, {str(k): dict(v or {}) for k, v in effects.items()})
+                     display["exposure"], display["gamma"], background, {str(k): dict(v or {}) for k, v in effects.items()},
+                     antialias)
 
     def materials(self, raw) -> dict[str, MaterialRef]:
         out = {}

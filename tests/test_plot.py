@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.plot import Viewer, direction
+from sbrdf_core.plot import (MIN_SAMPLES, Viewer, choose_views, direction, hemisphere_figure, incidence_figure,
+                             plot_views, spatial_figure)
 from sbrdf_core.runner import run_graph
 
 from .conftest import graph_yaml
@@ -60,3 +61,83 @@ def test_plot_errors_name_the_problem(store, tmp_path):
         view.texel_samples(99, 0)
     with pytest.raises(SbrdfError, match="holds a ParamMaps, expected SampledReflectance"):
         Viewer(str(store / "fit"))
+
+
+@pytest.fixture(scope="module")
+def viewer(store):
+    return Viewer(str(store / "reflectance"), str(store / "fit"))
+
+
+def test_default_views_show_samples_where_the_old_fixed_directions_showed_none(viewer):
+    """The capture's 40 poses avoid (30°, 0°): the old fixed default showed an empty incidence plane and a
+    spatial image 45° from any pose.  The defaults now come from the texel's own samples."""
+    u, v = 8, 6
+    old = choose_views(viewer, u, v, wi=(30.0, 0.0), wo=(30.0, 180.0), tol_deg=15.0)
+    assert old.in_plane.sum() == 0 and "no sample within 15° of the incidence plane" in old.notes
+    _, old_dist = viewer.spatial(old.wi, old.wo)
+    assert np.degrees(np.median(old_dist)) > 30
+
+    c = choose_views(viewer, u, v)
+    assert c.in_plane.sum() >= MIN_SAMPLES and c.near.sum() >= c.in_plane.sum()
+    assert 15.0 <= c.tol_deg <= 45.0
+    if c.tol_deg > 15.0:
+        assert any("tolerance widened" in n for n in c.notes)
+    wis, wos, f, ok = viewer.texel_samples(u, v)
+    pose = int(np.argmin(np.where(ok, np.arccos(np.clip(wis @ c.wi, -1, 1)), np.inf)))
+    np.testing.assert_allclose(c.wi, wis[pose])  # a measured incident direction
+    np.testing.assert_allclose(c.wo, wos[pose])  # and the spatial image's ω_r of that same pose
+    _, dist = viewer.spatial(c.wi, c.wo)
+    assert dist[v, u] == pytest.approx(0, abs=1e-6) and np.degrees(np.median(dist)) < 15
+    # given directions are kept; an ω_r left out comes from the pose nearest the given ω_i
+    g = choose_views(viewer, u, v, wi=(35.0, 20.0))
+    assert g.wi_deg == (35.0, 20.0) and g.wi_from == "given" and g.wo_from != "given"
+    np.testing.assert_allclose(g.wi, direction(35, 20))
+
+
+def test_incidence_plane_and_hemisphere_axes_are_scaled_to_the_samples(viewer):
+    """The data sit near 0.06 sr⁻¹ (a Lambertian ρ_d/π): no axis fixed at 0–1."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = choose_views(viewer, 8, 6)
+    data = c.lum[c.in_plane]
+    assert data.size and data.max() < 0.5
+    fig = incidence_figure(viewer, c)
+    ax = fig.axes[0]
+    assert data.max() <= ax.get_ylim()[1] <= 1.25 * data.max()
+    assert f"{data.size} samples within {c.tol_deg:g}°" in ax.get_title()
+    plt.close(fig)
+
+    fig = hemisphere_figure(viewer, c)
+    lo, hi = fig.axes[0].collections[0].get_clim()
+    shown = c.lum[c.near]
+    assert np.percentile(shown, 50) <= hi <= 1.05 * shown.max() and lo <= shown.min()
+    plt.close(fig)
+
+
+def test_views_say_so_when_nothing_is_near_the_given_directions(viewer):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = choose_views(viewer, 8, 6, wi=(85.0, 45.0), wo=(85.0, -135.0), tol_deg=2.0)  # grazing: no pose there
+    assert c.tol_deg == 2.0 and c.near.sum() == 0  # a given tolerance is not widened
+    assert any(n.startswith("no sample within 2° of ω_i: the nearest is") for n in c.notes)
+    for draw in (hemisphere_figure, incidence_figure):
+        fig = draw(viewer, c)
+        assert "no sample within 2° of ω_i" in fig.axes[0].get_title()
+        if draw is incidence_figure:
+            assert fig.axes[0].get_ylim()[1] > 0  # scaled to the model / the texel's samples, not left at 0
+        plt.close(fig)
+    fig = spatial_figure(viewer, c)
+    assert "NO POSE NEAR these directions" in fig.axes[0].get_title()
+    plt.close(fig)
+
+
+def test_plot_views_with_no_directions_writes_every_figure(store, tmp_path):
+    paths = plot_views(str(store / "reflectance"), tmp_path / "p", params_url=str(store / "fit"))
+    assert [p.name for p in paths] == ["spatial.png", "hemisphere.png", "incidence-plane.png", "fit-error.png"]
+    assert all(p.stat().st_size > 10_000 for p in paths)

@@ -1,8 +1,12 @@
-"""Camera devices: the virtual gonioreflectometer camera.
+"""Camera devices: the virtual gonioreflectometer camera, and the ``virtual-folder`` capture source.
 
-Devices are not graph nodes: capture sources (a ``gonio`` rig, tests, the
-capture benchmark) create them with ``registry.create("device", name, params)``.
-The implementation module is imported only when a device is created.
+Devices are not graph nodes: capture sources (a ``gonio`` rig, the
+``virtual-folder`` source below, tests, the capture benchmark) create them
+with ``registry.create("device", name, params)``.  ``virtual-folder``
+(:mod:`sbrdf_cameras.capture`) is a Capture plugin: it photographs a camera
+device into an ``sbrdf-capture/1`` folder and reads it back as ``folder``
+does, so a graph can make its own simulated scan.  Implementation modules are
+imported only when a device or source is created.
 """
 
 from sbrdf_core.params import Param
@@ -65,5 +69,39 @@ def sbrdf_devices():
             "sbrdf_cameras.virtual:VirtualCamera",
             VIRTUAL_CAMERA_PARAMS,
             summary="Simulated camera photographing a known SBRDF on an ArUco carrier under a point light",
+        ),
+    ]
+
+
+VIRTUAL_FOLDER_PARAMS = (
+    Param("path", "str", doc="capture folder to write (resumed if a run was interrupted, re-rendered if this source "
+          "wrote it with other parameters), relative to the graph file", extra={"path": True}),
+    Param("camera", "dict", {"device": "virtual-camera", "params": {}},
+          "camera device {device, params}: the virtual-camera's parameters (size, focal_px, model, texels, effects, ...)"),
+    Param("poses", "int", 60, "number of poses: camera and light on two Fibonacci spirals over the hemisphere "
+          "(sbrdf_cameras.virtual.orbit_poses)", bounds=(1, 100000)),
+    Param("orbit", "dict", {}, "orbit_poses settings: camera_distance_mm (350), light_distance_mm (450), "
+          "max_camera_theta_deg (50), max_light_theta_deg (65)"),
+    Param("exposures", "list", [1.0], "exposure times in s: one bracket of 1-3 times for every pose, e.g. [0.25, 1.0], "
+          "or one bracket per pose [[...], ...]"),
+    Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera's light_info()",
+          nullable=True),
+    Param("read", "dict", {}, "parameters of the folder plugin that reads the folder back (response, saturation, "
+          "underexposure, colour_matrix, ...)"),
+    Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
+          choices=("png", "tif")),
+    Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
+)
+
+
+@hookimpl
+def sbrdf_captures():
+    return [
+        PluginSpec(
+            "virtual-folder",
+            "sbrdf_cameras.capture:VirtualFolderCapture",
+            VIRTUAL_FOLDER_PARAMS,
+            summary="Photograph a camera device (the virtual camera) into an sbrdf-capture/1 folder, then read it as "
+                    "folder does: a graph that makes its own simulated scan",
         ),
     ]

@@ -577,7 +577,7 @@ def _exposure_lists(exposures, n: int) -> list[list[float]]:
 
 def capture_to_folder(camera, folder, light_pos, R, t, exposures, *, pose_ids: Sequence[int] | None = None,
                       light: Mapping | None = None, image_format: str = "png", durable: bool = True,
-                      progress=None, stop_after: int | None = None):
+                      progress=None, stop_after: int | None = None, extra: Mapping | None = None):
     """Photograph every pose with ``camera`` into an ``sbrdf-capture/1`` folder; resumable.
 
     Parameters
@@ -601,6 +601,9 @@ def capture_to_folder(camera, folder, light_pos, R, t, exposures, *, pose_ids: S
     stop_after
         Take at most this many new poses and return without finishing
         (simulates an interruption in tests).
+    extra
+        Additional top-level manifest keys (e.g. the ``rig`` record of the
+        ``virtual-folder`` capture source), beside ``simulation``.
 
     Returns the final :class:`~sbrdf_capture.capture_folder.Manifest`, or
     ``None`` when stopped early.
@@ -614,9 +617,10 @@ def capture_to_folder(camera, folder, light_pos, R, t, exposures, *, pose_ids: S
     times = _exposure_lists(exposures, P)
     ids = list(range(P)) if pose_ids is None else [int(i) for i in pose_ids]
     light = dict(light) if light is not None else camera.light_info()
-    extra = {"simulation": camera.simulation_info()} if hasattr(camera, "simulation_info") else None
+    header_extra = {"simulation": camera.simulation_info()} if hasattr(camera, "simulation_info") else {}
+    header_extra.update(extra or {})
     writer = CaptureFolderWriter(folder, camera.sample_info(), camera.camera_info(), light,
-                                 image_format=image_format, durable=durable, extra=extra)
+                                 image_format=image_format, durable=durable, extra=header_extra or None)
     taken = 0
     for i, pid in enumerate(ids):
         if pid in writer.done_ids:

@@ -294,12 +294,13 @@ class FolderCapture:
             return
         bracketed = [p for p in m.poses if len(p.exposures) >= 2]
         if not bracketed:
-            raise CaptureFolderError(f"{self.path / MANIFEST}: camera.response: absent and no pose has an exposure "
-                                     "bracket to recover it from; add the response table or pass response: linear")
-        K = len(bracketed[0].exposures)
-        same = [p for p in bracketed if len(p.exposures) == K]
-        step = max(1, len(same) // self.response_poses)
-        chosen = same[::step][: self.response_poses]
+            raise CaptureFolderError(f"{self.path / MANIFEST}: camera.response is absent and no pose has an exposure "
+                                     "bracket (two or more exposures) to recover it from; add the response table or "
+                                     "pass response: linear")
+        # Brackets may differ per pose in their times and their length (the exposure planner's 1-3 times per pose):
+        # every sample carries its own exposure time, which both recovery methods accept.
+        step = max(1, len(bracketed) // self.response_poses)
+        chosen = bracketed[::step][: self.response_poses]
         max_code = int(np.iinfo(first.dtype).max)
         brackets, times = [], []
         for p in chosen:
@@ -311,21 +312,17 @@ class FolderCapture:
             samples, sample_times = bracket_samples(brackets, times, max_code=max_code,
                                                     low=self.underexposure, high=self.saturation)
             if self.response_method == "debevec":
-                uniform = self._uniform_times(times)
-                if uniform is None:
-                    raise ResponseError("debevec recovery needs the same exposure times in every bracket")
-                self.curve = recover_debevec(samples, uniform)
+                self.curve = recover_debevec(samples, sample_times)
             else:
                 low = max(self.underexposure, RECOVERY_LOW)
                 coef = recover_cubic_loglog(samples, sample_times, max_code, low, self.saturation)
                 self.curve = cubic_curve(coef, 8 if max_code == 255 else 16, low)
         except ResponseError as e:
-            raise CaptureFolderError(f"{self.path / MANIFEST}: camera.response absent and recovery failed: {e}") from None
-
-    @staticmethod
-    def _uniform_times(times: list[list[float]]) -> list[float] | None:
-        first = times[0]
-        return first if all(np.allclose(t, first) for t in times) else None
+            raise CaptureFolderError(
+                f"{self.path / MANIFEST}: camera.response is absent, so the response curve was to be recovered from "
+                f"the exposure brackets ({self.response_method} method, {len(chosen)} of {len(bracketed)} bracketed "
+                f"poses), and that failed: {e}.  Record camera.response in the manifest, pass response: linear for "
+                "linear images, or try the other response_method") from None
 
     def _load_dark(self, m: Manifest) -> None:
         from .capture_folder import Exposure

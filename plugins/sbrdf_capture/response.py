@@ -20,9 +20,13 @@ Two recovery methods, as in the thesis:
   per-pixel radiances enter linearly in log space, so the joint fit is still
   one small linear least-squares problem (the radiances are eliminated by
   centring each pixel's equations).
-- :func:`recover_debevec`: OpenCV's ``cv2.createCalibrateDebevec``
-  (Debevec & Malik 1997), 8-bit only, defined up to a scale factor (fixed
-  here by ``g(reference code) = 1``; compare curves with ``fit_scale=True``).
+- :func:`recover_debevec`: Debevec & Malik 1997, 8-bit only, defined up
+  to a scale factor (fixed here by ``g(reference code) = 1``; compare curves
+  with ``fit_scale=True``).  Brackets that all share one set of exposure
+  times go through OpenCV's ``cv2.createCalibrateDebevec``; brackets of
+  different times (or lengths) per pose, as the exposure planner makes
+  them, through the same least-squares system solved here, where every
+  sample carries its own Δt (:func:`solve_debevec`).
 """
 
 from __future__ import annotations
@@ -242,20 +246,45 @@ def cubic_curve(coefficients: np.ndarray, bits: int, low: float = 0.0) -> Respon
     return ResponseCurve(np.stack(cols, axis=1))
 
 
-def recover_debevec(samples: np.ndarray, times: Sequence[float], lambda_smooth: float = 10.0,
+def recover_debevec(samples: np.ndarray, times, lambda_smooth: float = 10.0,
                     n_samples: int = 200, reference_code: int = 128) -> ResponseCurve:
-    """OpenCV's Debevec-Malik recovery from 8-bit brackets.
+    """Debevec-Malik recovery from 8-bit brackets.
 
-    ``samples`` is ``(J, K, 3)`` uint8 (J points, K exposures with ``times``).
-    The curve is defined up to scale; it is scaled so that
-    ``g(reference_code) = 1`` (compare it with :func:`relative_error`
+    ``samples`` is ``(J, K, 3)`` uint8 (J points, K exposures); ``times`` is
+    ``(K,)`` (every point seen at the same times) or ``(J, K)`` (each point's
+    own times, e.g. from brackets that differ per pose; entries of a shorter
+    bracket padded with code 0 carry no weight).  With one set of times the
+    solve is OpenCV's ``cv2.createCalibrateDebevec``; otherwise
+    :func:`solve_debevec`.  The curve is defined up to scale; it is scaled so
+    that ``g(reference_code) = 1`` (compare it with :func:`relative_error`
     ``fit_scale=True``).
     """
-    import cv2
-
     s = np.asarray(samples)
     if s.dtype != np.uint8:
-        raise ResponseError(f"cv2.createCalibrateDebevec needs 8-bit images, got {s.dtype}")
+        raise ResponseError(f"Debevec recovery needs 8-bit images, got {s.dtype}")
+    J, K, _ = s.shape
+    t = np.asarray(times, np.float64)
+    if t.ndim == 2:
+        if t.shape != (J, K):
+            raise ResponseError(f"exposure times of shape {t.shape} for {J} points × {K} exposures")
+        if np.allclose(t, t[:1]):
+            t = t[0]
+    if not np.all(np.isfinite(t)) or np.any(t <= 0):
+        raise ResponseError("exposure times must be positive and finite")
+    if t.ndim == 1:
+        g = _opencv_debevec(s, t, lambda_smooth, n_samples)
+    else:
+        pick = np.unique(np.linspace(0, J - 1, min(J, 2 * n_samples)).astype(np.int64))
+        g = np.stack([np.exp(solve_debevec(s[pick, :, c], t[pick], lambda_smooth, reference_code)) for c in range(3)],
+                     axis=1)
+    g = np.maximum.accumulate(np.maximum(g, 0.0), axis=0)
+    g /= np.where(g[reference_code] > 0, g[reference_code], 1.0)
+    return ResponseCurve(g)
+
+
+def _opencv_debevec(s: np.ndarray, times: np.ndarray, lambda_smooth: float, n_samples: int) -> np.ndarray:
+    import cv2
+
     J, K, _ = s.shape
     side = int(np.ceil(np.sqrt(J)))
     pad = np.zeros((side * side, K, 3), np.uint8)
@@ -263,32 +292,70 @@ def recover_debevec(samples: np.ndarray, times: Sequence[float], lambda_smooth: 
     pad[J:] = s[:1]
     images = [np.ascontiguousarray(pad[:, k].reshape(side, side, 3)) for k in range(K)]
     cal = cv2.createCalibrateDebevec(samples=min(n_samples, side * side), lambda_=lambda_smooth, random=False)
-    g = cal.process(images, np.asarray(times, np.float32)).reshape(256, 3).astype(np.float64)
-    g = np.maximum.accumulate(np.maximum(g, 0.0), axis=0)
-    g /= np.where(g[reference_code] > 0, g[reference_code], 1.0)
-    return ResponseCurve(g)
+    return cal.process(images, np.asarray(times, np.float32)).reshape(256, 3).astype(np.float64)
+
+
+def solve_debevec(z: np.ndarray, times: np.ndarray, lambda_smooth: float = 10.0,
+                  reference_code: int = 128) -> np.ndarray:
+    """Debevec & Malik's least-squares solve for one channel, each sample with its own exposure time.
+
+    ``z`` is ``(P, K)`` 8-bit codes of P scene points, ``times`` their ``(P, K)`` exposure times.  Unknowns: the
+    log inverse response ``g(0..255)`` and each point's log radiance ``ln E_p``; equations, weighted by the hat
+    ``w(z) = min(z, 255 − z)``: ``g(z_pk) − ln E_p = ln t_pk``, ``λ w(z) g''(z) = 0`` and ``g(reference) = 0``.
+    Returns ``g`` (natural log of the relative exposure), ``(256,)``.
+    """
+    z = np.asarray(z, np.int64)
+    P, K = z.shape
+    lt = np.log(np.asarray(times, np.float64))
+    hat = np.minimum(np.arange(256), 255 - np.arange(256)).astype(np.float64)
+    w = hat[z].ravel()
+    n_data, n_smooth = P * K, 254
+    A = np.zeros((n_data + 1 + n_smooth, 256 + P))
+    b = np.zeros(A.shape[0])
+    rows = np.arange(n_data)
+    A[rows, z.ravel()] = w
+    A[rows, 256 + np.repeat(np.arange(P), K)] = -w
+    b[:n_data] = w * lt.ravel()
+    A[n_data, reference_code] = 1.0
+    k = np.arange(1, 255)
+    r = n_data + 1 + np.arange(n_smooth)
+    A[r, k - 1], A[r, k], A[r, k + 1] = lambda_smooth * hat[k], -2.0 * lambda_smooth * hat[k], lambda_smooth * hat[k]
+    seen = np.bincount(z.ravel()[w > 0], minlength=256)
+    if np.count_nonzero(seen) < 16:
+        raise ResponseError(f"only {np.count_nonzero(seen)} distinct well-exposed codes in the bracket samples; "
+                            "need brackets whose exposures spread over the code range")
+    x, *_ = np.linalg.lstsq(A, b, rcond=None)
+    return x[:256]
 
 
 def bracket_samples(brackets: Sequence[Sequence[np.ndarray]], times: Sequence[Sequence[float]], max_points: int = 4000,
                     seed: int = 0, low: float = 0.02, high: float = 0.98, max_code: int = 255) -> tuple[np.ndarray, np.ndarray]:
-    """Pick scene points for response recovery from several brackets of K exposures each.
+    """Pick scene points for response recovery from several brackets of exposures each.
 
     Returns ``(J, K, 3)`` codes of points that are well exposed (all channels
     inside ``(low, high)``) in at least two exposures, drawn evenly from the
-    brackets, and their ``(J, K)`` exposure times.
+    brackets, and their ``(J, K)`` exposure times.  Brackets may differ in
+    their times and in their length: K is the longest, and a shorter
+    bracket's missing exposures are code 0 at time 1 s, which every recovery
+    ignores (below ``low``, zero hat weight).
     """
     rng = np.random.default_rng(seed)
     per = max(1, max_points // max(len(brackets), 1))
+    K = max((len(images) for images in brackets), default=0)
     out, out_times = [], []
     for images, bracket_times in zip(brackets, times):
-        stack = np.stack([np.asarray(im).reshape(-1, 3) for im in images], axis=1)  # (N, K, 3)
+        stack = np.stack([np.asarray(im).reshape(-1, 3) for im in images], axis=1)  # (N, k, 3)
         z = stack / max_code
         good = ((z > low) & (z < high)).all(axis=2).sum(axis=1) >= 2
         idx = np.flatnonzero(good)
         if idx.size:
             pick = np.sort(rng.choice(idx, size=min(per, idx.size), replace=False))
-            out.append(stack[pick])
-            out_times.append(np.broadcast_to(np.asarray(bracket_times, np.float64), (pick.size, len(images))))
+            codes_ = np.zeros((pick.size, K, 3), stack.dtype)
+            codes_[:, :len(images)] = stack[pick]
+            t = np.ones((pick.size, K))
+            t[:, :len(images)] = np.asarray(bracket_times, np.float64)
+            out.append(codes_)
+            out_times.append(t)
     if not out:
         raise ResponseError("no pixel is well exposed in two exposures of any bracket; cannot recover a response curve")
     return np.concatenate(out), np.concatenate(out_times)

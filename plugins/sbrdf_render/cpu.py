@@ -1,11 +1,19 @@
 """cpu: the NumPy reference renderer (ray casting; any BRDF-model plugin through its ``eval``).
 
-For every pixel a ray through the pixel centre finds the nearest surface
+For every sample a ray through it finds the nearest surface
 (analytic planes, spheres and cylinders, triangle meshes), the material's
 parameters are looked up at the hit's texture coordinates, and the radiance
 is seed 000 Eq 6.3 with point and directional lights:
 
     L(ω_r) = Σ_l f_r(ω_l → ω_r) · E_l · (N · ω_l),   E_l = I_l / d_l² (fall-off) or I_l.
+
+Antialiasing (the scene's ``antialias: n²``, 4 unless it says) supersamples:
+every pixel is n×n rays through a stratified sub-pixel grid (centres at
+((a + ½)/n, (b + ½)/n) of the pixel), i.e. the image is cast at n times the
+resolution and n×n blocks are averaged in linear radiance
+(:meth:`~sbrdf_core.scene.Scene.supersampled`, :func:`~sbrdf_core.scene.downsample`).
+``gl`` rasterises the same points, so the two still agree pixel for pixel.
+``antialias: 1`` casts one ray through each pixel centre.
 
 It is the ground truth the ``gl`` renderer is tested against: float64, exact
 intersections, shadow rays (only when the scene asks for shadows), and the
@@ -19,6 +27,7 @@ import time
 import numpy as np
 
 from sbrdf_core.nodes.render import RenderResult
+from sbrdf_core.scene import downsample
 
 from . import materials as mat
 from .base import SceneRenderer
@@ -98,8 +107,12 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
     """The scene's linear image ``(H, W, 3)`` float64, and timings; ``materials`` from :func:`materials.resolve`.
 
     ``effects``: the scene effects to add (default: those the scene wants, :func:`effects.active_effects`).
+    With ``scene.antialias`` = n² > 1 the scene is cast at n times its resolution (effects see that
+    scene and its sample indices) and n×n blocks are averaged.
     """
     t0 = time.perf_counter()
+    n = scene.subpixels
+    scene = scene.supersampled()
     if effects is None:
         effects = active_effects(scene, materials, registry)
     check_covered(scene, effects)
@@ -123,8 +136,37 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
         image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow)
         for effect in effects:  # environment lighting, mirrors: only what the scene wants
             image[sel] += effect.cpu_radiance(material, sub, dirs[sel], sel)
-    stats = {"cast_s": t_cast, "total_s": time.perf_counter() - t0, "pixels_hit": int((which >= 0).sum())}
-    return image.reshape(H, W, 3), stats
+    image = downsample(image.reshape(H, W, 3), n)
+    hit = (which.reshape(H // n, n, W // n, n) >= 0).any(axis=(1, 3))  # pixels any of whose samples hit
+    stats = {"cast_s": t_cast, "total_s": time.perf_counter() - t0, "pixels_hit": int(hit.sum()), "antialias": n * n}
+    return image, stats
+
+
+def texel_edges(scene, materials: dict, n: int = 8, meshes: dict | None = None) -> np.ndarray:
+    """``(H, W)`` bool: the pixels a texel edge crosses, found with an n×n grid of rays per pixel.
+
+    A pixel is on a texel edge when all its rays hit the same object and the texel of that object's
+    material they land in (``floor(uv · (U, V))``, repeating) is not the same for all of them:
+    where point sampling picks one texel for a pixel that shows several.  Silhouettes (rays on
+    different objects or missing) are not counted.
+    """
+    import dataclasses
+
+    W, H = scene.camera.resolution
+    fine = dataclasses.replace(scene, antialias=n * n).supersampled()
+    dirs, origin = fine.camera.rays()
+    hits, which = cast(fine, materials, dirs.reshape(-1, 3), origin, meshes)
+    texel = np.full(len(which), -1, np.int64)
+    for k, obj in enumerate(scene.objects):
+        sel = which == k
+        maps = materials[obj.material].maps
+        V, U = maps.shape[:2] if maps is not None else (1, 1)
+        i = np.floor(hits.uv[sel, 0] * U).astype(np.int64) % U
+        j = np.floor(hits.uv[sel, 1] * V).astype(np.int64) % V
+        texel[sel] = j * U + i
+    obj_blocks, tex_blocks = which.reshape(H, n, W, n), texel.reshape(H, n, W, n)
+    one_object = (obj_blocks >= 0).all(axis=(1, 3)) & (obj_blocks == obj_blocks[:, :1, :, :1]).all(axis=(1, 3))
+    return one_object & (tex_blocks != tex_blocks[:, :1, :, :1]).any(axis=(1, 3))
 
 
 class CPURenderer(SceneRenderer):

@@ -14,6 +14,10 @@ Two passes per lobe per light (Table 6.2: 2 × lobes × lights), additive blendi
   (ρ_d δ(j, 1) + ρ_s,j · s) · E_l to the frame; E_l, the light's irradiance
   power × clamp(N·ω_l, 0) [/ d²], is computed per vertex (COL0), as the text
   does.  Texels whose ρ_d alpha is below ½ are killed in both passes.
+* **Shadows** (scenes with ``shadows: true``): the ``gl`` path's shadow maps
+  (:mod:`~sbrdf_render.shadows`, one depth pass per light before the frame;
+  the GeForce 3/4 sampled depth textures with a hardware compare), looked up
+  in pass 2, which multiplies light l's contribution by its visibility.
 
 The parameters are the ``mcallister8`` textures (RGBA8/RGB8, normalised):
 the material's own when it came from an ``mcallister8`` TextureSet, otherwise
@@ -38,11 +42,11 @@ import numpy as np
 from sbrdf_core.errors import SbrdfError
 
 from . import materials as mat
-from .gl import Drawer, Frame, clip_planes, context
+from .gl import SHADOW_LOOKUP, Drawer, Frame, clip_planes, context
 from .shapes import tessellate
 
 #: Texture units: the same in both passes' programs.
-UNIT_LOBE, UNIT_RHO_S, UNIT_RHO_D, UNIT_PBUFFER, UNIT_TABLE = 0, 1, 2, 3, 4
+UNIT_LOBE, UNIT_RHO_S, UNIT_RHO_D, UNIT_PBUFFER, UNIT_TABLE, UNIT_SHADOW = 0, 1, 2, 3, 4, 5
 
 VERTEX = """#version 330
 uniform mat4 u_mvp;
@@ -74,12 +78,23 @@ PASS1_VS = VERTEX.format(outputs="out vec3 v_wi;\nout vec3 v_wo;", body="""\
     v_wi = vec3(dot(T, L), dot(B, L), dot(N, L));
     v_wo = vec3(dot(T, V), dot(B, V), dot(N, V));""")
 
-# Pass 2's vertex program: the light's irradiance per vertex (COL0), and N·V to drop back-facing views.
-PASS2_VS = VERTEX.format(outputs="out vec3 v_irradiance;\nout float v_ndotv;", body="""\
+# Pass 2's vertex program: the light's irradiance per vertex (COL0), and N·V to drop back-facing views; with
+# shadows also the world position and normal, for the shadow-map lookup.
+def pass2_vertex(shadows: bool = False) -> str:
+    outputs = "out vec3 v_irradiance;\nout float v_ndotv;"
+    if shadows:
+        outputs += "\nout vec3 v_pos;\nout vec3 v_normal;"
+    body = """\
     float d2 = dot(L, L);
     float c = max(dot(N, L * inversesqrt(d2)), 0.0);
     v_irradiance = u_power * c / (u_falloff > 0.5 ? d2 : 1.0);
-    v_ndotv = dot(N, V);""")
+    v_ndotv = dot(N, V);"""
+    if shadows:
+        body += "\n    v_pos = in_pos;\n    v_normal = N;"
+    return VERTEX.format(outputs=outputs, body=body)
+
+
+PASS2_VS = pass2_vertex()
 
 
 def pass1_source(alpha: bool) -> str:
@@ -105,13 +120,24 @@ void main() {{
 """
 
 
-def pass2_source(alpha: bool) -> str:
+def pass2_source(alpha: bool, shadows: bool = False) -> str:
     kill = "    if (rho_d.a < 0.5) discard;  // alpha-kill (seed 000 §6.5)\n" if alpha else ""
+    if shadows:
+        from .shadows import BIAS
+
+        # this pass's light: its shadow map and matrix (bound per light), c = N·ω_l for the slope-scaled bias
+        shadow_decl = ("in vec3 v_pos;\nin vec3 v_normal;\nuniform vec4 u_light;\nuniform sampler2DShadow u_shadow;\n"
+                       f"uniform mat4 u_shadow_mvp;\nconst float SHADOW_BIAS = {BIAS!r};\n{SHADOW_LOOKUP}")
+        visibility = """    vec3 Ls = normalize(u_light.w > 0.5 ? u_light.xyz - v_pos : u_light.xyz);
+    float vis = shadow_visibility(u_shadow, u_shadow_mvp, v_pos, dot(normalize(v_normal), Ls));
+"""
+    else:
+        shadow_decl, visibility = "", "    float vis = 1.0;\n"
     return f"""#version 330
 in vec3 v_irradiance;
 in float v_ndotv;
 in vec2 v_uv;
-uniform sampler2D u_pbuffer;
+{shadow_decl}uniform sampler2D u_pbuffer;
 uniform sampler2D u_table;  // T[x', n'], 8 bits, NEAREST
 uniform sampler2D u_rho_s;
 uniform sampler2D u_rho_d;
@@ -122,7 +148,7 @@ void main() {{
 {kill}    vec4 p = texelFetch(u_pbuffer, ivec2(gl_FragCoord.xy), 0);  // this fragment's p-buffer pixel
     float s = texture(u_table, vec2(p.a, p.r)).r;  // dependent read: column n', row x'
     vec3 f = u_first_lobe * rho_d.rgb + texture(u_rho_s, v_uv).rgb * s;
-    frag = vec4(v_ndotv > 0.0 ? f * v_irradiance : vec3(0.0), 1.0);
+{visibility}    frag = vec4(v_ndotv > 0.0 ? f * v_irradiance * vis : vec3(0.0), 1.0);
 }}
 """
 
@@ -181,12 +207,14 @@ class GF4Scene(Drawer):
         self.table.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.table.repeat_x = self.table.repeat_y = False
         self.sources, self.programs, self.textures, self.lobes = {}, {}, {}, {}
+        shadows = bool(scene.shadows)
+        pass2_vs = pass2_vertex(shadows)
         for name, m in materials.items():
             alpha = m.alpha is not None
-            self.sources[name] = (PASS1_VS, pass1_source(alpha), PASS2_VS, pass2_source(alpha))
+            self.sources[name] = (PASS1_VS, pass1_source(alpha), pass2_vs, pass2_source(alpha, shadows))
             try:
                 p1 = self._keep(ctx.program(vertex_shader=PASS1_VS, fragment_shader=pass1_source(alpha)))
-                p2 = self._keep(ctx.program(vertex_shader=PASS2_VS, fragment_shader=pass2_source(alpha)))
+                p2 = self._keep(ctx.program(vertex_shader=pass2_vs, fragment_shader=pass2_source(alpha, shadows)))
             except moderngl.Error as e:
                 raise SbrdfError(f"gl renderer, pipeline geforce4: the shaders for material {name!r} do not "
                                  f"compile:\n{e}") from None
@@ -195,7 +223,8 @@ class GF4Scene(Drawer):
             self.textures[name] = self._upload(hardware[name], m)
             for prog in (p1, p2):
                 for uniform, unit in (("u_lobe", UNIT_LOBE), ("u_rho_s", UNIT_RHO_S), ("u_rho_d", UNIT_RHO_D),
-                                      ("u_pbuffer", UNIT_PBUFFER), ("u_table", UNIT_TABLE)):
+                                      ("u_pbuffer", UNIT_PBUFFER), ("u_table", UNIT_TABLE),
+                                      ("u_shadow", UNIT_SHADOW)):
                     if uniform in prog:
                         prog[uniform].value = unit
         self.max_lobes = max([1] + list(self.lobes.values()))
@@ -214,6 +243,12 @@ class GF4Scene(Drawer):
             self.vaos.append((obj.material, pair))
             self.triangles += mesh.triangles
         self.meshes = meshes
+        self.shadow = None
+        if shadows:  # the gl path's shadow maps: one depth map per light, rendered at the start of each frame
+            from .shadows import ShadowMaps
+
+            self.shadow = ShadowMaps(ctx, scene, meshes)
+            self._res.append(self.shadow)
         self.query = self._keep(ctx.query(time=True))
         self._set_uniforms()
 
@@ -269,6 +304,8 @@ class GF4Scene(Drawer):
         ctx.blend_func = moderngl.ONE, moderngl.ONE
         bg = tuple(float(x) for x in self.scene.background)
         passes = 0
+        if self.shadow is not None:
+            self.shadow.render()  # binds the shadow framebuffers; the frame and p-buffer are bound below
         with self.query:
             self.frame.depth_mask = self.pbuffer.depth_mask = True
             self.frame.use()
@@ -300,12 +337,16 @@ class GF4Scene(Drawer):
                         ctx.enable(moderngl.BLEND)
                     self.pbuffer_tex.use(UNIT_PBUFFER)
                     self.table.use(UNIT_TABLE)
+                    if self.shadow is not None:
+                        self.shadow.maps[li].use(UNIT_SHADOW)
                     for name, (_, vao2) in self.vaos:
                         if j > max(1, self.lobes[name]):
                             continue
                         _, rho_s, _, _ = self.textures[name]["lobes"][j - 1]
                         p2 = self.programs[name][1]
                         self._light(p2, light)
+                        if self.shadow is not None:
+                            p2["u_shadow_mvp"].write(self.shadow.matrices[li].T.tobytes())
                         p2["u_first_lobe"].value = 1.0 if j == 1 else 0.0
                         rho_s.use(UNIT_RHO_S)
                         self.textures[name]["rho_d"].use(UNIT_RHO_D)

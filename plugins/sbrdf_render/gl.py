@@ -11,6 +11,15 @@ only for anisotropic materials, the alpha-kill only where a material has
 transparency, two-sided lighting only for transmissive models, shadow-map
 lookups only when the scene asks for shadows.  Nothing else is compiled or
 bound.  The GeForce 4 emulation lives in :mod:`sbrdf_render.gf4`.
+
+Antialiasing (the scene's ``antialias: n²``, 4 unless it says) is
+supersampling with the ``cpu`` renderer's pattern: the scene is drawn into a
+framebuffer n times larger in each direction (every fragment centre is a
+sub-sample centre ((a + ½)/n, (b + ½)/n) of an output pixel), read back as
+float32 linear radiance and averaged over n×n blocks
+(:meth:`~sbrdf_core.scene.Scene.supersampled`).  MSAA would shade once per
+pixel and so not converge to the reference where parameter textures change
+inside a pixel, which is where the error is.
 """
 
 from __future__ import annotations
@@ -22,7 +31,7 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import Features
+from sbrdf_core.scene import Features, downsample
 
 from . import materials as mat
 from .base import SceneRenderer
@@ -216,10 +225,23 @@ class Drawer:
         self._res = []
 
 
+def check_size(ctx, scene) -> None:
+    """An error, rather than a driver failure, when the (supersampled) framebuffer exceeds what the driver allows."""
+    W, H = scene.camera.resolution
+    limit = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384) or 16384)
+    if max(W, H) > limit:
+        raise SbrdfError(f"{scene.file}: gl renderer: the framebuffer would be {W}×{H} (the camera's resolution "
+                         f"× √antialias) but this driver allows {limit} pixels per side; lower antialias: or the "
+                         "resolution, or use the cpu renderer")
+
+
 class GLScene(Drawer):
     """A scene uploaded to the GPU: meshes, textures and one program per material.
 
-    Build once, :meth:`draw` many times (benchmarks), :meth:`release` at the end.
+    Build once, :meth:`draw` many times (benchmarks), :meth:`release` at the end.  With ``antialias: n²``
+    everything is built for :meth:`~sbrdf_core.scene.Scene.supersampled` (``self.scene``: the framebuffer,
+    the effects, what ``drawer.scene.camera`` tells them) and :meth:`draw` returns the n×n block averages
+    at the scene's own resolution; effects passed in are used as prepared.
     """
 
     def __init__(self, scene, materials: dict[str, mat.SceneMaterial], meshes: dict | None = None,
@@ -228,8 +250,11 @@ class GLScene(Drawer):
 
         from .effects import active_effects, check_covered
 
+        self.subpixels = scene.subpixels
+        scene = scene.supersampled()
         self.scene, self.materials = scene, materials
         self.ctx = ctx = context()
+        check_size(ctx, scene)
         self.effects = active_effects(scene, materials, registry, ctx) if effects is None else list(effects)
         check_covered(scene, self.effects)
         W, H = scene.camera.resolution
@@ -366,7 +391,9 @@ class GLScene(Drawer):
                     unit += effect.gl_use(unit)
                 vao.render(moderngl.TRIANGLES)
         image, gpu, wall = self._finish(self.fbo, t0, read)
-        return Frame(image, gpu, wall, {"triangles": self.triangles})
+        if image is not None:
+            image = downsample(image, self.subpixels)
+        return Frame(image, gpu, wall, {"triangles": self.triangles, "antialias": self.subpixels ** 2})
 
 
 class GLRenderer(SceneRenderer):
@@ -384,7 +411,8 @@ class GLRenderer(SceneRenderer):
                                  "use pipeline: float for environment lighting")
             from .gf4 import GF4Scene
 
-            drawer = GF4Scene(scene, materials)
+            check_size(context(), scene.supersampled())
+            drawer = GF4Scene(scene.supersampled(), materials)  # antialiased as the float path: n×n block means
         else:
             drawer = GLScene(scene, materials, registry=self.registry)
         try:
@@ -392,6 +420,9 @@ class GLRenderer(SceneRenderer):
         finally:
             drawer.release()
         gpu = [f.gpu_ms for f in frames]
-        return self.result(scene, frames[-1].image, {
+        image = frames[-1].image
+        if self.pipeline == "geforce4":
+            image = downsample(image, scene.subpixels)
+        return self.result(scene, image, {"antialias": scene.antialias,
             "device": device_name(), "pipeline": self.pipeline, "gpu_ms": gpu, "gpu_ms_median": float(np.median(gpu)),
             "triangles": frames[-1].stats["triangles"]})

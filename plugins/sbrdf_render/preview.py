@@ -4,6 +4,11 @@ For each texel, ω_i and ω_o point to the light and the eye, and the pixel is
 L = f_r(ω_i, ω_o) · I · cos θ_i / r² with the material's own model.  It is the
 quickest faithful look at a fitted or quantized material, tile by tile in dask
 and therefore at any texel count.
+
+The image is drawn the way the overhead camera sees the sample and the way
+``sbrdf plot`` draws its spatial view (``origin="lower"``): u to the right and
+v up, so texel row v = 0 is the bottom row of the image (its last array row)
+and v = V - 1 the top row (array row 0).
 """
 
 from __future__ import annotations
@@ -43,5 +48,6 @@ class PreviewRenderer:
         image = da.map_blocks(
             _shade, stacked, model, material.texels, material.size_mm, self.light, self.eye, self.intensity,
             chunks=stacked.chunks[:2] + ((3,),), dtype=np.float32,
-        )
-        return RenderResult(image, self.exposure, {"light_pos_mm": self.light.tolist(), "camera_pos_mm": self.eye.tolist()})
+        )[::-1]  # image rows run top to bottom: v = V - 1 first, v = 0 at the bottom
+        return RenderResult(image, self.exposure, {"light_pos_mm": self.light.tolist(), "camera_pos_mm": self.eye.tolist(),
+                                                   "orientation": "v up: array row 0 is texel row V-1, v = 0 at the bottom"})

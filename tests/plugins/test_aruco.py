@@ -423,24 +423,47 @@ def test_virtual_scan_graph_validates(registry):
 
     g = load_graph(str(GRAPH), registry)
     assert [(n.kind.name, n.plugin) for n in g.nodes.values()] == [
-        ("Capture", "folder"), ("Register", "aruco"), ("Reflectance", None), ("Fit", "lm")]
+        ("Capture", "virtual-folder"), ("Register", "aruco"), ("Reflectance", None), ("Fit", "lm")]
+
+
+def small_virtual_scan(tmp_path: Path, nodes: tuple[str, ...] | None = None, poses: int = 16) -> Path:
+    """graphs/virtual-scan.yaml as shipped, shrunk: the virtual camera of :func:`camera` (16² texels, 16 poses:
+    more than the 9 parameters of a 1-lobe Lafortune, so no texel borrows its neighbours' samples)."""
+    import yaml
+
+    data = yaml.safe_load(GRAPH.read_text())
+    data["store"] = str(tmp_path / "store")
+    cap = data["nodes"]["capture"]["params"]
+    cap["path"] = str(tmp_path / "scan")
+    cap["camera"]["params"] = {"width": 400, "height": 300, "focal_px": 700.0, "texels": [16, 16], "model": "lambert",
+                               "intensity": 1.5e5, "motor_light_mm": 0.0, "seed": 7,
+                               "effects": ["falloff", "blur", "motor_error"]}
+    cap.update(poses=poses, exposures=[1.0], durable=False)
+    data["nodes"]["register"]["params"]["texels"] = [16, 16]
+    if nodes is not None:
+        data["nodes"] = {k: v for k, v in data["nodes"].items() if k in nodes}
+    (tmp_path / "g.yaml").write_text(yaml.safe_dump(data))
+    return tmp_path / "g.yaml"
+
+
+def test_virtual_scan_graph_makes_its_own_capture(registry, tmp_path):
+    """The shipped graph's first three nodes run from nothing (no folder, no store, no manual step); fast."""
+    g = small_virtual_scan(tmp_path, nodes=("capture", "register", "reflectance"), poses=8)
+    assert not (tmp_path / "scan").exists()
+    rep = run_graph(str(g))
+    assert [n.status for n in rep.nodes] == ["computed"] * 3
+    assert json.loads((tmp_path / "scan" / "capture.json").read_text())["complete"]
+    refl = open_artifact(str(tmp_path / "store" / "reflectance"))
+    assert refl.read("valid").any(axis=-1).mean() > 0.9
+    rep = run_graph(str(g))
+    assert [n.status for n in rep.nodes] == ["cached"] * 3
 
 
 @pytest.mark.slow
 def test_virtual_scan_graph_runs(registry, tmp_path):
-    """graphs/virtual-scan.yaml runs end to end on a small virtual folder (≈20 s: the Lafortune kernels compile)."""
-    import yaml
-
-    source = GRAPH
-    cam = camera(registry, effects=["falloff", "blur", "motor_error"], texels=[16, 16])
-    light, R, t = orbit_poses(8)
-    capture_to_folder(cam, tmp_path / "scan", light, R, t, [[1.0]] * 8, durable=False)
-    data = yaml.safe_load(source.read_text())
-    data["store"] = str(tmp_path / "store")
-    data["nodes"]["capture"]["params"]["path"] = str(tmp_path / "scan")
-    data["nodes"]["register"]["params"]["texels"] = [16, 16]
-    (tmp_path / "g.yaml").write_text(yaml.safe_dump(data))
-    rep = run_graph(str(tmp_path / "g.yaml"))
+    """graphs/virtual-scan.yaml runs end to end from nothing, at a small size (≈20 s: the Lafortune kernels compile)."""
+    cam = camera(registry, effects=["falloff", "blur", "motor_error"], texels=[16, 16])  # the graph's camera: the truth
+    rep = run_graph(str(small_virtual_scan(tmp_path)))
     assert [n.status for n in rep.nodes] == ["computed"] * 4
     fit = open_artifact(str(tmp_path / "store" / "fit"))
     assert fit.attrs["model"] == "lafortune"

@@ -223,7 +223,8 @@ def ambient_scene(model: str = "lambert", ambient: bool = True, shape: str = "pl
             f"materials: {{m: {materials}}}\n"
             f"objects: [{obj}]\n"
             "lights: [{type: directional, direction: [0.3, 0.2, 1.0], irradiance: [1, 1, 1]}]\n"
-            + ("effects: {ambient: {radiance: [0.5, 0.4, 0.3]}}\n" if ambient else ""))
+            + ("effects: {ambient: {radiance: [0.5, 0.4, 0.3]}}\n" if ambient else "")
+            + "antialias: 1\n")  # the closed forms below are per pixel centre
 
 
 def render_both(gl, registry, text: str):

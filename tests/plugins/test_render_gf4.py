@@ -260,3 +260,40 @@ nodes:
     # per-vertex irradiance of the point light (a 2-triangle plane), so they agree broadly
     rel = np.abs(gf4 - float_).sum() / float_.sum()
     assert 0 < rel < 0.5
+
+
+def test_shadows_are_drawn_when_the_scene_asks(gl):
+    """``shadows: true`` zeroes each light's term in the geforce4 frame where the CPU reference's shadow rays to that
+    light are blocked, and leaves lit pixels as they were (issue 23: the pipeline used to ignore the flag)."""
+    from sbrdf_render.cpu import render_scene
+    from sbrdf_render.gf4 import GF4Scene
+
+    from .test_render import interior
+
+    scene = load_scene("""
+camera: {position: [0, -2.2, 2.0], look_at: [0, 0, 0.2], fov_deg: 45, resolution: [96, 72]}
+materials: {s: {model: lafortune}}
+objects:
+  - {shape: plane, size: [3, 3], material: s}
+  - {shape: sphere, radius: 0.35, material: s, transform: {translate: [0, 0, 0.5]}}
+lights: [{type: point, position: [0.8, 0.5, 2.5], intensity: 6}, {type: directional, direction: [-1, 0, 1], irradiance: 0.4}]
+shadows: true
+""")
+    model = lafortune()
+    m = {"s": mat.uniform("s", model, {"rho_d": 0.3, "rho_s_1": 0.3, "c_xy_1": -0.8, "c_z_1": 0.8, "exponent_1": 8.0})}
+    inside = interior(scene, m)
+    total = 0.0
+    for light in scene.lights:  # per light: the shading models differ (8 bits, per-vertex E), visibility must not
+        one = replace(scene, lights=[light])
+        ref, ref_plain = (render_scene(s, m)[0].sum(-1) for s in (one, replace(one, shadows=False)))
+        got, got_plain = (draw(GF4Scene, s, m).image.astype(np.float64).sum(-1)
+                          for s in (one, replace(one, shadows=False)))
+        total = total + draw(GF4Scene, one, m).image.astype(np.float64)
+        seen = inside & (ref_plain > 1e-3) & (got_plain > 1e-3)
+        blocked, lit = seen & (ref < 1e-6), seen & (ref > 0.999 * ref_plain)
+        assert blocked.sum() > 50  # the sphere's shadow from this light
+        # all but the pixels along shadow edges (a shadow-map texel, percentage-closer filtered) agree
+        assert np.mean(got[blocked] < 0.01 * got_plain[blocked]) > 0.95
+        assert np.mean(np.abs(got[lit] / got_plain[lit] - 1.0) < 1e-3) > 0.99
+    both = draw(GF4Scene, scene, m).image.astype(np.float64)  # two lights: the sum of each one's shadowed frame
+    assert np.mean(np.abs(both - total)[inside] < 1e-2 * np.abs(total).max()) > 0.99

@@ -22,9 +22,8 @@ lights: [{type: point, position: [0.6, -0.4, 1.5], intensity: 3}, {type: directi
 """
 
 
-def stack(rng, N=8, V=16, U=16):
+def stack(rng, N=8, V=16, U=16, a_max=0.8):
     """A shading map whose slice t has average t·a_max/(N−1), with per-texel variation (as Eq 1 produces)."""
-    a_max = 0.8
     gain = rng.uniform(0.6, 1.4, (1, V, U, 3))
     slices = np.linspace(0, a_max, N)[:, None, None, None] * gain
     slices /= slices.reshape(N, -1).mean(axis=1).clip(1e-12)[:, None, None, None] / np.linspace(0, a_max, N)[:, None, None, None].clip(1e-12)
@@ -68,6 +67,39 @@ def test_the_brdf_is_chosen_at_render_time(registry):
     lum = [img.mean(-1) for img in (broad, sharp)]
     assert lum[1].max() > lum[0].max()
     assert (lum[1] > 0.5 * lum[1].max()).sum() < (lum[0] > 0.5 * lum[0].max()).sum()
+
+
+#: a_max of the shading map graphs/shading-map.yaml computes from its light-arc capture (``sbrdf info
+#: runs/shading-map/shading``), which scenes/shading-map.yaml is tuned for.
+SHIPPED_A_MAX = 0.186
+
+
+def shipped_scene_render(registry, exponent, text=None):
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    text = text if text is not None else (root / "scenes" / "shading-map.yaml").read_text()
+    scene = load_scene(text.replace("resolution: [480, 360]", "resolution: [160, 120]"))
+    ref = scene.materials["suede"]
+    shading = dict(ref.shading)
+    model = registry.create("brdf-model", ref.model, dict(ref.model_params))
+    base = mat.uniform("suede", model, {**ref.params, "exponent": exponent})
+    data = stack(np.random.default_rng(4), a_max=SHIPPED_A_MAX)
+    base.surface = ShadingSurface(data, model, model.unpack(base.maps.reshape(1, -1).astype(float)),
+                                  shading["variant"], shading["above_max"], shading["sigma"])
+    return render_scene(scene, {"suede": base})[0]
+
+
+def test_the_shipped_shading_map_scene_shows_the_exponent(registry):
+    """Issue 23: with ρ_d = 0.25, ρ_s = 0.6 and above_max: clamp every lit pixel of scenes/shading-map.yaml
+    looked up above a_max, so exponent 5 and 200 rendered the same image.  The shipped parameters must let the
+    exponent change the picture: a mean change of more than 10 % of the image's mean, over a fifth of the pixels."""
+    broad, sharp = (shipped_scene_render(registry, n) for n in (5.0, 200.0))
+    covered = (broad.sum(-1) > 0) | (sharp.sum(-1) > 0)
+    diff = np.abs(broad - sharp).mean(-1)[covered]
+    scale = broad.mean(-1)[covered].mean()
+    assert diff.mean() > 0.1 * scale
+    assert np.mean(diff > 0.05 * scale) > 0.2
 
 
 def test_a_shading_map_input_needs_a_shading_material(registry):
