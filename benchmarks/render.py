@@ -36,12 +36,26 @@ with ``antialias: 1`` (one sample per pixel, as before antialiasing existed,
 so the figures stay comparable and the cpu render cheap); the tests check
 that gl and cpu agree with antialiasing on.
 
+MIP levels (``mip_refit_err``, ``mip_average_err``): a 1-lobe Lafortune
+SBRDF whose parameters change from texel to texel (32×32, ρ_d, ρ_s and
+C_xy uniform, n log-uniform over 3–300, C_z = 1 as fits give it), repeated 4×4
+on a 4 m plane seen from 7.8 m at 20° (64×48, level of detail λ ≈ 1–1.7), lit
+near the mirror direction.  Reference: the plane with level 0 only, texels
+as piecewise-constant BRDFs (``nearest``, the SBRDF as fitted), 16×16
+samples per pixel.  Each figure is the mean absolute error over the plane's
+pixels over the reference's mean, one sample per pixel, ``filter:
+trilinear`` over the Mip node's levels made by ``refit`` (McAllister's
+sample–blend–refit, 16 directions per side) or ``average`` (parameter
+averaging); ``mip_level0_err`` (printed, not on the last line) is level 0
+alone, bilinear.
+
 ``--quick``: 320×240 with a ~20k-triangle terrain and fewer frames, plus the
 two 1080p cells the last line reports (same 20k mesh).  ``--docs`` rewrites
 the rendering section of docs/accuracy-vs-time.md and its figure.
 
 Last line: ``render: gl_vs_cpu_rel_rms=... fps_1080p_1lobe_1light=...
-fps_1080p_3lobe_3light=... aa_edge_err=... aa_off_edge_err=... device=...``
+fps_1080p_3lobe_3light=... aa_edge_err=... aa_off_edge_err=... mip_refit_err=...
+mip_average_err=... device=...``
 """
 
 from __future__ import annotations
@@ -345,6 +359,58 @@ def aa_edges(reference: int = 8) -> dict:
     return out
 
 
+MIP_SCENE = """
+camera: {position: [0, -5, 6], look_at: [0, 0, 0], fov_deg: 20, resolution: [64, 48]}
+materials: {s: {model: lafortune}}
+objects:
+  - {shape: plane, size: [4, 4], uv_repeat: [4, 4], material: s}
+lights:
+  - {type: directional, direction: [0.0, 0.7, 0.7], irradiance: 1.0}
+"""
+
+
+def mip_material(size: int = 32, seed: int = 0) -> tuple:
+    """A 1-lobe Lafortune SBRDF whose parameters jump from texel to texel: the model and its maps ``{name: (V, U, C)}``."""
+    model = REGISTRY.create("brdf-model", "lafortune", {"lobes": 1})
+    rng = np.random.default_rng(seed)
+
+    def r(lo, hi, ch=1):
+        return rng.uniform(lo, hi, (size, size, ch))
+
+    params = {"rho_d": r(0.02, 0.3, 3), "rho_s_1": np.repeat(r(0.2, 2.0), 3, -1), "c_xy_1": -r(0.85, 1.0),
+              "c_z_1": np.ones((size, size, 1)), "exponent_1": np.exp(r(np.log(3.0), np.log(300.0)))}
+    return model, {k: v.astype(np.float32) for k, v in params.items()}
+
+
+def mip_errors(size: int = 32, scene: str = MIP_SCENE, reference: int = 16) -> dict:
+    """Errors at a distance against a supersampled level-0 reference: refit and averaged levels, level 0 alone."""
+    from sbrdf_core.scene import downsample
+    from sbrdf_quantizers.mip import build_levels
+
+    model, params = mip_material(size)
+    maps = np.concatenate([params[p.name] for p in model.parameters], -1)
+    W, H = load_scene(scene).camera.resolution
+    k = max(1, reference // 8)
+    ref_scene = load_scene(scene.replace(f"resolution: [{W}, {H}]", f"resolution: [{W * k}, {H * k}]")
+                           + f"antialias: {(reference // k) ** 2}\n")
+    ref, _ = render_scene(ref_scene, {"s": mat.SceneMaterial("s", model, maps, None, "nearest")})
+    ref = downsample(ref, k)
+    hit = ref.max(-1) > 0
+    one = load_scene(scene + "antialias: 1\n")
+
+    def err(m):
+        img, _ = render_scene(one, {"s": m})
+        return float(np.abs(img - ref)[hit].mean() / np.abs(ref[hit]).mean())
+
+    out = {"level0": err(mat.SceneMaterial("s", model, maps, None, "bilinear"))}
+    for method in ("refit", "average"):
+        t0 = time.perf_counter()
+        levels = mat.pack_levels(model, build_levels(model, params, method))
+        out[f"{method}_s"] = time.perf_counter() - t0
+        out[method] = err(mat.SceneMaterial("s", model, maps, None, "trilinear", levels=levels))
+    return out
+
+
 # -- report ---------------------------------------------------------------------------------------------------------
 
 
@@ -469,6 +535,10 @@ def main(argv=None):
         print(f"texel edges ({aa['edge_pixels']} of {aa['pixels']} pixels) against 8×8 cpu: antialias "
               f"{ANTIALIAS_DEFAULT} {aa['on']:.4g} (all pixels {aa['on_all']:.3g}, {aa['on_s']:.2f} s), "
               f"antialias 1 {aa['off']:.4g} (all pixels {aa['off_all']:.3g}, {aa['off_s']:.2f} s)", flush=True)
+        mip = mip_errors()
+        print(f"MIP levels at a distance against 16×16 level-0 cpu: refit {mip['refit']:.4g} "
+              f"({mip['refit_s']:.1f} s to build), average {mip['average']:.4g}, level 0 alone "
+              f"{mip['level0']:.4g}", flush=True)
         results = {}
         for res in resolutions:
             results[res] = measure(obj, res, frames)
@@ -481,7 +551,8 @@ def main(argv=None):
     hd = results[(1920, 1080)]
     main_line = (f"render: gl_vs_cpu_rel_rms={rel[0]:.4g} fps_1080p_1lobe_1light={hd[('float', 1, 1)]:.4g} "
                  f"fps_1080p_3lobe_3light={hd[('float', 3, 3)]:.4g} aa_edge_err={aa['on']:.4g} "
-                 f"aa_off_edge_err={aa['off']:.4g} device={device}")
+                 f"aa_off_edge_err={aa['off']:.4g} mip_refit_err={mip['refit']:.4g} "
+                 f"mip_average_err={mip['average']:.4g} device={device}")
     if args.docs:
         write_docs(results, triangles, rel, device, main_line, args.quick, aa)
     print(f"total {time.perf_counter() - t0:.0f} s")

@@ -104,6 +104,8 @@ ParamMaps = ArtifactKind(
                   required=False),
         ArraySpec("fit_time_s", "VU", "float32", "fitting time per texel (its tile's time shared out), s",
                   timing=True),
+        ArraySpec("mip/*", "VUC", "float32", "MIP level l >= 1 of each parameter, mip/<l>/<parameter>, "
+                  "(V >> l) x (U >> l) (a Mip node; attrs mip: levels, method, shapes)", required=False),
     ),
 )
 

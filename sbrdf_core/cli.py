@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 from .errors import SbrdfError
 
@@ -33,7 +34,7 @@ def _registry(args):
 def cmd_validate(args) -> int:
     from .graph import load_graph
 
-    g = load_graph(args.graph, _registry(args), store=args.store)
+    g = load_graph(args.graph, _registry(args), store=_store_arg(args.store))
     print(f"{args.graph}: graph {g.name!r} is valid: {len(g.nodes)} nodes -> {g.store}")
     for n in g.nodes.values():
         ins = ", ".join(f"{p}<-{s}" for p, s in n.inputs.items())
@@ -46,7 +47,7 @@ def cmd_run(args) -> int:
     from .runner import Runner
 
     reg = _registry(args)
-    g = load_graph(args.graph, reg, store=args.store)
+    g = load_graph(args.graph, reg, store=_store_arg(args.store))
     runner = Runner(reg, scheduler=args.scheduler, num_workers=args.workers, progress=not args.quiet, wait=_wait(args))
     t0 = time.perf_counter()
     report = runner.run(g, only=args.only)
@@ -130,6 +131,14 @@ def cmd_plugins(args) -> int:
     return 0
 
 
+def _store_arg(store: str | None) -> str | None:
+    """``--store``: a local path is relative to the current directory (a graph's own ``store:`` is relative to the
+    graph file); URLs pass through."""
+    if store is None or "://" in store:
+        return store
+    return str(Path(store).expanduser().resolve())
+
+
 def cmd_info(args) -> int:
     """Describe every artifact of a store (or one artifact), then the fit table of its ParamMaps.
 
@@ -144,6 +153,8 @@ def cmd_info(args) -> int:
     from .store import open_artifact
 
     fs, root = fsspec.core.url_to_fs(args.store)
+    if not fs.exists(root):
+        raise SbrdfError(f"{args.store}: no such store or artifact")
     if fs.exists(root.rstrip("/") + "/zarr.json"):
         urls = [args.store]
     else:
@@ -260,7 +271,7 @@ def fit_table(fits) -> str:
         cfg = art.attrs.get("model_config", {})
         model = art.attrs.get("model", "?") + (f" {cfg['lobes']} lobe" + ("s" if cfg["lobes"] != 1 else "") if "lobes" in cfg else "")
         u, v = art.attrs.get("texels", [0, 0])
-        flagged = sum(summary.get("texels_flagged", {}).values())
+        flagged = summary.get("texels_flagged_any", sum(summary.get("texels_flagged", {}).values()))
         fmt = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
         rows.append(f"{url.rstrip('/').rsplit('/', 1)[-1]:<28} {art.attrs.get('fitter') or '?':<12} {model:<22} {u * v:>9} "
                     f"{fmt(summary.get('fit_time_s')):>9} {fmt(summary.get('rms_mean')):>10} {fmt(summary.get('rms_max')):>10} "
@@ -295,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scheduler", default="threads",
                    help="threads (default), sync, processes, or tcp://host:port of a dask.distributed scheduler")
     p.add_argument("--workers", type=int, default=None, help="threads/processes for local schedulers")
-    p.add_argument("--store", default=None, help="override the graph's store")
+    p.add_argument("--store", default=None, help="override the graph's store (a path relative to the current directory)")
     p.add_argument("--only", nargs="+", help="run only these nodes (and what they need)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     _wait_options(p, "if another run holds the store, wait for it instead of refusing")

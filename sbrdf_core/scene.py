@@ -81,7 +81,9 @@ MATERIAL = (
     Param("model", "str", None, "a BRDF-model plugin, for a uniform material given by params:", nullable=True),
     Param("model_params", "dict", {}, "configuration of that model (e.g. {lobes: 2})"),
     Param("params", "dict", {}, "the model's parameter values (scalars or RGB triples)"),
-    Param("filter", "str", "bilinear", "parameter-map lookup", choices=("nearest", "bilinear")),
+    Param("filter", "str", "bilinear", "parameter-map lookup; trilinear blends two MIP levels (a Mip node's "
+          "levels) chosen by the pixel's texel footprint, and is bilinear on a material without levels",
+          choices=("nearest", "bilinear", "trilinear")),
     Param("shading_map", "str", None, "'input' (the Render node's input) or a ShadingMap or PowerShadingMap store "
           "(relative to the scene file), looked up with model: and params: (Kautz et al. 2003, docs/shading-maps.md)",
           nullable=True),
@@ -467,7 +469,7 @@ class _SceneValidator:
                 store = m["shading_map"] if m["shading_map"] == "input" else self.path(m["shading_map"])
                 shading = {"store": store, "variant": m["variant"], "above_max": m["above_max"],
                            "sigma": m["sigma"]}
-            out[str(name)] = MaterialRef(str(name), art, model, m["model_params"], m["params"], m["filter"], shading)
+            out[str(name)] = MaterialRef(str(name), art, model, m["model_params"], m["params"], m.get("filter", "bilinear"), shading)
         return out
 
     def objects(self, raw, materials) -> list[SceneObject]:

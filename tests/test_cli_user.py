@@ -196,3 +196,21 @@ def test_docs_do_not_promise_l1_in_info():
         for line in page.read_text().splitlines():
             if "sbrdf info" in line:
                 assert not re.search(r"shows (the |both fits. )?(weighted )?L1", line), f"{page.relative_to(ROOT)}: {line}"
+
+
+def test_store_option_is_relative_to_the_current_directory(tmp_path):
+    """``--store runs/x`` lands under the current directory, not beside the graph file."""
+    graphs = tmp_path / "graphs"
+    graphs.mkdir()
+    (graphs / "g.yaml").write_text("name: g\nstore: ../elsewhere\nnodes:\n"
+                                   "  s: {kind: SampleModel, params: {model: lambert, texels: [2, 2], poses: 8}}\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    proc = sbrdf("run", str(graphs / "g.yaml"), "--store", "runs/x", "-q", cwd=work)
+    assert proc.returncode == 0, proc.stderr
+    assert (work / "runs" / "x" / "s" / "zarr.json").exists() and not (graphs / "runs").exists()
+
+
+def test_info_on_a_missing_path_is_an_error_not_a_traceback(tmp_path):
+    proc = sbrdf("info", str(tmp_path / "nothing"))
+    assert proc.returncode != 0 and "no such store or artifact" in proc.stderr and "Traceback" not in proc.stderr

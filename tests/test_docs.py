@@ -45,3 +45,29 @@ def test_runnable_examples_run(lang, code, tmp_path):
     cmd = [sys.executable, "-c", code] if lang == "python" else ["bash", "-euo", "pipefail", "-c", code]
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_first_hour_edits_still_apply(registry, tmp_path):
+    """docs/first-hour.md edits graphs/demo.yaml with sed and shows a graph of its own: each substitution must
+    still match demo.yaml exactly once (a sed that matches nothing would silently run the demo unchanged), and
+    the graphs it makes must validate."""
+    import shutil
+
+    page = (ROOT / "docs" / "first-hour.md").read_text()
+    shutil.copytree(ROOT / "scenes", tmp_path / "scenes")
+    (tmp_path / "graphs").mkdir()
+    demo = (ROOT / "graphs" / "demo.yaml").read_text()
+    seds = re.findall(r"^sed (.*) graphs/demo\.yaml > graphs/([\w-]+\.yaml)$", page, re.M)
+    assert len(seds) == 2, seds
+    for exprs, out in seds:
+        text = demo
+        for sep, old, new in re.findall(r"'s(.)(.*?)\1(.*?)\1'", exprs):
+            assert text.count(old) == 1, (out, old)
+            text = text.replace(old, new)
+        assert text != demo
+        (tmp_path / "graphs" / out).write_text(text)
+        assert load_graph(str(tmp_path / "graphs" / out), registry).nodes
+    own = re.search(r"```yaml\n(name: my-scan\n.*?)```", page, re.S).group(1)
+    (tmp_path / "my-scan.yaml").write_text(own)
+    assert [n for n in load_graph(str(tmp_path / "my-scan.yaml"), registry).nodes] == \
+        ["capture", "register", "reflectance", "fit", "quantize", "render"]

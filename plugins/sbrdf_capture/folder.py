@@ -245,6 +245,8 @@ class FolderCapture:
                 f"radiance cannot be negative, so the image or its calibration is broken (a dark frame brighter than "
                 f"the image, a wrong dark_time_s, a sign error in whatever wrote it); at most "
                 f"{self.negative_max_fraction:g} of a pose may be negative (negative_max_fraction)")
+        if pose.id in self.negative_pixels:  # the same pose read again (Register reads a pose more than once)
+            return valid & ~negative
         self.negative_pixels[pose.id] = n
         log.warning("%s: %s: %d of %d pixels have negative radiance below -%.3g (the noise tolerance, "
                     "negative_tolerance %g of full scale) in %s; marked invalid", self.path, where, n, total, tolerance,

@@ -47,3 +47,10 @@ def sbrdf_quantizers():
             summary="K <= 256 representative BRDFs clustered in sampled-BRDF space; index PNG + palette (paint round trip)",
         ),
     ]
+
+
+@hookimpl
+def sbrdf_node_kinds():
+    from .mip import Mip
+
+    return [Mip]

@@ -65,15 +65,20 @@ def occluded(scene, materials, points: np.ndarray, to_light: np.ndarray, distanc
     return hits.t < distance * (1 - 1e-6)
 
 
-def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray, shadow=None) -> np.ndarray:
-    """Radiance ``(R, 3)`` of hit points under point and directional lights (Eq 6.3)."""
+def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray, shadow=None,
+          lod: np.ndarray | None = None) -> np.ndarray:
+    """Radiance ``(R, 3)`` of hit points under point and directional lights (Eq 6.3).
+
+    ``lod``: each hit's MIP level of detail (trilinear materials, :func:`lods`).
+    """
     model = material.model
     two_sided = bool(getattr(model, "two_sided", False))  # transmissive: lit from either side, |N·ω_l|
     out = np.zeros((len(view_dirs), 3))
     for s in range(0, len(view_dirs), BATCH):
         sl = slice(s, s + BATCH)
         t, b, n = local_frame(hits.normal[sl], hits.tangent[sl])
-        params = model.unpack(material.lookup(hits.uv[sl])) if material.surface is None else {}
+        params = (model.unpack(material.lookup(hits.uv[sl], None if lod is None else lod[sl]))
+                  if material.surface is None else {})
         wo = -view_dirs[sl]
         wo_local = np.stack([np.einsum("ij,ij->i", t, wo), np.einsum("ij,ij->i", b, wo), np.einsum("ij,ij->i", n, wo)], 1)
         for k, light in enumerate(lights):
@@ -99,6 +104,26 @@ def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray
                 continue
             f = model.eval({k2: v[lit] for k2, v in params.items()}, wi_local[lit][:, None], wo_local[lit][:, None])[:, 0]
             out[idx] += f * E[lit] * np.abs(cos[lit])[:, None]
+    return out
+
+
+def lods(scene, materials: dict, hits: Hits, which: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Per cast sample, the MIP level of detail of its material's lookup (0 where not trilinear).
+
+    The footprint is the texel distance to the neighbouring samples on the same object, in the grid the
+    renderer casts (the supersampled one, as ``gl`` rasterises it): :func:`materials.lod`.
+    """
+    out = np.zeros(len(which))
+    for k, obj in enumerate(scene.objects):
+        m = materials[obj.material]
+        if not m.trilinear:
+            continue
+        valid = (which == k).reshape(shape)
+        if not valid.any():
+            continue
+        V, U = m.maps.shape[:2]
+        uv = np.where(valid.reshape(-1, 1), hits.uv, 0.0).reshape(*shape, 2)
+        out[valid.reshape(-1)] = mat.lod(uv, valid, (U, V))[valid]
     return out
 
 
@@ -133,7 +158,8 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
         if sel.size == 0:
             continue
         sub = Hits(hits.t[sel], hits.position[sel], hits.normal[sel], hits.tangent[sel], hits.uv[sel])
-        image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow)
+        lod = lods(scene, materials, hits, which, (H, W))[sel] if material.trilinear else None
+        image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow, lod)
         for effect in effects:  # environment lighting, mirrors: only what the scene wants
             image[sel] += effect.cpu_radiance(material, sub, dirs[sel], sel)
     image = downsample(image.reshape(H, W, 3), n)

@@ -1,7 +1,9 @@
 """gl: the real-time renderer, moderngl on EGL (Mesa llvmpipe here, a GPU where there is one).
 
 One float pass per material (McAllister's "DirectX 9-class" path, seed 000
-§6.8): parameter maps in RGBA32F textures, the BRDF plugin's own GLSL, every
+§6.8): parameter maps in RGBA32F textures (with their MIP levels, uploaded level
+by level and filtered ``GL_LINEAR_MIPMAP_LINEAR``, for ``filter: trilinear``
+materials that have them), the BRDF plugin's own GLSL, every
 lobe and light in one fragment shader, linear radiance into a float
 framebuffer.  The display transfer is applied when the PNG is written.
 
@@ -315,12 +317,26 @@ class GLScene(Drawer):
         padded = np.zeros((V, U, ntex * 4), np.float32)
         padded[..., :K] = m.maps
         filt = (moderngl.NEAREST, moderngl.NEAREST) if m.filter == "nearest" else (moderngl.LINEAR, moderngl.LINEAR)
+        levels = []
+        if m.trilinear:  # real MIP levels: the Mip node's, each uploaded to its GL level, GL_LINEAR_MIPMAP_LINEAR
+            for lv in m.levels:
+                p = np.zeros(lv.shape[:2] + (ntex * 4,), np.float32)
+                p[..., :K] = lv
+                levels.append(p)
+            filt = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         texs = []
         for k in range(ntex):
             t = self._keep(ctx.texture((U, V), 4, np.ascontiguousarray(padded[..., 4 * k:4 * k + 4]).tobytes(), dtype="f4"))
+            if levels:
+                t.build_mipmaps(0, len(levels))  # allocates levels 1 … L and sets GL_TEXTURE_MAX_LEVEL = L
+                for l, p in enumerate(levels, 1):
+                    t.write(np.ascontiguousarray(p[..., 4 * k:4 * k + 4]).tobytes(), level=l)
+                t.anisotropy = 1.0
             t.filter = filt
             t.repeat_x = t.repeat_y = True
             texs.append((f"u_params_{k}", t))
+        if m.alpha is not None and levels:
+            filt = (moderngl.LINEAR, moderngl.LINEAR)
         if m.alpha is not None:
             t = self._keep(ctx.texture((U, V), 1, np.ascontiguousarray(m.alpha, np.float32).tobytes(), dtype="f4"))
             t.filter = filt

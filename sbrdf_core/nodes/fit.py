@@ -311,6 +311,7 @@ def summarize(art) -> dict:
         "rms_holdout_p95": stat(held, scored, lambda a: np.percentile(a, 95)),
         "fit_time_s": float(art.read("fit_time_s").astype(np.float64).sum()),
         "texels_without_samples": int((n == 0).sum()),
+        "texels_flagged_any": int((flags > 0).sum()),
         "restart_won_fraction": float((restarted > 0).mean()) if restarted.size else 0.0,
         "texels_flagged": {FLAGS[b]: int(((flags & b) > 0).sum()) for b in FLAGS if ((flags & b) > 0).any()},
     }}

@@ -36,6 +36,8 @@ class Material:
     alpha: Any = None  # (V, U, 1) transparency in [0, 1] (alpha-kill below 0.5), or None when opaque
     #: For TextureSets: the quantizer's name and its stored ``textures``, ``scale``, ``bias`` (lazy).
     encoded: dict | None = None
+    #: MIP levels 1 … L (a Mip node's ``mip/<l>/<parameter>``): ``[{name: (V >> l, U >> l, C)}]``, lazy.
+    levels: list = field(default_factory=list)
 
 
 @dataclass
@@ -61,7 +63,10 @@ def load_material(registry, art) -> Material:
         alpha = decoded.get("alpha")
     else:
         params = {p.name: art.array(f"params/{p.name}") for p in model.parameters}
-    return Material(model, params, tuple(art.attrs["texels"]), tuple(art.attrs["size_mm"]), art.url, alpha, encoded)
+    L = int((art.attrs.get("mip") or {}).get("levels", 0)) if art.kind == ParamMaps.kind else 0
+    levels = [{p.name: art.array(f"mip/{l}/{p.name}") for p in model.parameters} for l in range(1, L + 1)]
+    return Material(model, params, tuple(art.attrs["texels"]), tuple(art.attrs["size_mm"]), art.url, alpha, encoded,
+                    levels)
 
 
 def open_material(registry, url: str) -> Material:
