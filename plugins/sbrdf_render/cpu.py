@@ -15,6 +15,9 @@ resolution and n×n blocks are averaged in linear radiance
 ``gl`` rasterises the same points, so the two still agree pixel for pixel.
 ``antialias: 1`` casts one ray through each pixel centre.
 
+``filter: trilinear`` materials with MIP levels choose their level from the
+texel footprint between neighbouring rays of the grid cast (:func:`lods`).
+
 It is the ground truth the ``gl`` renderer is tested against: float64, exact
 intersections, shadow rays (only when the scene asks for shadows), and the
 same per-pixel tangent frames and parameter lookups as the GPU.
@@ -152,13 +155,14 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
     if scene.shadows:
         def shadow(k, points, wi, dist):
             return occluded(scene, materials, points, wi, dist, meshes)
+    lod_all = lods(scene, materials, hits, which, (H, W)) if any(m.trilinear for m in materials.values()) else None
     for name, material in materials.items():
         ks = [k for k, o in enumerate(scene.objects) if o.material == name]
         sel = np.nonzero(np.isin(which, ks))[0]
         if sel.size == 0:
             continue
         sub = Hits(hits.t[sel], hits.position[sel], hits.normal[sel], hits.tangent[sel], hits.uv[sel])
-        lod = lods(scene, materials, hits, which, (H, W))[sel] if material.trilinear else None
+        lod = lod_all[sel] if material.trilinear else None
         image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow, lod)
         for effect in effects:  # environment lighting, mirrors: only what the scene wants
             image[sel] += effect.cpu_radiance(material, sub, dirs[sel], sel)

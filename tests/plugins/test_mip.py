@@ -123,6 +123,16 @@ def test_trilinear_cpu_and_gl_agree(far):
     assert np.sqrt(np.mean(rel**2)) < 1e-2 and rel.max() < 0.1, (np.sqrt(np.mean(rel**2)), rel.max())
     bilinear, _ = render_scene(scene, {"s": mat.SceneMaterial("s", model, maps, None, "bilinear")})
     assert np.abs(bilinear - cpu)[hit].mean() > 10 * np.abs(img - cpu)[hit].mean()  # the levels are used
+    aa = load_scene(FAR.replace("[64, 48]", "[32, 24]"))  # antialias 4: both choose levels on the 2×2 grid
+    cpu, _ = render_scene(aa, materials)
+    s = gl.GLScene(aa, materials)
+    try:
+        img = s.draw().image.astype(np.float64)
+    finally:
+        s.release()
+    hit = cpu.max(-1) > 0
+    rel = np.abs(img - cpu).max(-1)[hit] / np.abs(cpu[hit]).max()
+    assert np.sqrt(np.mean(rel**2)) < 1e-2, np.sqrt(np.mean(rel**2))
 
 
 def test_far_view_with_refit_levels_is_closer_to_the_supersampled_reference(far):
@@ -175,3 +185,11 @@ def test_mip_node_stores_levels_beside_level_0_and_renders(tmp_path):
     assert np.isfinite(meas.read("mip/1/rho_d")).all() and meas.attrs["mip"]["error"][0] < 1e-2
     assert open_artifact(f"{tmp_path / 's'}/q").attrs["added_rms"] < 1e-2
     assert np.isfinite(open_artifact(f"{tmp_path / 's'}/r").read("image")).all()
+
+
+def test_trilinear_without_levels_is_bilinear(far):
+    model, maps, _, _ = far
+    scene = load_scene(FAR.replace("[64, 48]", "[32, 24]"))  # default antialiasing
+    a, _ = render_scene(scene, {"s": mat.SceneMaterial("s", model, maps, None, "trilinear")})
+    b, _ = render_scene(scene, {"s": mat.SceneMaterial("s", model, maps, None, "bilinear")})
+    np.testing.assert_array_equal(a, b)
