@@ -78,7 +78,7 @@ def rescale_lobe(rho_s, c, n, strategy: str):
         return rho_s, c
     if strategy == "max":
         m = rho_s.max(axis=-1, keepdims=True)
-        e = np.where(m > 0, 1.0 / np.where(m > 0, m, 1.0), 1.0)
+        e = np.where(m > 1e-300, 1.0 / np.where(m > 1e-300, m, 1.0), 1.0)  # a subnormal ρ_s is a dead lobe: no rescale
     elif strategy == "balanced":
         m = rho_s.min(axis=-1, keepdims=True)
         cmin = np.abs(c).min(axis=-1, keepdims=True)
