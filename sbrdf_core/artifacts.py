@@ -102,6 +102,8 @@ ParamMaps = ArtifactKind(
         ArraySpec("flags", "VU", "uint8", "why a fit is missing or doubtful: bits listed in attrs flag_bits (0 = fine)"),
         ArraySpec("restarted", "VU", "uint8", "1 where the best fit came from a later start (multi-start)",
                   required=False),
+        ArraySpec("bounded_by", "VU", "uint8", "which physical bound moved a texel flagged 'constrained' (bits in "
+                  "attrs bounded_by_bits: 1 peak, 2 sharpness, 4 energy)", required=False),
         ArraySpec("fit_time_s", "VU", "float32", "fitting time per texel (its tile's time shared out), s",
                   timing=True),
         ArraySpec("mip/*", "VUC", "float32", "MIP level l >= 1 of each parameter, mip/<l>/<parameter>, "

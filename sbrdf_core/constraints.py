@@ -217,14 +217,46 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
     return out, changed
 
 
-def enforce(model, params, limits: Limits):
+#: Bits of the Fit node's ``bounded_by`` map: which bound moved a texel.
+REASONS = {1: "peak (peak_factor, grazing_growth) or the declared parameter bounds",
+           2: "sharpness the sampling resolves (resolve_sharpness)",
+           4: "energy: directional albedo (albedo_limit)"}
+PEAK, SHARPNESS, ENERGY = 1, 2, 4
+
+
+def reasons(model, params, limits: Limits, energy: np.ndarray) -> np.ndarray:
+    """Which bounds moved each texel of ``params`` (the unprojected fit), ``(T,)`` uint8 of :data:`REASONS`.
+
+    Each bound is projected alone, so a texel held by two of them shows both.
+    ``energy`` is the mask :func:`enforce_energy` returned.
+    """
+    _, peak = model.constrain(params, replace(limits, resolution=None))
+    _, sharp = model.constrain(params, replace(limits, peak=None, peak_cosine=None, growth=None))
+    T = next(iter(params.values())).shape[0]
+    out = np.zeros(T, np.uint8)
+    for mask, bit in ((peak, PEAK), (sharp, SHARPNESS), (energy, ENERGY)):
+        if np.size(mask):
+            out |= np.where(mask, bit, 0).astype(np.uint8)
+    return out
+
+
+def enforce(model, params, limits: Limits, why: bool = False):
     """All three bounds on model-form ``params``: ``model.constrain`` then the energy bound.
 
-    Returns ``(params, changed)``.  What every fitted texel goes through in the
-    Fit node, whatever fitter produced it.
+    Returns ``(params, changed)``, and with ``why`` a third item: the
+    :func:`reasons` of each moved texel (0 elsewhere).  What every fitted
+    texel goes through in the Fit node, whatever fitter produced it.
     """
     out, changed = model.constrain(params, limits)
     if changed.size == 0:
         changed = np.zeros(next(iter(out.values())).shape[0], bool)
     out, energy = enforce_energy(model, out, limits.albedo)
-    return out, changed | energy
+    changed = changed | energy
+    if not why:
+        return out, changed
+    moved = np.flatnonzero(changed)
+    bits = np.zeros(changed.shape, np.uint8)
+    if moved.size:
+        sub = {k: np.asarray(v)[moved] for k, v in params.items()}
+        bits[moved] = reasons(model, sub, limits.take(moved), energy[moved])
+    return out, changed, bits

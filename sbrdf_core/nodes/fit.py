@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance
-from ..constraints import Limits, angular_resolution, enforce, neighbourhood_max, sample_support
+from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbourhood_max, sample_support
 from ..geometry import tile_directions
 from ..params import Param
 from .base import BuildContext, NodeKind, Output, Port
@@ -53,7 +53,7 @@ FLAGS = {
 NO_SAMPLES, UNDERDETERMINED, NONFINITE_INPUT, NOT_CONVERGED, NONFINITE_RESULT = 1, 2, 4, 8, 16
 OVERFIT, CONSTRAINED, BORROWED = 32, 64, 128
 #: Columns the kernel appends after the packed parameters.
-EXTRA = ("rms", "rms_holdout", "samples", "flags", "restarted", "fit_time_s")
+EXTRA = ("rms", "rms_holdout", "samples", "flags", "restarted", "bounded_by", "fit_time_s")
 
 
 @dataclass
@@ -184,7 +184,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
             params[k][sparse[helped]] = np.asarray(v)[helped]
         rflags[sparse[helped]] = 0 if pooled.flags is None else pooled.flags[helped]
         flags[sparse[helped]] |= BORROWED
-    params, changed = enforce(model, params, limits)
+    params, changed, bounded_by = enforce(model, params, limits, why=True)
     flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint8)
     x = model.pack(params)
     rms = rms_error(model, params, f_r, train, wi, wo)
@@ -201,7 +201,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     rms = np.where(bad | empty, 0.0, rms)
     rms_holdout = np.where(bad | empty, np.nan, rms_holdout)
     seconds = np.full(T, (time.perf_counter() - t0) / T)
-    out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, seconds], axis=1)], axis=1)
+    out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, bounded_by, seconds], axis=1)], axis=1)
     return out.reshape(grid + (-1,)).astype(np.float32)
 
 
@@ -275,12 +275,14 @@ class Fit(NodeKind):
         arrays["samples"] = column["samples"].astype(np.int32)
         arrays["flags"] = column["flags"].astype(np.uint8)
         arrays["restarted"] = column["restarted"].astype(np.uint8)
+        arrays["bounded_by"] = column["bounded_by"].astype(np.uint8)
         arrays["fit_time_s"] = column["fit_time_s"]
         return Output(
             arrays=arrays,
             attrs={
                 "fitter": ctx.spec.name if ctx.spec else None,
                 "flag_bits": {str(b): text for b, text in FLAGS.items()},
+                "bounded_by_bits": {str(b): text for b, text in REASONS.items()},
                 "model": model.name,
                 "model_config": dict(ctx.plugin.model_config),
                 "parameters": model.describe(),
@@ -300,6 +302,7 @@ def summarize(art) -> dict:
     rms, n, flags = art.read("rms"), art.read("samples"), art.read("flags")
     held = art.read("rms_holdout") if "rms_holdout" in art.names() else np.full(rms.shape, np.nan)
     restarted = art.read("restarted") if "restarted" in art.names() else np.zeros(rms.shape, np.uint8)
+    bounded = art.read("bounded_by") if "bounded_by" in art.names() else np.zeros(rms.shape, np.uint8)
     fitted = (n > 0) | ((flags & BORROWED) > 0)
     scored = fitted & np.isfinite(held)
     stat = lambda a, m, f: float(f(a[m])) if m.any() else None  # noqa: E731
@@ -314,4 +317,5 @@ def summarize(art) -> dict:
         "texels_flagged_any": int((flags > 0).sum()),
         "restart_won_fraction": float((restarted > 0).mean()) if restarted.size else 0.0,
         "texels_flagged": {FLAGS[b]: int(((flags & b) > 0).sum()) for b in FLAGS if ((flags & b) > 0).any()},
+        "texels_bounded_by": {REASONS[b]: int(((bounded & b) > 0).sum()) for b in REASONS if ((bounded & b) > 0).any()},
     }}

@@ -290,3 +290,21 @@ def test_default_starts_escape_local_minima(registry, name, config):
     rms1, _, _, _ = _grid_fit(registry, name, config, truth, S=200, noise=noise, holdout=0.0, grid=(8, 8), seed=11,
                               starts=1)
     assert (rms1 > 2 * noise).sum() >= (rms > 2 * noise).sum()
+
+
+def test_bounded_texels_say_which_bound_moved_them(registry):
+    """``bounded_by``: peak (a lobe far above the samples), sharpness (n beyond the sampling), energy (albedo > 1)."""
+    from sbrdf_core.constraints import ENERGY, PEAK, SHARPNESS
+
+    model = registry.create("brdf-model", "lafortune", {"lobes": 1})
+    T = 3
+    params = {"rho_d": np.full((T, 3), 0.05), "rho_s_1": np.full((T, 3), 0.5), "c_xy_1": np.full((T, 1), -1.0),
+              "c_z_1": np.ones((T, 1)), "exponent_1": np.full((T, 1), 20.0)}
+    params["rho_s_1"][0] = 50.0  # texel 0: a lobe 100x its samples
+    params["exponent_1"][1] = 5000.0  # texel 1: sharper than samples 5° apart resolve
+    params["rho_d"][2] = 0.5  # texel 2: reflects 1.6x what it receives
+    limits = Limits(peak=np.array([2.0, 2.0, 10.0]), resolution=np.full(T, np.radians(5.0)), growth=1.0)
+    _, changed, why = enforce(model, params, limits, why=True)
+    assert changed.all()
+    assert why[0] & PEAK and why[1] & SHARPNESS and why[2] & ENERGY
+    assert not why[1] & ENERGY and not why[2] & SHARPNESS
