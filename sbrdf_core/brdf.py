@@ -188,6 +188,14 @@ class BRDFModel:
             out[p.name] = np.clip(sol[..., k], *p.bounds)
         return out
 
+    def albedo_bound(self, params) -> np.ndarray | None:
+        """A cheap upper bound on each texel's directional albedo over every ω_i and channel, ``(T,)``, or None.
+
+        The energy bound integrates by quadrature only the texels this does
+        not already clear (default: None, every texel is integrated).
+        """
+        return None
+
     def constrain(self, params, limits) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """Project parameters into the set that keeps this model physical and bounded.
 

@@ -192,7 +192,8 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
     :data:`ENERGY_THETAS` (and three azimuths for anisotropic models), on a
     coarse grid: exact for the diffuse term and smooth lobes, approximate for
     lobes sharper than the grid (whose albedo is small once their peak is
-    bounded).  Returns ``(params, changed)``.
+    bounded).  Texels the model's :meth:`~sbrdf_core.brdf.BRDFModel.albedo_bound`
+    already clears are not integrated.  Returns ``(params, changed)``.
     """
     T = next(iter(params.values())).shape[0]
     out = {k: np.array(v, np.float64) for k, v in params.items()}
@@ -202,8 +203,11 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
         return out, changed
     phis = (0.0, np.pi / 4, np.pi / 2) if model.anisotropic else (0.0,)
     dirs = [(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)) for t in np.radians(ENERGY_THETAS) for p in phis]
-    todo = np.arange(T)
+    bound = model.albedo_bound(out)  # texels it clears need no quadrature
+    todo = np.arange(T) if bound is None else np.flatnonzero(~(np.asarray(bound) <= albedo))
     for _ in range(6):  # F0 is affine, not linear: later passes (on the texels still over) catch what is left
+        if todo.size == 0:
+            break
         sub = {k: v[todo] for k, v in out.items()}
         with np.errstate(all="ignore"):
             a = np.max([directional_albedo(model, sub, np.array(d), n_theta, n_phi).max(axis=1) for d in dirs], axis=0)

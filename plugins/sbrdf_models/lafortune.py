@@ -261,6 +261,19 @@ class LafortuneModel(BRDFModel):
         return out
 
 
+    def albedo_bound(self, params):
+        """π ρ_d + Σ_j ρ_s,j |C_j|_max^n_j 2π/(n_j + 1), per channel, maximised: max(0, C·(ω_i⊙ω_o))^n is at
+        most |C|_max^n cos^n of the angle between ω_o and a fixed direction, whose integral over the sphere is
+        2π/(n + 1)."""
+        a = np.pi * np.asarray(params["rho_d"], np.float64)
+        for lobe in self.lobe_list(params):
+            n = np.asarray(lobe["exponent"], np.float64)[:, :1]
+            cmax = np.max([np.abs(np.asarray(lobe[k], np.float64)[:, :1]) for k in ("c_x", "c_y", "c_z")], axis=0)
+            with np.errstate(over="ignore"):
+                grow = np.exp(np.minimum(n * np.log(np.maximum(cmax, 1e-300)), 700.0))
+            a = a + np.asarray(lobe["rho_s"], np.float64) * grow * 2 * np.pi / (n + 1.0)
+        return a.max(axis=1)
+
     def constrain(self, params, limits):
         """Bound every lobe's peak over the hemisphere and its exponent (:func:`bound_lobes`).
 

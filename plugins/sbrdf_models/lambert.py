@@ -43,6 +43,10 @@ class LambertModel(BRDFModel):
             J[..., c, c] = up
         return J
 
+    def albedo_bound(self, params):
+        """π ρ_d: exact."""
+        return (np.pi * np.asarray(params["rho_d"])).max(axis=1)
+
     def initial_guess(self, f_r, valid, wi, wo):
         w = valid[..., None].astype(float)
         n = np.maximum(w.sum(axis=1), 1)

@@ -88,6 +88,10 @@ class PhongModel(BRDFModel):
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("exponent",))
 
+    def albedo_bound(self, params):
+        """π ρ_d + ρ_s per channel: the normalised lobe's albedo is ρ_s at normal incidence and less elsewhere."""
+        return (np.pi * np.asarray(params["rho_d"]) + np.asarray(params["rho_s"])).max(axis=1)
+
     def constrain(self, params, limits):
         """n no sharper than the sampling resolves, and a peak ρ_d + ρ_s (n + 2)/2π within ``limits.peak``.
 

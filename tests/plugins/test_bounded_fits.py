@@ -308,3 +308,18 @@ def test_bounded_texels_say_which_bound_moved_them(registry):
     assert changed.all()
     assert why[0] & PEAK and why[1] & SHARPNESS and why[2] & ENERGY
     assert not why[1] & ENERGY and not why[2] & SHARPNESS
+
+
+@pytest.mark.parametrize("name,config", [("lafortune", {"lobes": 2}), ("lafortune", {"lobes": 1, "anisotropic": True}),
+                                         ("phong", {}), ("lambert", {})])
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1))
+def test_albedo_bound_is_an_upper_bound(registry, name, config, seed):
+    """The cheap bound that lets the energy check skip quadrature never undercuts the integrated albedo."""
+    model = registry.create("brdf-model", name, config)
+    params = wild_params(model, np.random.default_rng(seed), 16)
+    if name == "lafortune":  # where lobes are bounded (the bound itself holds anywhere, but quadrature does not)
+        params, _ = model.constrain(params, Limits(peak=np.full(16, 5.0), growth=1.0))
+    bound = model.albedo_bound(params)
+    albedo = energy_report(model, params, n_theta=48, n_phi=96).max_albedo
+    assert (albedo <= bound * (1 + 1e-3) + 1e-9).all(), (albedo / bound).max()
