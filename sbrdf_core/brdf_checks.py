@@ -22,6 +22,7 @@ from functools import lru_cache
 import numpy as np
 
 from .brdf import BRDFModel
+from .geometry import polar_direction
 
 #: Upper bound on texels × directions evaluated at once (memory: ~10 float64 temporaries of (T, S, 3)).
 CHUNK = 1 << 18
@@ -166,8 +167,7 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
     th = np.asarray(incident_thetas, dtype=np.float64)
     ph = np.asarray(incident_phis, dtype=np.float64)
     th, ph = np.meshgrid(th, ph, indexing="ij")
-    th, ph = th.ravel(), ph.ravel()
-    dirs = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+    dirs = polar_direction(th.ravel(), ph.ravel())
     albedo = np.stack([directional_albedo(model, params, d, n_theta, n_phi) for d in dirs], axis=1)
     per_dir = albedo.max(axis=2)  # (T, D)
     worst = per_dir.argmax(axis=1)
@@ -194,10 +194,8 @@ def hemisphere_max(model: BRDFModel, params: Mapping[str, np.ndarray], max_theta
     """
     th = np.radians(np.linspace(0.0, max_theta_deg, n_theta))
     ph = np.linspace(0.0, 2 * np.pi, n_phi, endpoint=False)
-    TH, PH = np.meshgrid(th, ph, indexing="ij")
-    d = np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], axis=-1).reshape(-1, 3)
-    swap = np.stack([np.sin(TH) * np.cos(PH + np.pi / 2), np.sin(TH) * np.sin(PH + np.pi / 2), np.cos(TH)],
-                    axis=-1).reshape(-1, 3)
+    d = polar_direction(*np.meshgrid(th, ph, indexing="ij")).reshape(-1, 3)
+    swap = d[:, [1, 0, 2]] * [-1, 1, 1]  # the same θ, φ + 90°
     wi = np.concatenate([d, d, d, d, d])
     wo = np.concatenate([d * [-1, -1, 1], d, d * [-1, 1, 1], d * [1, -1, 1], swap])
     T = _texels(model, params)

@@ -31,7 +31,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .brdf_checks import directional_albedo
+from .brdf_checks import energy_report
+from .geometry import polar_direction
 
 #: A cosine lobe cos^n α falls to half its peak at α = √(2 ln 2 / n).
 HALF_MAX = 2.0 * np.log(2.0)
@@ -137,7 +138,7 @@ def mirror_peak(model, params, max_theta, n: int = 24, cosine: bool = False) -> 
     """
     T = next(iter(params.values())).shape[0]
     th = np.linspace(0.0, max_theta, n)
-    d = np.concatenate([np.stack([np.sin(th) * np.cos(p), np.sin(th) * np.sin(p), np.cos(th)], -1) for p in (0, np.pi / 2)])
+    d = np.concatenate([polar_direction(th, phi) for phi in (0.0, np.pi / 2)])
     with np.errstate(all="ignore"):
         f = model.eval(params, np.broadcast_to(d, (T,) + d.shape), np.broadcast_to(d * [-1, -1, 1], (T,) + d.shape))
     if cosine:
@@ -188,7 +189,7 @@ def widen_to_peak(model, params, names, limits: Limits, steps: int = 16) -> tupl
 def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi: int = 48):
     """Scale each texel's ``magnitude`` parameters so its directional albedo stays ≤ ``albedo``.
 
-    Albedo by :func:`~sbrdf_core.brdf_checks.directional_albedo` at
+    Albedo by :func:`~sbrdf_core.brdf_checks.energy_report` at
     :data:`ENERGY_THETAS` (and three azimuths for anisotropic models), on a
     coarse grid: exact for the diffuse term and smooth lobes, approximate for
     lobes sharper than the grid (whose albedo is small once their peak is
@@ -202,7 +203,6 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
     if albedo is None or not mags or T == 0:
         return out, changed
     phis = (0.0, np.pi / 4, np.pi / 2) if model.anisotropic else (0.0,)
-    dirs = [(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)) for t in np.radians(ENERGY_THETAS) for p in phis]
     bound = model.albedo_bound(out)  # texels it clears need no quadrature
     todo = np.arange(T) if bound is None else np.flatnonzero(~(np.asarray(bound) <= albedo))
     for _ in range(6):  # F0 is affine, not linear: later passes (on the texels still over) catch what is left
@@ -210,7 +210,7 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
             break
         sub = {k: v[todo] for k, v in out.items()}
         with np.errstate(all="ignore"):
-            a = np.max([directional_albedo(model, sub, np.array(d), n_theta, n_phi).max(axis=1) for d in dirs], axis=0)
+            a = energy_report(model, sub, np.radians(ENERGY_THETAS), phis, n_theta, n_phi).max_albedo
         over = np.isfinite(a) & (a > albedo * (1.0 + 1e-4))
         if not over.any():
             break

@@ -80,6 +80,13 @@ def look_at(eye: np.ndarray, target: np.ndarray = np.zeros(3), up: np.ndarray = 
     return R, -R @ eye
 
 
+def polar_direction(theta, phi) -> np.ndarray:
+    """Unit direction(s) at polar angle ``theta`` from +z and azimuth ``phi`` from +x (radians, broadcast), ``(..., 3)``."""
+    theta, phi = np.broadcast_arrays(np.asarray(theta, np.float64), np.asarray(phi, np.float64))
+    s = np.sin(theta)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], axis=-1)
+
+
 def fibonacci_hemisphere(n: int, max_theta_deg: float = 80.0, offset: float = 0.0) -> np.ndarray:
     """``n`` roughly uniform unit directions on the upper hemisphere, θ ≤ ``max_theta_deg``."""
     i = np.arange(n) + 0.5

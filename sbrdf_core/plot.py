@@ -37,14 +37,13 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SbrdfError
-from .geometry import directions_to, texel_centres
+from .geometry import directions_to, polar_direction, texel_centres
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # linear sRGB / Rec. 709 luminance weights
 
 
 def direction(theta_deg: float, phi_deg: float) -> np.ndarray:
-    t, p = np.radians(theta_deg), np.radians(phi_deg)
-    return np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
+    return polar_direction(np.radians(theta_deg), np.radians(phi_deg))
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
