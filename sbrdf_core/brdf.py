@@ -147,7 +147,8 @@ class BRDFModel:
         return self.defaults(f_r.shape[0])
 
     def random_guess(self, rng: np.random.Generator, T: int) -> dict[str, np.ndarray]:
-        """Random parameters within each parameter's ``typical`` range (multi-start fitting)."""
+        """Random parameters within each parameter's ``typical`` range (test materials; fitters start from
+        Sobol points over the same ranges, ``sbrdf_fitters.lm.candidate_starts``)."""
         return {p.name: rng.uniform(p.typical[0], p.typical[1], (T, p.channels)) for p in self.parameters}
 
     def least_squares(self, f_r: np.ndarray, weight: np.ndarray, wi: np.ndarray, wo: np.ndarray):

@@ -158,20 +158,21 @@ IRLS_ROUNDS = 4
 
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
-              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, scan=None, stats=None):
+              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
     samples (all channels, unweighted even for a robust loss), so
     RMS = sqrt(cost / (channels · samples)).
 
-    ``initial``: fit-form parameters to start from (default: the best of
-    ``scan`` scored candidates, :func:`candidate_starts`).  ``starts``: LM
-    runs per texel, from its best candidates (0: ``model.suggested_starts``).  ``limits``: per-texel
+    ``initial``: fit-form parameters to start from (default: the form's
+    initial guess).  ``starts``: LM runs per texel (0: ``model.suggested_starts``);
+    more than one scores ``8 · starts`` candidates (:func:`candidate_starts`)
+    and runs from each texel's best.  ``limits``: per-texel
     :class:`~sbrdf_core.constraints.Limits` every iterate is projected onto.
     ``fixed``: fit-form parameter names held constant.  ``stats``, a dict, gets
     ``restarted`` (``(T,)`` mask of texels whose best result came from a start
-    other than their best-scored one) and ``starts``.
+    other than their best-scored one).
     """
     if loss not in LOSSES:
         raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
@@ -189,7 +190,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         free[slices[name]] = False
     project = projector(form, limits)
     everyone = np.arange(T)
-    count = scan if scan is not None else (8 * starts if starts > 1 else 1)
+    count = 8 * starts if starts > 1 else 1
     cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, seed, initial)]
     for c in cands[1:]:  # fixed parameters keep the initial guess's value in every start
         c[:, ~free] = cands[0][:, ~free]
@@ -222,7 +223,6 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     x, cost, converged, restarted = best
     if stats is not None:
         stats["restarted"] = restarted
-        stats["starts"] = len(x_starts)
     return form.to_model(form.unpack(x)), converged, cost
 
 

@@ -54,6 +54,10 @@ INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
 EXPONENT_BOUNDS = (0.1, 20000.0)
 #: A lobe whose ρ_s (every channel) is below this, sr⁻¹, contributes nothing measurable: see to_model.
 DEAD_LOBE = 1e-9
+#: A lobe whose peak is below this fraction of the texel's peak budget contributes nothing visible.
+NEGLIGIBLE = 1e-3
+#: The neutral shape a dead lobe is reset to: a mirror cosine lobe, n = 1 (bounded under interpolation).
+NEUTRAL_EXPONENT = 1.0
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
 C_BOUNDS = (-10.0, 10.0)
@@ -337,17 +341,11 @@ def bound_lobes(rho_d, lobes, limits):
     return out, changed
 
 
-#: A lobe whose peak is below this fraction of the texel's peak budget contributes nothing visible.
-NEGLIGIBLE = 1e-3
-#: The neutral shape a dead lobe is reset to: a mirror cosine lobe, n = 1 (bounded under interpolation).
-NEUTRAL_EXPONENT = 1.0
-
-
 def _apply_lobe_bounds(model, out, limits, exponent_key, log, reset_dead=True):
     """:func:`bound_lobes` on ``out`` in place (model form or fit form, C_z = 1); returns ``changed``.
 
-    The fit form keeps dead lobes as they are (``reset_dead=False``): a lobe
-    the iteration is about to grow starts small.
+    ``reset_dead`` (model form only) neutralises dead lobes; the fit form
+    keeps them as they are: a lobe the iteration is about to grow starts small.
     """
     names = ("c_x", "c_y") if model.anisotropic else ("c_xy",)
     lobes = []
@@ -357,14 +355,25 @@ def _apply_lobe_bounds(model, out, limits, exponent_key, log, reset_dead=True):
         lobes.append((out[f"rho_s_{j}"], cabs, np.exp(n) if log else n))
     factors, changed = bound_lobes(out["rho_d"], lobes, limits)
     for j, (r_scale, c_scale, n_new, dead) in enumerate(factors, start=1):
-        c0 = INITIAL_LOBES[min(j, 2) - 1][0]
-        dead = dead & reset_dead
-        out[f"rho_s_{j}"] = np.where(dead, 0.0, out[f"rho_s_{j}"] * r_scale)
+        out[f"rho_s_{j}"] = out[f"rho_s_{j}"] * r_scale
         for nm in names:
-            out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"] * c_scale)
-        n_new = np.where(dead, NEUTRAL_EXPONENT, n_new)
+            out[f"{nm}_{j}"] = out[f"{nm}_{j}"] * c_scale
         out[exponent_key.format(j=j)] = np.log(n_new) if log else n_new
+        if reset_dead:
+            neutralise(model, out, j, dead)
     return changed
+
+
+def neutralise(model, out, j: int, dead: np.ndarray) -> None:
+    """Lobe ``j`` of model-form ``out`` reset in place where ``dead`` ``(T, 1)``: ρ_s = 0, C at the text's initial
+    lobe, n = :data:`NEUTRAL_EXPONENT`, a shape that stays harmless when quantized or interpolated."""
+    if not np.any(dead):
+        return
+    c0 = INITIAL_LOBES[min(j, 2) - 1][0]
+    out[f"rho_s_{j}"] = np.where(dead, 0.0, out[f"rho_s_{j}"])
+    out[f"exponent_{j}"] = np.where(dead, NEUTRAL_EXPONENT, out[f"exponent_{j}"])
+    for nm in (("c_x", "c_y") if model.anisotropic else ("c_xy",)):
+        out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"])
 
 
 class LafortuneFitForm(LafortuneModel):
@@ -404,13 +413,7 @@ class LafortuneFitForm(LafortuneModel):
         for j in range(1, self.lobes + 1):
             out[f"c_z_{j}"] = np.ones_like(np.asarray(params[f"log_exponent_{j}"]))
             out[f"exponent_{j}"] = np.exp(np.asarray(params[f"log_exponent_{j}"]))
-            dead = np.asarray(params[f"rho_s_{j}"]).max(axis=1, keepdims=True) < DEAD_LOBE
-            if dead.any():
-                c0 = INITIAL_LOBES[min(j, 2) - 1][0]
-                out[f"rho_s_{j}"] = np.where(dead, 0.0, out[f"rho_s_{j}"])
-                out[f"exponent_{j}"] = np.where(dead, 1.0, out[f"exponent_{j}"])
-                for nm in (("c_x", "c_y") if self.anisotropic else ("c_xy",)):
-                    out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"])
+            neutralise(self, out, j, np.asarray(params[f"rho_s_{j}"]).max(axis=1, keepdims=True) < DEAD_LOBE)
         if self.has_beta:
             out["beta"] = np.mod(np.asarray(params["beta"]) + np.pi / 2, np.pi) - np.pi / 2
         if self.mirror:

@@ -67,19 +67,46 @@ class FitResult:
     restarted: np.ndarray | None = None  # (T,) bool: the best result came from a later start (multi-start)
 
 
+FIT_PARAMS = (
+    Param("holdout", "float", 0.1, "fraction of each texel's valid samples kept from the fitter and scored as "
+          "held-out RMS (0 = fit all, no held-out error)", bounds=(0.0, 0.5)),
+    Param("holdout_seed", "int", 0, "seed of the held-out split"),
+    Param("peak_factor", "float", 4.0, "a texel's lobes may peak at most this times the largest sample of the texel "
+          "and its 8 neighbours, anywhere on the hemisphere (0 = unbounded: warns)", bounds=(0.0, None)),
+    Param("max_theta_deg", "float", 89.0, "the hemisphere the peak bound covers, degrees from the normal",
+          bounds=(1.0, 89.99)),
+    Param("albedo_limit", "float", 1.0, "directional albedo bound (energy conservation; 0 = off: warns)",
+          bounds=(0.0, None)),
+    Param("grazing_growth", "float", 1.0, "how much a lobe's shape may brighten from normal incidence toward grazing "
+          "(Lafortune: max (C·ω)^n ≤ this; 1 = |C_x|, |C_y| ≤ C_z, which also keeps renderers' bilinearly "
+          "interpolated parameters bounded; 0 = unbounded: warns)", bounds=(0.0, None)),
+    Param("resolve_sharpness", "bool", True, "bound exponents / roughness to what the angular sampling resolves"),
+    Param("min_samples", "int", 0, "texels with fewer valid samples are fitted with their neighbours' samples "
+          "(0 = the model's parameter count)", bounds=(0, None)),
+    Param("overfit_ratio", "float", 3.0, "flag a texel as overfit when its held-out RMS exceeds this times its "
+          "training RMS", bounds=(1.0, None)),
+)
+
+
+#: The declared defaults, which FitOptions and the relaxed-bound check take from FIT_PARAMS.
+DEFAULTS = {p.name: p.default for p in FIT_PARAMS}
+#: Node parameters that bound the fit: 0 / false turns one off, a larger value loosens it (both warn).
+BOUNDS = ("peak_factor", "albedo_limit", "grazing_growth", "resolve_sharpness")
+
+
 @dataclass(frozen=True)
 class FitOptions:
-    """The node's own parameters, as the kernel uses them (see :attr:`Fit.params`)."""
+    """The node's own parameters, as the kernel uses them (declared in :data:`FIT_PARAMS`)."""
 
-    holdout: float = 0.1
-    holdout_seed: int = 0
-    peak_factor: float = 4.0
-    max_theta_deg: float = 89.0
-    albedo_limit: float = 1.0
-    resolve_sharpness: bool = True
-    min_samples: int = 0
-    overfit_ratio: float = 3.0
-    grazing_growth: float = 1.0
+    holdout: float = DEFAULTS["holdout"]
+    holdout_seed: int = DEFAULTS["holdout_seed"]
+    peak_factor: float = DEFAULTS["peak_factor"]
+    max_theta_deg: float = DEFAULTS["max_theta_deg"]
+    albedo_limit: float = DEFAULTS["albedo_limit"]
+    resolve_sharpness: bool = DEFAULTS["resolve_sharpness"]
+    min_samples: int = DEFAULTS["min_samples"]
+    overfit_ratio: float = DEFAULTS["overfit_ratio"]
+    grazing_growth: float = DEFAULTS["grazing_growth"]
 
     def limits(self, support: np.ndarray, resolution: np.ndarray, support_cosine: np.ndarray | None = None) -> Limits:
         on = self.peak_factor > 0
@@ -105,9 +132,13 @@ def usable(f_r: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def rms_error(model, params, f_r, valid, wi, wo) -> np.ndarray:
     """RMS of ``model − f_r`` over each texel's valid samples and RGB pooled (seed 000 §4.4), sr⁻¹."""
     with np.errstate(all="ignore"):
-        diff = np.where(valid[..., None], model.eval(params, wi, wo) - f_r, 0.0)
-    n = valid.sum(axis=1) * f_r.shape[-1]
-    return np.sqrt(np.einsum("tsc,tsc->t", diff, diff) / np.maximum(n, 1))
+        return masked_rms(model.eval(params, wi, wo) - f_r, valid)
+
+
+def masked_rms(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """RMS of residuals ``(T, S, C)`` over each texel's samples in ``mask`` and the channels (0 with none)."""
+    d = np.where(mask[..., None], diff, 0.0)
+    return np.sqrt(np.einsum("tsc,tsc->t", d, d) / np.maximum(mask.sum(axis=1) * diff.shape[-1], 1))
 
 
 def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[int, int], min_train: int):
@@ -140,7 +171,7 @@ def _neighbour_pool(grid: tuple[int, int], texels: np.ndarray, *arrays):
 
 
 def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, options=FitOptions(), block_info=None):
-    """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + 6)`` = packed parameters and :data:`EXTRA`.
+    """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + len(EXTRA))`` = packed parameters and :data:`EXTRA`.
 
     Non-finite samples are dropped before the fitter sees them, and whatever
     the fitter returns, no NaN or inf reaches the parameter maps: such texels
@@ -187,8 +218,10 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     params, changed, bounded_by = enforce(model, params, limits, why=True)
     flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint8)
     x = model.pack(params)
-    rms = rms_error(model, params, f_r, train, wi, wo)
-    rms_holdout = np.where(test.any(axis=1), rms_error(model, params, f_r, test, wi, wo), np.nan)
+    with np.errstate(all="ignore"):
+        diff = model.eval(params, wi, wo) - f_r  # one evaluation for both errors
+    rms = masked_rms(diff, train)
+    rms_holdout = np.where(test.any(axis=1), masked_rms(diff, test), np.nan)
     own = valid.sum(axis=1)
     bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(rms))
     empty = (own == 0) & ~((flags & BORROWED) > 0)
@@ -203,27 +236,6 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     seconds = np.full(T, (time.perf_counter() - t0) / T)
     out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, bounded_by, seconds], axis=1)], axis=1)
     return out.reshape(grid + (-1,)).astype(np.float32)
-
-
-FIT_PARAMS = (
-    Param("holdout", "float", 0.1, "fraction of each texel's valid samples kept from the fitter and scored as "
-          "held-out RMS (0 = fit all, no held-out error)", bounds=(0.0, 0.5)),
-    Param("holdout_seed", "int", 0, "seed of the held-out split"),
-    Param("peak_factor", "float", 4.0, "a texel's lobes may peak at most this times the largest sample of the texel "
-          "and its 8 neighbours, anywhere on the hemisphere (0 = unbounded: warns)", bounds=(0.0, None)),
-    Param("max_theta_deg", "float", 89.0, "the hemisphere the peak bound covers, degrees from the normal",
-          bounds=(1.0, 89.99)),
-    Param("albedo_limit", "float", 1.0, "directional albedo bound (energy conservation; 0 = off: warns)",
-          bounds=(0.0, None)),
-    Param("grazing_growth", "float", 1.0, "how much a lobe's shape may brighten from normal incidence toward grazing "
-          "(Lafortune: max (C·ω)^n ≤ this; 1 = |C_x|, |C_y| ≤ C_z, which also keeps renderers' bilinearly "
-          "interpolated parameters bounded; 0 = unbounded: warns)", bounds=(0.0, None)),
-    Param("resolve_sharpness", "bool", True, "bound exponents / roughness to what the angular sampling resolves"),
-    Param("min_samples", "int", 0, "texels with fewer valid samples are fitted with their neighbours' samples "
-          "(0 = the model's parameter count)", bounds=(0, None)),
-    Param("overfit_ratio", "float", 3.0, "flag a texel as overfit when its held-out RMS exceeds this times its "
-          "training RMS", bounds=(1.0, None)),
-)
 
 
 class Fit(NodeKind):
@@ -243,12 +255,8 @@ class Fit(NodeKind):
     def options(cls, ctx: BuildContext) -> FitOptions:
         """The node parameters; relaxing a physical bound is allowed, and said."""
         opts = FitOptions(**{p.name: ctx.params.get(p.name, p.default) for p in FIT_PARAMS})
-        relaxed = [f"{name}: {getattr(opts, name)}" for name, default in
-                   (("peak_factor", 4.0), ("albedo_limit", 1.0), ("resolve_sharpness", True),
-                    ("grazing_growth", 1.0))
-                   if (getattr(opts, name) == 0 or getattr(opts, name) is False)
-                   or (name == "peak_factor" and opts.peak_factor > default)
-                   or (name in ("albedo_limit", "grazing_growth") and getattr(opts, name) > default)]
+        relaxed = [f"{name}: {getattr(opts, name)}" for name in BOUNDS
+                   if not getattr(opts, name) or getattr(opts, name) > DEFAULTS[name]]
         if relaxed:
             warnings.warn(f"node {ctx.node!r}: physical bounds relaxed ({', '.join(relaxed)}): fitted lobes may "
                           "exceed what the samples support where they were not measured", stacklevel=2)

@@ -16,24 +16,16 @@ from sbrdf_quantizers.mip import build_levels, level_errors, max_levels
 from sbrdf_render import materials as mat
 from sbrdf_render.cpu import render_scene
 
-from .test_models import REGISTRY
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from render import MIP_SCENE as FAR  # noqa: E402  the distant view the benchmark measures
+from render import mip_material  # noqa: E402
 
 
 def random_material(size: int, seed: int = 0):
-    """1-lobe Lafortune, parameters jumping from texel to texel, C_z = 1 (the gauge fits give)."""
-    model = REGISTRY.create("brdf-model", "lafortune", {"lobes": 1})
-    rng = np.random.default_rng(seed)
-
-    def r(lo, hi, ch=1):
-        return rng.uniform(lo, hi, (size, size, ch))
-
-    params = {"rho_d": r(0.02, 0.3, 3), "rho_s_1": np.repeat(r(0.2, 2.0), 3, -1), "c_xy_1": -r(0.85, 1.0),
-              "c_z_1": np.ones((size, size, 1)), "exponent_1": np.exp(r(np.log(3.0), np.log(300.0)))}
-    params = {k: v.astype(np.float32) for k, v in params.items()}
-    maps = np.concatenate([params[p.name] for p in model.parameters], -1)
-    return model, params, maps
+    """1-lobe Lafortune, parameters jumping from texel to texel, C_z = 1 (the gauge fits give): the benchmark's."""
+    model, params = mip_material(size, seed)
+    return model, params, np.concatenate([params[p.name] for p in model.parameters], -1)
 
 
 def test_level_shapes_follow_opengl():
@@ -83,14 +75,6 @@ def test_scene_accepts_trilinear_and_rejects_unknown_filters():
         load_scene(text % "anisotropic")
 
 
-FAR = """
-camera: {position: [0, -5, 6], look_at: [0, 0, 0], fov_deg: 20, resolution: [64, 48]}
-materials: {s: {model: lafortune}}
-objects:
-  - {shape: plane, size: [4, 4], uv_repeat: [4, 4], material: s}
-lights:
-  - {type: directional, direction: [0.0, 0.7, 0.7], irradiance: 1.0}
-"""
 
 
 @pytest.fixture(scope="module")
