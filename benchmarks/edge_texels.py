@@ -41,7 +41,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 EFFECTS = ["falloff", "blur", "motor_error", "noise"]
 
 

@@ -36,7 +36,6 @@ mc_equal_time_err=... device=...`` (errors and times are means over the four cas
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import sys
 import time
@@ -74,7 +73,7 @@ antialias: 1  # one sample per pixel: the timings and errors stay those of the l
 def draw(text: str, frames: int, timed: int = 5):
     """(last image, fastest wall ms of the timed frames, wall s to build)."""
     from sbrdf_core.registry import default_registry
-    from sbrdf_core.scene import load_scene
+    from sbrdf_lib.scene import load_scene
     from sbrdf_render import materials as mat
     from sbrdf_render.gl import GLScene
 
@@ -137,7 +136,7 @@ def run(env: Path, res: tuple[int, int], ref_samples: int = 256, ref_frames: int
 def prefilter_times(env: Path) -> dict:
     """Building the five maps S(·, n) at 32² from the 32² cube (D is S with n = 1): GL pass against NumPy float64."""
     from sbrdf_envmap import cubemap, prefilter
-    from sbrdf_render.gl import context
+    from sbrdf_lib.gl import context
 
     src = cubemap.mip_chain(cubemap.load_environment(str(env), "latlong", 32))[0]
     t0 = time.perf_counter()
@@ -249,7 +248,7 @@ def main(argv=None):
 
     from sbrdf_core.io import write_exr
     from sbrdf_envmap.procedural import sky
-    from sbrdf_render.gl import device_name
+    from sbrdf_lib.gl import device_name
 
     device = device_name().split()[0].lower()
     with tempfile.TemporaryDirectory(prefix="sbrdf-envmap-") as d:

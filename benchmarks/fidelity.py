@@ -461,7 +461,7 @@ def main(argv=None) -> int:
                     f"p90 {np.percentile(s['rel'], 90):.4f}, no samples {int((s['samples'] == 0).sum())}, "
                     f"fireflies {bad.size}{': ' + where if bad.size else ''}; flagged {summary.get('texels_flagged', {})}")
                 per_band = [np.median(s["rel"].reshape(V, U, -1)[:, b * U // 3:(b + 1) * U // 3]) for b in range(3)]
-                log(f"    median per band (0 rough, 1 glossy, 2 near-mirror): "
+                log("    median per band (0 rough, 1 glossy, 2 near-mirror): "
                     + " ".join(f"{x:.4f}" for x in per_band))
             rel = np.concatenate(rels)
             srel = np.concatenate(sampled_rels)

@@ -218,7 +218,7 @@ def main(argv=None) -> int:
     texels, poses = ([24, 20], 12) if args.quick else ([64, 64], 24)
     cases = CASES[:8] if args.quick else CASES
     registry = Registry()
-    logging.getLogger("sbrdf.runner").setLevel(logging.ERROR)  # the run's damage notes are in its report
+    logging.getLogger("sbrdf_core.runner").setLevel(logging.ERROR)  # the run's damage notes are in its report
     root = Path(args.keep or tempfile.mkdtemp(prefix="sbrdf-integrity-"))
     root.mkdir(parents=True, exist_ok=True)
     try:

@@ -291,6 +291,9 @@ def lafortune(tmp: Path) -> dict:
 
 
 def main() -> None:
+    from sbrdf_core.memory import limit_arenas
+
+    limit_arenas()  # as the sbrdf CLI does for its runs: the memory figures assume capped malloc arenas
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--gb", type=float, default=None, help="CaptureSet size in GB (default 2; --quick 0.1)")
     ap.add_argument("--quick", action="store_true", help="0.1 GB, plus a half-size threads run for the memory check")

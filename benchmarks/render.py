@@ -75,11 +75,12 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from report import machine, replace_section  # noqa: E402
 
 from sbrdf_core.registry import Registry  # noqa: E402
-from sbrdf_core.scene import ANTIALIAS_DEFAULT, load_scene  # noqa: E402
+from sbrdf_lib.gl import Drawer, Frame, clip_planes, context  # noqa: E402
+from sbrdf_lib.scene import ANTIALIAS_DEFAULT, load_scene  # noqa: E402
 from sbrdf_render import materials as mat  # noqa: E402
 from sbrdf_render.cpu import cast, render_scene, texel_edges  # noqa: E402
 from sbrdf_render.gf4 import GF4Scene  # noqa: E402
-from sbrdf_render.gl import Drawer, Frame, GLScene, clip_planes, context  # noqa: E402
+from sbrdf_render.gl import GLScene  # noqa: E402
 
 REGISTRY = Registry()
 BASELINES = ("no light, no tex", "light, no tex", "no light, tex", "light, tex")
@@ -253,7 +254,7 @@ def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> 
     cell's median taken: load from other processes on the shared cores then spreads over all cells instead
     of landing on whichever cell was being timed.
     """
-    from sbrdf_render.shapes import tessellate
+    from sbrdf_lib.surface import tessellate
 
     meshes: dict = {}
     drawers = {}
@@ -384,7 +385,7 @@ def mip_material(size: int = 32, seed: int = 0) -> tuple:
 
 def mip_errors(size: int = 32, scene: str = MIP_SCENE, reference: int = 16) -> dict:
     """Errors at a distance against a supersampled level-0 reference: refit and averaged levels, level 0 alone."""
-    from sbrdf_core.scene import downsample
+    from sbrdf_lib.scene import downsample
     from sbrdf_quantizers.mip import build_levels
 
     model, params = mip_material(size)

@@ -12,6 +12,14 @@ renderer by name.  Where things live:
 - ``runner.py``     executes a graph with dask: caching, resume, progress
 - ``nodes/``        one module per node kind
 - ``brdf.py``       the BRDF-model protocol
+- ``contracts.py``  one Protocol per kind of contribution, and their optional members
+- ``extras.py``     optional dependencies: ``require`` names the extra to install
+- ``_dask_compat.py`` every private dask name used, in one place
 """
 
-__version__ = "0.1.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:  # the version is written once, in pyproject.toml
+    __version__ = version("sbrdf")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"

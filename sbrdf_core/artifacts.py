@@ -27,12 +27,24 @@ class ArraySpec:
 
 @dataclass(frozen=True)
 class ArtifactKind:
-    """A kind of artifact: its name, layout version and arrays."""
+    """A kind of artifact: its name, layout version and arrays.
+
+    The six kinds of the pipeline are declared here; plugins add theirs
+    through the ``sbrdf_artifact_kinds`` hook (the registry records them in
+    :data:`KINDS` when it loads, so no import has side effects).
+
+    ``material`` makes a kind renderable: ``"package.module:function"`` of an
+    adapter ``(artifact, model, params, **options) -> surface`` (the surface
+    has ``radiance``, ``glsl``, ``glsl_radiance``, ``gl_uniforms`` and
+    ``gl_textures``) that the renderers call for a ``Render`` input or a scene
+    material of this kind (a shading map is a material).
+    """
 
     kind: str
     version: int
     doc: str
     arrays: tuple[ArraySpec, ...] = ()
+    material: str = ""
 
     def spec(self, name: str) -> ArraySpec | None:
         for a in self.arrays:
@@ -133,6 +145,17 @@ Images = ArtifactKind(
     (ArraySpec("image", "HWC", "float32", "linear RGB radiance"),),
 )
 
+#: Every known kind by name: the core's six, then those plugins declare (see :func:`register_kind`).
 KINDS: dict[str, ArtifactKind] = {
     k.kind: k for k in (CaptureSet, RegisteredStack, SampledReflectance, ParamMaps, TextureSet, Images)
 }
+
+
+def register_kind(kind: ArtifactKind, plugin: str = "") -> None:
+    """Record a plugin's artifact kind; the same name declared differently is an error."""
+    from .errors import PluginError
+
+    old = KINDS.get(kind.kind)
+    if old is not None and old != kind:
+        raise PluginError(f"artifact kind {kind.kind!r} from plugin {plugin or '?'} is already declared differently")
+    KINDS[kind.kind] = kind

@@ -1,5 +1,7 @@
 """``sbrdf bench``: run the benchmark scripts and regenerate ``docs/accuracy-vs-time.md``.
 
+The stages and the docs' illustrating renders are declared in
+``benchmarks/stages.toml`` (so the core names no benchmark, graph or plugin).
 Each script in ``benchmarks/`` owns one section of the report (``--docs``
 rewrites it: a table and a plot stating machine, sizes and date) and prints
 its figures as its last line.  This runs them one after another, at quick
@@ -28,36 +30,49 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from datetime import date
 from pathlib import Path
 
 from .errors import SbrdfError
 
-#: Stage -> (script, what it measures), in report order.
-STAGES = {
-    "fit": ("fit.py", "fitting: ms per texel against RMS, LM vs line search vs SciPy"),
-    "fidelity": ("fidelity.py", "fitted materials at unseen directions: error, fireflies, unsampled texels"),
-    "quantize": ("quantize.py", "quantizing: error against bytes per texel and time"),
-    "separable": ("separable.py", "separable approximations: SVD vs ND, error, time, memory"),
-    "shadingmap": ("shadingmap.py", "shading maps: linearisation and compression time, RMS, render ms"),
-    "bsdf_tables": ("bsdf_tables.py", "measured tables: grid search vs LM, L1 error against time"),
-    "render": ("render.py", "rendering: Table 6.1 frames per second, gl against the cpu reference"),
-    "envmap": ("envmap.py", "environment lighting: prefiltered vs deterministic sampling vs Monte Carlo"),
-}
+#: The declaration of the stages and docs images, under the checkout's ``benchmarks/``.
+STAGES_FILE = "stages.toml"
 
-#: Wall seconds of each stage at quick sizes on 2 idle cores, for the estimate when the report records none.
-QUICK_S = {"fit": 35, "fidelity": 60, "quantize": 13, "separable": 20, "shadingmap": 5, "bsdf_tables": 30,
-           "render": 15, "envmap": 15, "images": 20}
 
-#: Graphs whose renders illustrate the docs: (graph, node, image under docs/img/).
-IMAGES = (
-    ("demo.yaml", "scene", "demo-scene.png"),
-    ("demo.yaml", "render", "demo-preview.png"),
-    ("sbrdf-render.yaml", "gl", "sbrdf-gl.png"),
-    ("sbrdf-render.yaml", "gl_environment", "sbrdf-environment.png"),
-    ("shading-map.yaml", "render_gl", "shading-map-render.png"),
-    ("measured-table.yaml", "render_gl", "pane-gl.png"),
-)
+@dataclass(frozen=True)
+class Stage:
+    """One benchmark script: what it is called, what it measures, its quick-size wall time on 2 idle cores."""
+
+    name: str
+    script: str
+    what: str
+    quick_s: float = 60.0
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What ``benchmarks/stages.toml`` declares: the stages in report order, and the graphs whose renders
+    illustrate the docs as ``(graph, node, image under docs/img/)``."""
+
+    stages: dict[str, Stage]
+    images: tuple[tuple[str, str, str], ...] = ()
+    images_quick_s: float = 20.0
+
+
+def load_plan(root: Path) -> Plan:
+    """Read ``benchmarks/stages.toml`` of the checkout at ``root``."""
+    import tomllib
+
+    path = root / "benchmarks" / STAGES_FILE
+    try:
+        data = tomllib.loads(path.read_text())
+        stages = {d["name"]: Stage(d["name"], d["script"], d.get("what", ""), float(d.get("quick_s", 60)))
+                  for d in data.get("stage", [])}
+        images = tuple((d["graph"], d["node"], d["image"]) for d in data.get("image", []))
+    except (OSError, tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
+        raise SbrdfError(f"{path}: cannot read the benchmark stages: {type(e).__name__}: {e}") from e
+    return Plan(stages, images, float(data.get("images_quick_s", 20)))
 
 
 def repo_root() -> Path:
@@ -67,15 +82,15 @@ def repo_root() -> Path:
     return root
 
 
-def run_stage(root: Path, name: str, full: bool, log, docs: bool = True, status=None) -> tuple[str, float, int]:
+def run_stage(root: Path, stage: Stage, full: bool, log, docs: bool = True, status=None) -> tuple[str, float, int]:
     """Run one script; returns its last line, wall seconds and exit code (output goes to ``log``).
 
     ``docs=False`` runs it without ``--docs`` (nothing under docs/ is written);
     ``status(elapsed_s, line)`` is called with each line it prints.
     """
-    script = root / "benchmarks" / STAGES[name][0]
+    script = root / "benchmarks" / stage.script
     if not script.exists():
-        return f"{name}: (no script {script.name})", 0.0, 127
+        return f"{stage.name}: (no script {script.name})", 0.0, 127
     cmd = [sys.executable, str(script)] + (["--docs"] if docs else []) + ([] if full else ["--quick"])
     log.write(f"$ {' '.join(cmd)}\n")
     log.flush()
@@ -83,7 +98,7 @@ def run_stage(root: Path, name: str, full: bool, log, docs: bool = True, status=
     last = ""
     with subprocess.Popen(cmd, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                           bufsize=1, env={**os.environ, "PYTHONUNBUFFERED": "1"}) as proc:
-        for line in proc.stdout:
+        for line in proc.stdout or ():
             log.write(line)
             if line.strip():
                 last = line.rstrip("\n")
@@ -95,7 +110,7 @@ def run_stage(root: Path, name: str, full: bool, log, docs: bool = True, status=
     return last, time.perf_counter() - t0, rc
 
 
-def render_images(root: Path, store: Path, log) -> float:
+def render_images(root: Path, store: Path, log, images: tuple[tuple[str, str, str], ...]) -> float:
     """Run the illustrating graphs into ``store`` and copy their PNGs into docs/img."""
     import shutil
 
@@ -105,19 +120,20 @@ def render_images(root: Path, store: Path, log) -> float:
 
     t0 = time.perf_counter()
     reg = default_registry()
-    for graph in dict.fromkeys(g for g, _, _ in IMAGES):
+    for graph in dict.fromkeys(g for g, _, _ in images):
         g = load_graph(str(root / "graphs" / graph), reg, store=str(store / graph.removesuffix(".yaml")))
         Runner(reg, progress=False).run(g)
-    for graph, node, image in IMAGES:
+    for graph, node, image in images:
         shutil.copyfile(store / graph.removesuffix(".yaml") / node / "image.png", root / "docs" / "img" / image)
         log.write(f"docs/img/{image} <- {graph} node {node}\n")
     return time.perf_counter() - t0
 
 
-def summary_section(results: list[tuple[str, str, float, int]], full: bool, machine: str, docs: bool = True) -> str:
+def summary_section(results: list[tuple[str, str, float, int]], full: bool, machine: str, docs: bool = True,
+                    stages: dict[str, Stage] | None = None) -> str:
     rows = ["| stage | what | wall s | figures (the script's last line) |", "|---|---|---:|---|"]
     for name, line, wall, rc in results:
-        what = STAGES[name][1] if name in STAGES else "documentation images"
+        what = stages[name].what if stages and name in stages else "documentation images"
         status = "" if rc == 0 else f" **(exit {rc})**"
         rows.append(f"| {name} | {what} | {wall:.0f} | `{line}`{status} |")
     total = sum(r[2] for r in results)
@@ -148,22 +164,23 @@ def recorded_walls(report: Path) -> tuple[dict[str, float], str]:
     return walls, (f"{m.group(3)}|{m.group(2)}" if m else "")
 
 
-def estimate(names: list[str], images: bool, full: bool, report: Path) -> tuple[dict[str, float], str]:
+def estimate(names: list[str], images: bool, full: bool, report: Path, plan: Plan) -> tuple[dict[str, float], str]:
     """Seconds per stage (``images`` included when it runs) and a sentence saying where the figures come from."""
+    quick = {**{n: st.quick_s for n, st in plan.stages.items()}, "images": plan.images_quick_s}
     walls, where = recorded_walls(report)
     sizes, _, machine_date = where.partition("|")
     wanted = names + (["images"] if images else [])
     if sizes == ("full" if full else "quick") and walls:
-        est = {n: walls.get(n, QUICK_S.get(n, 60) * (1 if not full else 20)) for n in wanted}
+        est = {n: walls.get(n, quick.get(n, 60) * (1 if not full else 20)) for n in wanted}
         missing = [n for n in wanted if n not in walls]
         src = f"the last recorded run, on {machine_date}"
         if missing:
             src += f"; {', '.join(missing)} not recorded there, guessed"
     elif not full:
-        est = {n: QUICK_S.get(n, 60) for n in wanted}
+        est = {n: quick.get(n, 60) for n in wanted}
         src = "quick sizes on 2 idle cores"
     else:
-        est = {n: (QUICK_S[n] if n == "images" else 60 * 60 / len(STAGES)) for n in wanted}
+        est = {n: (quick[n] if n == "images" else 60 * 60 / len(plan.stages)) for n in wanted}
         src = "full sizes: about an hour on 2 idle cores in all, no per-stage record"
     return est, src
 
@@ -208,6 +225,7 @@ def _report_module(root: Path):
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("sbrdf_bench_report", root / "benchmarks" / "report.py")
+    assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -217,15 +235,16 @@ def main(stages: list[str] | None, full: bool, images: bool, log_path: str | Non
     root = repo_root()
     report_mod = _report_module(root)
     report = root / "docs" / "accuracy-vs-time.md"
+    plan = load_plan(root)
 
-    names = stages or list(STAGES)
-    unknown = [n for n in names if n not in STAGES]
+    names = stages or list(plan.stages)
+    unknown = [n for n in names if n not in plan.stages]
     if unknown:
-        raise SbrdfError(f"unknown bench stage(s) {unknown}; choose from {list(STAGES)}")
+        raise SbrdfError(f"unknown bench stage(s) {unknown}; choose from {list(plan.stages)}")
     log_file = Path(log_path) if log_path else root / "runs" / "bench.log"
     log_file.parent.mkdir(parents=True, exist_ok=True)
 
-    est, src = estimate(names, images, full, report)
+    est, src = estimate(names, images, full, report, plan)
     factor, load = load_factor()
     total = sum(est.values())
     print(f"sbrdf bench: {len(names)} stage{'s' if len(names) != 1 else ''} at {'full' if full else 'quick'} sizes"
@@ -249,10 +268,10 @@ def main(stages: list[str] | None, full: bool, images: bool, log_path: str | Non
     with log_file.open("w") as log:
         for i, name in enumerate(names, 1):
             left = sum(est[n] for n in names[i - 1:]) + est.get("images", 0)
-            print(f"[{i}/{len(names)}] {name}: {STAGES[name][1]} (~{_minutes(est[name] * factor)}; "
+            print(f"[{i}/{len(names)}] {name}: {plan.stages[name].what} (~{_minutes(est[name] * factor)}; "
                   f"{_minutes(time.perf_counter() - t_start)} so far, ~{_minutes(left * factor)} to go) ...", flush=True)
             before = None if images else _snapshot(img_dir)
-            line, wall, rc = run_stage(root, name, full, log, docs=images, status=status)
+            line, wall, rc = run_stage(root, plan.stages[name], full, log, docs=images, status=status)
             if tty:
                 sys.stdout.write("\r")
             print(f"    {'done' if rc == 0 else f'FAILED (exit {rc}; see {log_file})'} in {_minutes(wall)}: {line}", flush=True)
@@ -267,9 +286,10 @@ def main(stages: list[str] | None, full: bool, images: bool, log_path: str | Non
 
             print(f"images: rendering the docs' pictures (~{_minutes(est['images'] * factor)}) ...", flush=True)
             with tempfile.TemporaryDirectory() as tmp:
-                wall = render_images(root, Path(tmp), log)
+                wall = render_images(root, Path(tmp), log, plan.images)
             print(f"    done in {_minutes(wall)}", flush=True)
-            results.append(("images", "docs/img/" + ", ".join(i for _, _, i in IMAGES), wall, 0))
-    report_mod.replace_section("summary", summary_section(results, full, report_mod.machine(), docs=images), report)
+            results.append(("images", "docs/img/" + ", ".join(i for _, _, i in plan.images), wall, 0))
+    summary = summary_section(results, full, report_mod.machine(), docs=images, stages=plan.stages)
+    report_mod.replace_section("summary", summary, report)
     print(f"report: {report} (log: {log_file}); {_minutes(time.perf_counter() - t_start)} in all")
     return 0 if all(r[3] == 0 for r in results) else 1

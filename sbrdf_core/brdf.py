@@ -59,12 +59,15 @@ class ModelParameter:
 class BRDFModel:
     """Base class of BRDF-model implementations.
 
-    Subclasses set ``name`` and ``parameters`` (per instance when the
+    Subclasses set ``name``, ``params`` (the configuration, :class:`~sbrdf_core.params.Param`)
+    and ``parameters`` (the per-texel maps; per instance when the
     configuration changes them, e.g. one ``c_x`` per lobe) and implement
     :meth:`eval`; the default :meth:`jacobian` uses central differences.
     """
 
     name: ClassVar[str] = ""
+    #: The model's configuration (``model_params``: lobes, anisotropic, ...), as keyword arguments of ``__init__``.
+    params: ClassVar[tuple] = ()
     parameters: tuple[ModelParameter, ...] = ()
     #: Whether f_r depends on the azimuth of the tangent frame, not only on relative azimuth.  Renderers skip
     #: per-pixel tangent frames for models that set it False; the safe default is True.
@@ -120,7 +123,7 @@ class BRDFModel:
         fn = "brdf_" + self.name.replace("-", "_")
         return f"{fn}({wi}, {wo}, " + ", ".join(args[p.name] for p in self.parameters) + ")"
 
-    def fit_form(self) -> "BRDFModel":
+    def fit_form(self) -> BRDFModel:
         """An equivalent, better-conditioned parametrisation for fitters (default: ``self``).
 
         Fitters iterate in the fit form and convert with :meth:`to_model` /
@@ -148,7 +151,7 @@ class BRDFModel:
 
     def random_guess(self, rng: np.random.Generator, T: int) -> dict[str, np.ndarray]:
         """Random parameters within each parameter's ``typical`` range (test materials; fitters start from
-        Sobol points over the same ranges, ``sbrdf_fitters.lm.candidate_starts``)."""
+        Sobol points over the same ranges, ``sbrdf_lib.lm.candidate_starts``)."""
         return {p.name: rng.uniform(p.typical[0], p.typical[1], (T, p.channels)) for p in self.parameters}
 
     def least_squares(self, f_r: np.ndarray, weight: np.ndarray, wi: np.ndarray, wo: np.ndarray):

@@ -9,18 +9,23 @@
     sbrdf bench [STAGE ...] [--quick | --full] [--no-images] [--log FILE]
 
 ``-p MODULE`` registers an extra plugin module (pytest's ``-p``), and
-``-p no:NAME`` disables an installed plugin by entry-point name.
+``-p no:NAME`` disables an installed plugin by entry-point name; ``-v`` / ``-vv``
+log what runs (INFO / DEBUG of sbrdf's loggers).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
-from .errors import SbrdfError
+from .errors import PluginError, SbrdfError
+
+logger = logging.getLogger(__name__)
 
 
 def _registry(args):
@@ -122,7 +127,12 @@ def cmd_plugins(args) -> int:
         if not specs and not args.category:
             continue
         print(f"\n{category}:")
-        for spec in specs.values():
+        for name in sorted(specs):
+            try:  # parameters are declared on the implementation: listing imports it
+                spec = reg.get(category, name)
+            except PluginError as e:
+                print(f"  {name}  unavailable: {e}", file=sys.stderr)
+                continue
             src = f"{spec.distribution} {spec.version}".strip() or spec.plugin
             print(f"  {spec.name}  [{src}]  {spec.summary}")
             print(format_table(spec.params))
@@ -162,7 +172,7 @@ def cmd_info(args) -> int:
                       for p in fs.ls(root, detail=False) if fs.exists(p.rstrip("/") + "/zarr.json"))
         if not urls:
             raise SbrdfError(f"{args.store}: no sbrdf artifacts here")
-    opened = []
+    opened: list[tuple[str, Any, str | None]] = []
     for url in urls:
         try:
             opened.append((url, open_artifact(url, require_complete=False), None))
@@ -214,7 +224,7 @@ def _same_place(a: str, b: str) -> bool:
     return os.path.realpath(a) == os.path.realpath(b)
 
 
-def _describe_other_zarr(url: str, why: str, artifacts) -> None:
+def _describe_other_zarr(url: str, why: str | None, artifacts) -> None:
     """A zarr store that is not an sbrdf artifact: say so, say what names it, list what it holds."""
     import zarr
 
@@ -268,8 +278,7 @@ def fit_table(fits) -> str:
     rows = [head, "-" * len(head)]
     for url, art in fits:
         summary = art.attrs.get("summary", {})
-        cfg = art.attrs.get("model_config", {})
-        model = art.attrs.get("model", "?") + (f" {cfg['lobes']} lobe" + ("s" if cfg["lobes"] != 1 else "") if "lobes" in cfg else "")
+        model = art.attrs.get("model", "?") + describe_config(art.attrs.get("model_config", {}))
         u, v = art.attrs.get("texels", [0, 0])
         flagged = summary.get("texels_flagged_any", sum(summary.get("texels_flagged", {}).values()))
         fmt = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
@@ -277,6 +286,14 @@ def fit_table(fits) -> str:
                     f"{fmt(summary.get('fit_time_s')):>9} {fmt(summary.get('rms_mean')):>10} {fmt(summary.get('rms_max')):>10} "
                     f"{fmt(summary.get('rms_holdout_mean')):>10} {flagged:>8}")
     return "\n".join(rows)
+
+
+def describe_config(cfg: dict) -> str:
+    """A model's configuration (its declared parameters' values) as `` name=value`` pairs, scalars only:
+    the table names no model's parameters, whatever model a fit used."""
+    short = {k: v for k, v in cfg.items()
+             if isinstance(v, (bool, int, float)) or (isinstance(v, str) and len(v) <= 16 and "/" not in v)}
+    return "".join(f" {k}={json.dumps(v) if isinstance(v, bool) else v}" for k, v in short.items())
 
 
 def cmd_bench(args) -> int:
@@ -295,10 +312,40 @@ def _wait(args) -> bool | float:
     return args.wait_timeout if args.wait_timeout is not None else args.wait
 
 
+#: Marks the handler :func:`configure_logging` installed, so a second call replaces it.
+_HANDLER_TAG = "_sbrdf_cli"
+
+
+def configure_logging(verbose: int) -> None:
+    """``-v`` INFO, ``-vv`` DEBUG for sbrdf's own loggers (core, library, installed plugins); others stay as they are.
+
+    Without ``-v`` nothing is configured: warnings reach stderr through Python's default handler, as before.
+    """
+    if verbose <= 0:
+        return
+    from importlib.metadata import entry_points
+
+    level = logging.INFO if verbose == 1 else logging.DEBUG
+    names = {"sbrdf", "sbrdf_core", "sbrdf_lib"} | {ep.value.split(":")[0].split(".")[0]
+                                                    for ep in entry_points(group="sbrdf")}
+    for name in names:
+        logging.getLogger(name).setLevel(level)
+    root = logging.getLogger()
+    for h in [h for h in root.handlers if getattr(h, _HANDLER_TAG, False)]:
+        root.removeHandler(h)
+    if not root.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        setattr(handler, _HANDLER_TAG, True)
+        root.addHandler(handler)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="sbrdf", description="Measured surface appearance pipelines.")
     ap.add_argument("-p", dest="plugin", action="append", default=[], metavar="MODULE",
                     help="register a plugin module, or 'no:NAME' to disable an installed one")
+    ap.add_argument("-v", "--verbose", action="count", default=0,
+                    help="log what happens (node start and finish, cache reuse, prepare steps); -vv for debug detail")
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("run", help="validate and execute a graph")
@@ -348,8 +395,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = sub.add_parser("bench", help="run the benchmarks (quick sizes) and regenerate docs/accuracy-vs-time.md; "
                        "says what it will cost before it starts")
-    p.add_argument("stages", nargs="*", help="stages to run (default all): fit fidelity quantize separable shadingmap "
-                   "bsdf_tables render envmap")
+    p.add_argument("stages", nargs="*", help="stages to run (default all, as benchmarks/stages.toml lists them)")
     sizes = p.add_mutually_exclusive_group()
     sizes.add_argument("--quick", dest="full", action="store_false",
                        help="quick sizes (the default; a few minutes on 2 idle cores)")
@@ -363,6 +409,8 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=cmd_bench)
 
     args = ap.parse_args(argv)
+    configure_logging(args.verbose)
+    tune_process()
     try:
         return args.func(args)
     except SbrdfError as e:
@@ -375,6 +423,20 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print("sbrdf: interrupted; re-run to resume from the chunks already written", file=sys.stderr)
         return 130
+
+
+def tune_process() -> None:
+    """Process-wide settings for a command-line run, made once, before any dask thread starts.
+
+    glibc's malloc arenas are capped (:func:`sbrdf_core.memory.limit_arenas`):
+    each dask thread would otherwise keep its own heap of freed temporaries.  A
+    library caller decides this for its own process; dask workers get the same
+    cap from ``MALLOC_ARENA_MAX`` (:data:`sbrdf_core.memory.CLUSTER_CONFIG`).
+    """
+    from .memory import limit_arenas
+
+    if limit_arenas():
+        logger.debug("malloc arenas capped for this process")
 
 
 if __name__ == "__main__":

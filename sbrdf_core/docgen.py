@@ -2,8 +2,9 @@
 
 The documentation site (``mkdocs.yml``, ``docs/hooks.py``) renders these at
 build time: node kinds and every installed plugin's declared parameters
-(the YAML graph reference), the artifact kinds' arrays, and the scene-file
-keys.  A third-party plugin appears here as soon as it is installed.
+(the YAML graph reference), the artifact kinds' arrays, the contracts, the
+BRDF models, and pages plugins contribute (the renderers' scene-file keys).
+A third-party plugin appears here as soon as it is installed.
 """
 
 from __future__ import annotations
@@ -70,17 +71,17 @@ def graph_reference(registry) -> str:
         if not specs:
             continue
         out += [f"## {CATEGORY_TITLES.get(category, category)}", ""]
-        for spec in sorted(specs.values(), key=lambda s: s.name):
+        for spec in (registry.get(category, n) for n in sorted(specs)):
             src = f"{spec.distribution} {spec.version}".strip() or spec.plugin
             out += [f"### `{spec.name}`", "", f"{spec.summary}  ", f"_From {src}._", "", param_table(spec.params)]
     return "\n".join(out) + "\n"
 
 
-def artifact_reference() -> str:
-    """Every artifact kind's arrays."""
+def artifact_reference(registry=None) -> str:
+    """Every artifact kind's arrays: the core's and those the loaded plugins declare."""
     from . import artifacts
 
-    kinds = [v for v in vars(artifacts).values() if isinstance(v, artifacts.ArtifactKind)]
+    kinds = list(artifacts.KINDS.values())
     out = ["# Artifact reference", "",
            "Every artifact is a zarr group with `kind`, `version` and provenance attributes "
            "([graphs and runs](../graphs.md)). Dimension letters: P poses, H×W image pixels, V×U texels "
@@ -98,24 +99,43 @@ def artifact_reference() -> str:
     return "\n".join(out) + "\n"
 
 
-def scene_reference() -> str:
-    """Every key of a scene file."""
-    from . import scene as sc
+def contracts_reference() -> str:
+    """What each category's implementation provides (``sbrdf_core/contracts.py``), required and optional."""
+    from . import contracts
 
-    out = ["# Scene-file reference", "",
-           "Generated from `sbrdf_core/scene.py`; see [scenes and renderers](../scenes.md) for conventions.", "",
-           "## `camera`", "", param_table(sc.CAMERA),
-           "## `materials: {name: ...}`", "", param_table(sc.MATERIAL),
-           "## `objects: [...]`", "", "Every object:", "", param_table(sc._OBJECT_COMMON)]
-    for shape, params in sc.SHAPES.items():
-        out += [f"`shape: {shape}`:", "", param_table(params)]
-    out += ["### `transform`", "", param_table(sc.TRANSFORM), "## `lights: [...]`", ""]
-    for kind, params in sc.LIGHTS.items():
-        out += [f"`type: {kind}`:", "", param_table(params)]
-    out += ["## `environment`", "", param_table(sc.ENVIRONMENT), "## `display`", "", param_table(sc.DISPLAY),
-            "## Other keys", "", "`shadows` (bool, default false), `background` (a number or an RGB triple), "
-            "`effects` (scene-effect name -> its options, for effects that plugins add, e.g. "
-            "`{ambient: {radiance: 0.1}}`).", ""]
+    return "\n".join([
+        "# Plugin contracts", "",
+        "Generated from `sbrdf_core/contracts.py`: one `typing.Protocol` per contribution category. The registry "
+        "checks an implementation against it on import and refuses one that lacks a required member; "
+        "`sbrdf_core.testing` holds the behavioural suites ([plugin guide](../plugin-guide.md)).", "",
+        contracts.contract_table(), "", "## Optional members", "",
+        "The core asks for these only through `sbrdf_core.contracts.optional`, so each is listed here with what "
+        "happens without it.", "", contracts.optional_table(), ""])
+
+
+def model_reference(registry) -> str:
+    """One section per installed BRDF model: its docstring, configuration and per-texel parameters."""
+    import inspect
+
+    out = ["# BRDF models", "",
+           "Generated from each model's module docstring, configuration parameters and per-texel "
+           "`ModelParameter` declarations (`sbrdf_core/docgen.py`).", ""]
+    for name in registry.names("brdf-model"):
+        spec = registry.get("brdf-model", name)
+        impl = registry.load(spec)
+        module = inspect.getmodule(impl)
+        doc = inspect.getdoc(module) or inspect.getdoc(impl) or spec.summary
+        out += [f"## `{name}`", "", doc, "", "### Configuration (`model_params`)", "", param_table(spec.params)]
+        try:
+            model = registry.create("brdf-model", name, {})
+        except Exception:  # a model without defaults for every configuration parameter
+            out.append("")
+            continue
+        rows = ["| parameter | channels | bounds | default | unit | meaning |", "|---|---|---|---|---|---|"]
+        for p in model.parameters:
+            rows.append(f"| `{p.name}` | {p.channels} | [{p.bounds[0]:g}, {p.bounds[1]:g}] | {p.default:g} | "
+                        f"{_cell(p.unit)} | {_cell(p.doc)} |")
+        out += ["### Per-texel parameters (default configuration)", "", "\n".join(rows), ""]
     return "\n".join(out) + "\n"
 
 
@@ -134,5 +154,9 @@ def hooks_reference() -> str:
 
 def pages(registry) -> dict[str, str]:
     """``{path under docs/: markdown}`` of every generated page."""
-    return {"reference/graph.md": graph_reference(registry), "reference/artifacts.md": artifact_reference(),
-            "reference/scene.md": scene_reference(), "reference/hooks.md": hooks_reference()}
+    out = {"reference/graph.md": graph_reference(registry), "reference/artifacts.md": artifact_reference(registry),
+           "reference/hooks.md": hooks_reference(), "reference/contracts.md": contracts_reference(),
+           "reference/models.md": model_reference(registry)}
+    for contributed in registry.pm.hook.sbrdf_reference_pages(registry=registry):
+        out.update(contributed or {})  # the scene-file reference comes from the renderers
+    return out

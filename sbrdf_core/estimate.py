@@ -34,7 +34,10 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .nodes.base import NodeKind
 
 #: Environment variables that set the limits when the graph's ``limits:`` does not.
 ENV = {"max_bytes": "SBRDF_MAX_BYTES", "max_memory": "SBRDF_MAX_MEMORY"}
@@ -89,8 +92,9 @@ def _poses(value: Any) -> int | None:
     return int(value) if isinstance(value, int) and not isinstance(value, bool) and value > 0 else None
 
 
-def estimate_node(kind: type, params: dict, inputs: dict[str, Estimate | None]) -> Estimate | None:
+def estimate_node(kind: type[NodeKind], params: dict, inputs: dict[str, Estimate | None]) -> Estimate | None:
     """The estimate of one node: its kind's own ``estimate`` if it has one, else by its output artifact kind."""
+    P: Any  # pose count: from the parameters or upstream, None when neither says
     own = getattr(kind, "estimate", None)
     if callable(own):
         return own(params, inputs)
@@ -210,6 +214,7 @@ def check(nodes: dict, order: list[str], store: str, limits: dict[str, int]) -> 
         if e is not None:
             estimates[name] = e
     problems: list[tuple[str | None, str]] = []
+    room: int | None
     override = "set limits: {max_bytes: ...} in the graph or SBRDF_MAX_BYTES to change the limit"
     if "max_bytes" in limits:
         room, what = limits["max_bytes"], f"the limit max_bytes = {human(limits['max_bytes'])}"

@@ -22,15 +22,19 @@ import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import yaml
 
 from . import _yaml
+from .contracts import optional
 from .errors import GraphError, Problem
 from .params import Param, resolve
 from .registry import Registry, default_registry
 from .store import NODE_NAME
+
+if TYPE_CHECKING:
+    from .nodes.base import NodeKind
 
 TOP_KEYS = ("name", "store", "nodes", "description", "limits")
 NODE_KEYS = ("kind", "plugin", "in", "params", "doc")
@@ -41,7 +45,7 @@ class Node:
     """One validated node: its kind class, plugin name, inputs and resolved parameters."""
 
     name: str
-    kind: type
+    kind: type[NodeKind]
     plugin: str | None
     inputs: dict[str, str]
     params: dict[str, Any]
@@ -127,7 +131,7 @@ class _Validator:
         if self.problems:
             raise GraphError(sorted(self.problems, key=lambda p: (p.line or 0, p.message)))
         return Graph(
-            name=name,
+            name=cast(str, name),  # validated above
             store=store,
             nodes={n: nodes[n] for n in order},
             file=self.file,
@@ -196,7 +200,7 @@ class _Validator:
             if key not in NODE_KEYS:
                 self.problem(f"node {name!r}: unknown key {key!r}; allowed: {', '.join(NODE_KEYS)}", path + (key,))
         kind_name = decl.get("kind")
-        kind = self.reg.node_kinds.get(kind_name) if isinstance(kind_name, str) else None
+        kind = cast("type[NodeKind] | None", self.reg.node_kinds.get(kind_name) if isinstance(kind_name, str) else None)
         if kind is None:
             known = ", ".join(sorted(self.reg.node_kinds))
             what = f"unknown node kind {kind_name!r}" if kind_name is not None else "missing 'kind'"
@@ -220,7 +224,7 @@ class _Validator:
             plugin = None
         else:
             spec = self.reg.get(kind.plugin_category, plugin)
-            declared += list(spec.params)
+            declared += list(spec.params or ())  # filled in by Registry.get
         owner = f"{kind.name} plugin {plugin!r}" if spec else f"{kind.name} node"
         raw_params = decl.get("params", {}) or {}
         if not isinstance(raw_params, dict):
@@ -232,8 +236,8 @@ class _Validator:
             params = self._params(declared, raw_params, owner, path + ("params",))
             if spec is not None and len(self.problems) == before:
                 self._check_combination(spec, params, owner, path + ("params",))
-            elif spec is None and len(self.problems) == before and callable(getattr(kind, "check_params", None)):
-                for key, msg in kind.check_params(params):  # a node kind's own files (MeasuredTable's table)
+            elif spec is None and len(self.problems) == before and callable(check := optional(kind, "check_params")):
+                for key, msg in check(params):  # a node kind's own files (MeasuredTable's table)
                     self.problem(f"{owner}: {msg}", path + ("params", key) if key else path + ("params",))
         inputs = decl.get("in", {}) or {}
         if not isinstance(inputs, dict):
@@ -253,7 +257,7 @@ class _Validator:
             impl = self.reg.load(spec)
         except Exception:  # the registry reports broken plugins itself
             return
-        check = getattr(impl, "check_params", None)
+        check = optional(impl, "check_params")
         if check is None:
             return
         try:  # a check that takes ``registry`` sees the plugins of this validation (``sbrdf -p MODULE``)
@@ -287,7 +291,7 @@ class _Validator:
                 other = values.get(of)
                 if category and other in self.reg.specs[category]:
                     sub = self.reg.get(category, other)
-                    values[p.name] = self._params(list(sub.params), values[p.name], f"{category} {other!r}", path + (p.name,))
+                    values[p.name] = self._params(list(sub.params or ()), values[p.name], f"{category} {other!r}", path + (p.name,))
         return values
 
     # -- edges ----------------------------------------------------------------

@@ -12,12 +12,17 @@ The built-in plugins under ``plugins/`` come in through exactly the same door.
 Most hooks are *registration hooks*: they take no arguments and return a list
 of :class:`~sbrdf_core.plugin.PluginSpec` describing contributions of one
 category.  The implementation named by ``PluginSpec.impl`` is imported only
-when a graph uses it, and must follow the protocol documented on the hook.
+when a graph uses it, and must follow its category's protocol in
+:mod:`sbrdf_core.contracts` (the registry checks it on import; the optional
+members and what happens without them are declared there too).  Its
+parameters are declared on the implementation class beside ``__init__``
+(``params = (Param(...), ...)``).
 
 An implementation that needs other plugins (a capture source rendering with
-a BRDF model, a rig driving devices) may define ``bind(registry)``; the
-runner calls it after construction with the run's
-:class:`~sbrdf_core.registry.Registry`.
+a BRDF model, a rig driving devices, a renderer using a quantizer) defines
+``bind(registry)`` and looks them up by name; plugins never import each
+other (``tests/core/test_layering.py``).  Code they share lives in the
+library layer :mod:`sbrdf_lib`.
 
 Call semantics of every registration hook: *collected* (every plugin's list is
 concatenated), called once per process when the registry loads.  A name
@@ -31,8 +36,11 @@ from typing import TYPE_CHECKING
 import pluggy
 
 if TYPE_CHECKING:  # importing the contract never imports the engine
+    from .artifacts import ArtifactKind
     from .nodes.base import NodeKind
+    from .params import Param
     from .plugin import PluginSpec
+    from .registry import Registry
 
 hookspec = pluggy.HookspecMarker("sbrdf")
 
@@ -56,6 +64,49 @@ def sbrdf_node_kinds() -> list[type[NodeKind]]:
     """
 
 
+@hookspec
+def sbrdf_artifact_kinds() -> list[ArtifactKind]:
+    """Artifact kinds a plugin's node kinds write (a shading map, a measured table).
+
+    :returns: :class:`~sbrdf_core.artifacts.ArtifactKind` declarations; a kind
+        whose ``material`` names an adapter is accepted by the ``Render`` node.
+
+    Call semantics: collected; called once when the registry loads, which
+    records the kinds so stores and ``sbrdf info`` know them.
+    """
+
+
+@hookspec
+def sbrdf_scene_keys() -> dict[str, tuple[Param, ...]]:
+    """Scene-file keys a plugin adds (an environment, a reflector flag, a shading-map material).
+
+    :returns: scope -> declarations.  ``"scene"``: top-level sections, each a
+        ``dict`` Param with ``schema=``; sub-keys with ``extra={"path": True}``
+        resolve from the scene file and must exist; a section with
+        ``extra={"light": True}`` counts as a light.  ``"material"``: keys of
+        every material; a key with ``extra={"store": True}`` names a store
+        (``input`` or a path) of a kind with ``ArtifactKind.material``, and the
+        other keys of the same tuple are passed to that kind's adapter as
+        options.  ``"object"``: keys of every object.  ``"object.<shape>"``:
+        keys of one shape.  Validated by the renderers' loader
+        (:mod:`sbrdf_lib.scene`); an unknown key is an error with its line.
+
+    Call semantics: collected; called whenever a scene is loaded.
+    """
+
+
+@hookspec
+def sbrdf_reference_pages(registry: Registry) -> dict[str, str]:
+    """Generated reference pages a plugin contributes: ``{path under docs/: markdown}``.
+
+    The scene-file reference comes from the renderers this way, so the core's
+    documentation generator names no scene key.
+
+    Call semantics: collected; called when the documentation is built
+    (:func:`sbrdf_core.docgen.pages`), results merged.
+    """
+
+
 # ---------------------------------------------------------------------------
 # Capture
 # ---------------------------------------------------------------------------
@@ -64,6 +115,8 @@ def sbrdf_node_kinds() -> list[type[NodeKind]]:
 @hookspec
 def sbrdf_captures() -> list[PluginSpec]:
     """Capture sources: the ``plugin:`` of a ``Capture`` node.
+
+    Contract: :class:`~sbrdf_core.contracts.CaptureSource`.
 
     :returns: specs whose ``impl`` is a class constructed with the declared
         parameters and providing
@@ -87,6 +140,8 @@ def sbrdf_captures() -> list[PluginSpec]:
 def sbrdf_devices() -> list[PluginSpec]:
     """Device drivers (motor controllers, cameras) that capture sources drive.
 
+    Contract: :class:`~sbrdf_core.contracts.MotorController` or :class:`~sbrdf_core.contracts.Camera`.
+
     :returns: specs whose ``impl`` is a driver class; devices are looked up by
         capture sources through :meth:`sbrdf_core.registry.Registry.create`,
         never by graphs directly.
@@ -103,6 +158,8 @@ def sbrdf_devices() -> list[PluginSpec]:
 @hookspec
 def sbrdf_registrations() -> list[PluginSpec]:
     """Registration methods: the ``plugin:`` of a ``Register`` node.
+
+    Contract: :class:`~sbrdf_core.contracts.Registration`.
 
     :returns: specs whose ``impl`` provides
 
@@ -128,6 +185,8 @@ def sbrdf_registrations() -> list[PluginSpec]:
 def sbrdf_brdf_models() -> list[PluginSpec]:
     """BRDF models: what fitters fit, quantizers store and renderers shade.
 
+    Contract: :class:`~sbrdf_core.contracts.BRDFModel`.
+
     :returns: specs whose ``impl`` is a :class:`sbrdf_core.brdf.BRDFModel`
         subclass; ``params`` are its configuration (number of lobes,
         anisotropy), not its per-texel parameters, which the instance declares
@@ -140,6 +199,8 @@ def sbrdf_brdf_models() -> list[PluginSpec]:
 @hookspec
 def sbrdf_fitters() -> list[PluginSpec]:
     """Fitters: the ``plugin:`` of a ``Fit`` node.
+
+    Contract: :class:`~sbrdf_core.contracts.Fitter`.
 
     :returns: specs whose ``impl`` provides
 
@@ -163,6 +224,8 @@ def sbrdf_fitters() -> list[PluginSpec]:
 @hookspec
 def sbrdf_parameterizations() -> list[PluginSpec]:
     """Changes of variables of a BRDF into two 2D factor domains (separable BRDFs).
+
+    Contract: :class:`~sbrdf_core.contracts.Parameterization`.
 
     :returns: specs whose ``impl`` provides
 
@@ -191,6 +254,8 @@ def sbrdf_parameterizations() -> list[PluginSpec]:
 def sbrdf_quantizers() -> list[PluginSpec]:
     """Texture layouts: the ``plugin:`` of a ``Quantize`` node.
 
+    Contract: :class:`~sbrdf_core.contracts.Quantizer`.
+
     :returns: specs whose ``impl`` provides ``encode(params, model)``
         returning an ``Encoded`` (lazy textures, scale, bias) and
         ``decode(textures, scale, bias, model)`` returning parameter maps,
@@ -211,6 +276,8 @@ def sbrdf_quantizers() -> list[PluginSpec]:
 def sbrdf_renderers() -> list[PluginSpec]:
     """Renderers: the ``plugin:`` of a ``Render`` node.
 
+    Contract: :class:`~sbrdf_core.contracts.Renderer`.
+
     :returns: specs whose ``impl`` provides ``render(material) -> RenderResult``
         where ``material`` is a :class:`sbrdf_core.nodes.render.Material`
         (model + lazy parameter maps); see :mod:`sbrdf_core.nodes.render`.
@@ -222,6 +289,8 @@ def sbrdf_renderers() -> list[PluginSpec]:
 @hookspec
 def sbrdf_scene_effects() -> list[PluginSpec]:
     """Scene effects (environment lighting, mirrors): radiance the ``cpu`` and ``gl`` renderers add to L.
+
+    Contract: :class:`~sbrdf_core.contracts.SceneEffect`.
 
     :returns: specs whose ``impl`` is a class providing
 
@@ -244,7 +313,7 @@ def sbrdf_scene_effects() -> list[PluginSpec]:
           materials by name; ``gl_context`` is given by the ``gl`` renderer,
           which lets the effect precompute on the GPU.
         - ``cpu_radiance(material, hits, view_dirs, pixels) -> (R, 3)``: the
-          effect's radiance at ``R`` ray hits (``sbrdf_render.shapes.Hits``,
+          effect's radiance at ``R`` ray hits (``sbrdf_lib.surface.Hits``,
           world space) of one scene material seen along ``view_dirs``;
           ``pixels`` are the hits' image pixel indices (per-pixel sequences).
         - ``glsl(material, exprs) -> (declarations, statements)``: GLSL

@@ -28,15 +28,27 @@ import os
 import socket
 import time
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import numpy as np
 import zarr
 
 from .errors import ArtifactError, RunError
 from .store import (
-    _ARRAY_NAME, _CHUNK_KEY, ARTIFACT_MARKER, MARKERS, ArrayLayout, _fs, _is_local, _marker_name, chunk_crc, chunk_key, done_keys,
-    inside_store, join, members,
+    _ARRAY_NAME,
+    _CHUNK_KEY,
+    ARTIFACT_MARKER,
+    MARKERS,
+    ArrayLayout,
+    _fs,
+    _is_local,
+    _marker_name,
+    chunk_crc,
+    chunk_key,
+    done_keys,
+    inside_store,
+    join,
+    members,
 )
 
 LOCK_FILE = ".sbrdf.lock"
@@ -308,7 +320,7 @@ class StoreLock:
             raise StoreBusy(f"store {root} is in use by {self._holder_text()}{waited}; wait for that run to "
                             f"finish, or run with --wait") from None
         self.me = {"pid": os.getpid(), "host": socket.gethostname(), "user": _user(), "what": self.what,
-                   "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+                   "started": datetime.now(UTC).isoformat(timespec="seconds")}
         tmp = f"{self.holder}.{os.getpid()}.{id(self)}.tmp"
         with open(tmp, "w") as f:
             json.dump(self.me, f)

@@ -3,10 +3,12 @@
 A BRDF model returns one from :meth:`BRDFModel.least_squares`.  The default
 below builds the normal equations from the model's NumPy ``eval`` and
 ``jacobian``: correct for every model, but it materialises ``(T, S, 3, K)``
-Jacobians.  A model with a compiled kernel (Lafortune, see
-``sbrdf_models.lafortune_kernels``) returns its own problem object that
-accumulates ``JᵀJ`` and ``Jᵀr`` sample by sample instead; fitters cannot
-tell the difference.
+Jacobians.  A model with a compiled kernel (the built-in Lafortune model
+has one) returns its own problem object that accumulates ``JᵀJ`` and ``Jᵀr``
+sample by sample instead; fitters cannot tell the difference.
+
+This is part of the model contract (what ``least_squares`` returns); the
+solver that consumes it is library code, :mod:`sbrdf_lib.lm`.
 """
 
 from __future__ import annotations

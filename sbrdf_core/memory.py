@@ -52,8 +52,9 @@ CLUSTER_CONFIG = {
 def limit_arenas(n: int = ARENAS) -> bool:
     """Cap glibc's malloc arenas at ``n`` for threads that allocate from now on; True if applied.
 
-    Respects a ``MALLOC_ARENA_MAX`` the user already set.  Once per process: the
-    runner calls it at the start of every run.
+    Respects a ``MALLOC_ARENA_MAX`` the user already set.  Process-wide, so not
+    library code's decision: the ``sbrdf`` command calls it once at start-up
+    (:func:`sbrdf_core.cli.tune_process`); a program using the runner calls it itself.
     """
     if "MALLOC_ARENA_MAX" in os.environ:
         return False

@@ -63,6 +63,15 @@ class Param:
         Unit of the value (``mm``, ``s``, ``sr^-1``), shown in docs.
     nullable
         Whether ``null`` is accepted (meaning "not set").
+    schema
+        For a ``dict`` with fixed keys: the declaration of each key.  Unknown
+        keys and missing required ones are errors naming the path
+        (``camera.exposure_s``).  The value is checked, not rewritten: defaults
+        of a sub-schema are documentation and the plugin's own fallbacks, so a
+        graph's resolved parameters (and its cache tokens) stay as written.
+    values
+        For a ``dict`` mapping free names to dicts (``motors: {arm: {...}}``):
+        the schema every value follows.
     nonfinite
         Whether NaN and ±infinity are accepted (in the value and, for ``list``,
         ``dict`` and ``any``, anywhere inside it).  Off by default: YAML's
@@ -83,10 +92,14 @@ class Param:
     nullable: bool = False
     extra: Mapping[str, Any] = field(default_factory=dict)
     nonfinite: bool = False
+    schema: tuple[Param, ...] | None = None
+    values: tuple[Param, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.type not in _TYPE_NAMES:
             raise ValueError(f"Param {self.name!r}: unknown type {self.type!r}; use one of {sorted(_TYPE_NAMES)}")
+        if (self.schema is not None or self.values is not None) and self.type != "dict":
+            raise ValueError(f"Param {self.name!r}: schema/values need type 'dict', not {self.type!r}")
 
     @property
     def required(self) -> bool:
@@ -124,6 +137,14 @@ class Param:
                 where = f" (at {self.name}{bad[0]})" if bad[0] else ""
                 raise ParameterError(f"parameter {self.name!r} is not a finite number{where}: {bad[1]!r}; "
                                      "NaN and infinity are not accepted here")
+        if self.schema is not None:
+            _check_keys(self.schema, value, self.name)
+        if self.values is not None:
+            for key, sub in value.items():
+                if not isinstance(sub, Mapping):
+                    raise ParameterError(f"parameter {self.name}.{key} should be a mapping of "
+                                         f"{', '.join(p.name for p in self.values)}; got {sub!r}")
+                _check_keys(self.values, sub, f"{self.name}.{key}")
         if self.choices is not None and value not in self.choices:
             raise ParameterError(f"parameter {self.name!r} is {value!r}; expected one of {list(self.choices)}")
         if self.bounds is not None:
@@ -133,6 +154,25 @@ class Param:
                 if (lo is not None and v < lo) or (hi is not None and v > hi):
                     raise ParameterError(f"parameter {self.name!r} = {v!r} is outside [{lo}, {hi}]")
         return value
+
+
+def _check_keys(schema: Sequence[Param], value: Mapping[str, Any], path: str) -> None:
+    """Check a nested mapping against its declared keys, naming the full path of what is wrong."""
+    by_name = {p.name: p for p in schema}
+    for key in value:
+        if key not in by_name:
+            raise ParameterError(f"unknown key {path}.{key}; accepted: {', '.join(by_name)}")
+    for p in schema:
+        if p.name in value:
+            replace_name(p, f"{path}.{p.name}").check(value[p.name])
+        elif p.required:
+            raise ParameterError(f"parameter {path}.{p.name} is required: {p.describe()}")
+
+
+def replace_name(p: Param, name: str) -> Param:
+    from dataclasses import replace
+
+    return replace(p, name=name)
 
 
 def _nonfinite(value: Any, where: str = "", depth: int = 0) -> tuple[str, float] | None:
@@ -180,6 +220,18 @@ def _coerce(type_: str, value: Any, name: str) -> Any:
     if type_ == "dict":
         return dict(value)
     return value
+
+
+def plugin_reference(category: str, what: str) -> tuple[Param, Param]:
+    """The sub-schema of a parameter naming another plugin and its parameters: ``{device: ..., params: {...}}``.
+
+    ``device`` is checked against the installed plugins of ``category`` at validation.
+    """
+    return (
+        Param("device", "str", REQUIRED, f"{what} plugin (any installed {category} plugin with its protocol)",
+              extra={"plugin_category": category}),
+        Param("params", "dict", {}, f"the {what}'s parameters", nullable=True),
+    )
 
 
 def resolve(declared: Sequence[Param], given: Mapping[str, Any] | None, owner: str) -> tuple[dict, list[tuple[str | None, str]]]:

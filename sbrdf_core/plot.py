@@ -167,7 +167,7 @@ def _selections(wis, wos, ok, cands, phis, tol_deg):
     return near, near & (off <= tol)
 
 
-def choose_views(view: "Viewer", u: int, v: int, wi: tuple[float, float] | None = None,
+def choose_views(view: Viewer, u: int, v: int, wi: tuple[float, float] | None = None,
                  wo: tuple[float, float] | None = None, tol_deg: float | None = None) -> ViewChoice:
     """Pick the views' directions from the data where the user gave none.
 
@@ -239,7 +239,7 @@ def _fmt(d: tuple[float, float]) -> str:
     return f"({d[0]:.0f}°, {d[1]:.0f}°)" if any(x != round(x) for x in d) else f"({d[0]:g}°, {d[1]:g}°)"
 
 
-def spatial_figure(view: "Viewer", c: ViewChoice):
+def spatial_figure(view: Viewer, c: ViewChoice):
     """(a): the f_r image at (ω_i, ω_r) beside the bi-angular distance of each texel's nearest pose."""
     import matplotlib.pyplot as plt
 
@@ -267,7 +267,7 @@ def spatial_figure(view: "Viewer", c: ViewChoice):
     return fig
 
 
-def hemisphere_figure(view: "Viewer", c: ViewChoice):
+def hemisphere_figure(view: Viewer, c: ViewChoice):
     """(b): the texel's samples with ω_i within the tolerance, at their ω_r, coloured by luminance (scaled to them)."""
     import matplotlib.pyplot as plt
 
@@ -313,7 +313,7 @@ def hemisphere_figure(view: "Viewer", c: ViewChoice):
     return fig
 
 
-def incidence_figure(view: "Viewer", c: ViewChoice):
+def incidence_figure(view: Viewer, c: ViewChoice):
     """(c): the samples near the incidence plane by signed θ_r; the radial axis spans the data shown."""
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator

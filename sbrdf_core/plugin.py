@@ -44,6 +44,10 @@ class PluginSpec:
         ``"package.module:Attribute"`` of the implementation class, imported on first use.
     params
         Declared parameters; the implementation is constructed as ``impl(**values)``.
+        Leave it out (``None``) to use the implementation's own declaration,
+        the class attribute ``params`` beside its ``__init__`` (the registry
+        reads it when the spec is first used and checks that ``__init__``'s
+        keyword arguments and defaults agree with it).
     summary
         One line for listings.
     doc
@@ -52,7 +56,7 @@ class PluginSpec:
 
     name: str
     impl: str
-    params: tuple[Param, ...] = ()
+    params: tuple[Param, ...] | None = None
     summary: str = ""
     doc: str = ""
     # Filled in by the registry, not by plugin authors:
@@ -66,6 +70,6 @@ class PluginSpec:
             raise ValueError(f"plugin name {self.name!r} must be lowercase-hyphenated, e.g. 'lafortune-lm'")
         if ":" not in self.impl:
             raise ValueError(f"plugin {self.name!r}: impl {self.impl!r} must look like 'package.module:Class'")
-        names = [p.name for p in self.params]
+        names = [p.name for p in self.params or ()]
         if len(names) != len(set(names)):
             raise ValueError(f"plugin {self.name!r} declares a parameter twice: {names}")

@@ -21,9 +21,10 @@ from typing import Any
 
 import pluggy
 
-from . import hookspecs
+from . import contracts, hookspecs
+from .artifacts import register_kind
 from .errors import PluginError
-from .params import resolve
+from .params import REQUIRED, Param, resolve
 from .plugin import CATEGORIES, PluginSpec
 
 ENTRY_POINT_GROUP = "sbrdf"
@@ -97,6 +98,7 @@ class Registry:
         self.pm.check_pending()
         self.node_kinds = self._collect_node_kinds()
         self.specs = self._collect_specs()
+        self.artifact_kinds = self._collect_artifact_kinds()
 
     # -- loading ------------------------------------------------------------
 
@@ -118,6 +120,18 @@ class Registry:
                     raise PluginError(f"node kind {kind.name!r} is defined by two plugins ({impl.plugin_name} and another)")
                 kinds[kind.name] = kind
         return kinds
+
+    def _collect_artifact_kinds(self) -> dict[str, str]:
+        """Record plugins' artifact kinds (``sbrdf_artifact_kinds``); returns kind -> plugin."""
+        owners: dict[str, str] = {}
+        for impl in self.pm.hook.sbrdf_artifact_kinds.get_hookimpls():
+            for kind in impl.function() or ():
+                if kind.kind in owners:
+                    raise PluginError(f"artifact kind {kind.kind!r} is declared by plugins {owners[kind.kind]!r} "
+                                      f"and {impl.plugin_name!r}")
+                register_kind(kind, impl.plugin_name)
+                owners[kind.kind] = impl.plugin_name
+        return owners
 
     def _collect_specs(self) -> dict[str, dict[str, PluginSpec]]:
         specs: dict[str, dict[str, PluginSpec]] = {c: {} for c in CATEGORIES}
@@ -147,20 +161,39 @@ class Registry:
         if category not in self.specs:
             raise PluginError(f"unknown plugin category {category!r}; known: {sorted(self.specs)}")
         try:
-            return self.specs[category][name]
+            spec = self.specs[category][name]
         except KeyError:
             known = ", ".join(self.names(category)) or "none installed"
             raise PluginError(f"unknown {category} plugin {name!r}; installed: {known}") from None
+        if spec.params is None:  # declared on the implementation class: import it once, keep the result
+            spec = replace(spec, params=declared_params(self.load(spec), spec))
+            self.specs[category][name] = spec
+        return spec
 
     def load(self, spec: PluginSpec) -> Any:
-        """Import the implementation of ``spec`` (once)."""
+        """Import the implementation of ``spec`` (once) and check it against its protocol.
+
+        A missing optional dependency becomes a message naming the extra to
+        install; an implementation lacking a member its category's protocol
+        (:mod:`sbrdf_core.contracts`) requires is refused, naming the members.
+        """
         key = (spec.category, spec.name)
         with self._lock:
             if key not in self._impls:
                 try:
-                    self._impls[key] = import_path(spec.impl)
+                    impl = import_path(spec.impl)
+                except ModuleNotFoundError as e:
+                    hint = _extra_hint(e.name)
+                    raise PluginError(f"{spec.category} plugin {spec.name!r} ({spec.plugin}): cannot import "
+                                      f"{spec.impl}: {e}{hint}") from e
                 except Exception as e:
                     raise PluginError(f"{spec.category} plugin {spec.name!r} ({spec.plugin}): cannot import {spec.impl}: {e}") from e
+                lacking = contracts.missing(spec.category, impl)
+                if lacking:
+                    raise PluginError(
+                        f"{spec.category} plugin {spec.name!r} ({spec.plugin}): {spec.impl} does not implement "
+                        f"{_protocol_names(spec.category)}: missing {', '.join(lacking)} (see sbrdf_core.contracts)")
+                self._impls[key] = impl
             return self._impls[key]
 
     def create(self, category: str, name: str, params: dict | None = None) -> Any:
@@ -170,6 +203,66 @@ class Registry:
         if problems:
             raise PluginError("; ".join(msg for _, msg in problems))
         return self.load(spec)(**values)
+
+
+def _protocol_names(category: str) -> str:
+    p = contracts.PROTOCOLS[category]
+    return " or ".join(x.__name__ for x in (p if isinstance(p, tuple) else (p,)))
+
+
+def _extra_hint(module: str | None) -> str:
+    from .extras import EXTRAS
+
+    extra = EXTRAS.get((module or "").split(".")[0])
+    return f"; install it with: pip install 'sbrdf[{extra[0]}]'" if extra else ""
+
+
+def declared_params(impl: Any, spec: PluginSpec | None = None) -> tuple[Param, ...]:
+    """The parameters an implementation class declares beside its ``__init__`` (``params``)."""
+    params = getattr(impl, "params", None)
+    where = f"{spec.category} plugin {spec.name!r} ({spec.impl})" if spec else repr(impl)
+    if params is None:
+        return ()
+    if callable(params) or not all(isinstance(p, Param) for p in params):
+        raise PluginError(f"{where}: 'params' must be a tuple of sbrdf_core.params.Param")
+    return tuple(params)
+
+
+def signature_problems(impl: Any, params: tuple[Param, ...]) -> list[str]:
+    """Where ``impl(**values)``'s signature disagrees with the declaration (names, defaults)."""
+    import inspect
+
+    try:
+        sig = inspect.signature(impl)
+    except (TypeError, ValueError):
+        return []
+    accepted = {n: p for n, p in sig.parameters.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    var_kw = any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values())
+    problems = []
+    for p in params:
+        arg = accepted.get(p.name)
+        if arg is None:
+            if not var_kw:
+                problems.append(f"declared parameter {p.name!r} is not an argument of {impl.__name__}()")
+            continue
+        has_default = arg.default is not inspect.Parameter.empty
+        if p.default is REQUIRED and has_default:
+            problems.append(f"{p.name!r} is declared required but defaults to {arg.default!r} in the signature")
+        elif p.default is not REQUIRED and not has_default:
+            problems.append(f"{p.name!r} is declared with default {p.default!r} but the signature requires it")
+        elif has_default and p.default is not REQUIRED and not _same(arg.default, p.default):
+            problems.append(f"{p.name!r}: declared default {p.default!r} != signature default {arg.default!r}")
+    declared = {p.name for p in params}
+    for name, arg in accepted.items():
+        if name not in declared and arg.default is inspect.Parameter.empty:
+            problems.append(f"argument {name!r} of {impl.__name__}() is required but not declared")
+    return problems
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return list(a) == list(b)
+    return a == b
 
 
 def _version(dist: str) -> str:

@@ -10,8 +10,12 @@ For each node, in dependency order:
    skip it (cached); if it is damaged, drop what is damaged and recompute it
    (noted in the report); if it is partial with that token, resume; otherwise
    start fresh;
-4. ``build`` the lazy output, and write only the chunks without a done
-   marker, each in its own dask task (:func:`sbrdf_core.store.write_chunk`);
+4. compute what the node kind's ``prepare`` asks for (lazy collections: a
+   plugin's marker measurement, a codebook) on the run's scheduler with the
+   node's progress bar, then ``build`` the lazy output with those results in
+   ``ctx.prepared`` (``build`` itself never computes), and write only the
+   chunks without a done marker, each in its own dask task
+   (:func:`sbrdf_core.store.write_chunk`);
 5. finalize and mark the artifact complete.
 
 Execution is on dask's threaded scheduler by default, or on a
@@ -24,6 +28,10 @@ a second run on the same store is refused at once, naming the holder, or
 waits (``wait``).  A chunk of an input that fails its checksum stops the node
 with a :class:`~sbrdf_core.store.ChunkError` naming artifact, array and chunk;
 the chunk's done marker is dropped first, so a re-run recomputes it.
+
+Process-wide tuning (glibc's malloc arenas) is not the runner's business: the
+``sbrdf`` command does it once at start-up (:func:`sbrdf_core.cli.tune_process`).
+What a run does is logged on ``sbrdf_core.runner`` (``sbrdf -v``).
 """
 
 from __future__ import annotations
@@ -36,25 +44,30 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
-from typing import Any
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from . import __version__
+from .contracts import optional
 from .errors import RunError, SbrdfError
+from .extras import require
 from .graph import Graph, Node
-from .nodes.base import BuildContext, Output
-from .registry import Registry, default_registry
 from .integrity import StoreLock, check_artifact, drop_chunks, repair
+from .nodes.base import BuildContext, Output, Port
+from .registry import Registry, default_registry
 from .store import ArrayLayout, ArtifactWriter, ChunkError, chunk_key, inside_store, open_artifact, write_chunk
 from .streaming import chunk_groups
+
+if TYPE_CHECKING:
+    from .plugin import PluginSpec
 
 #: Chunk groups of a streamed node (:attr:`Output.stream`) in flight per worker
 #: thread on a cluster: one running and one queued, so no thread waits for the runner.
 STREAM_GROUPS_PER_THREAD = 2
 
-log = logging.getLogger("sbrdf.runner")
+logger = logging.getLogger(__name__)
 
 #: progress(node, done, total) is called after every chunk written.
 ProgressFn = Callable[[str, int, int], None]
@@ -187,11 +200,6 @@ class Runner:
 
     def run(self, graph: Graph, only: Iterable[str] | None = None) -> RunReport:
         """Execute ``graph`` (or the nodes in ``only`` and what they need)."""
-        from .memory import limit_arenas
-
-        # Before any dask thread starts (plugins compute while building, e.g. aruco's marker
-        # measurement): each thread would keep its own heap of freed temporaries.
-        limit_arenas()
         report = RunReport(graph.name)
         wanted = self._closure(graph, only)
         try:
@@ -220,18 +228,20 @@ class Runner:
     def _run_node_inner(self, graph: Graph, node: Node) -> NodeReport:
         t0 = time.perf_counter()
         url = inside_store(graph.store, graph.url(node.name))
-        inputs = {port: open_artifact(inside_store(graph.store, graph.url(src)), kind=node.kind.port(port).kinds)
+        inputs = {port: open_artifact(inside_store(graph.store, graph.url(src)), kind=cast("Port", node.kind.port(port)).kinds)
                   for port, src in node.inputs.items()}
-        spec = plugin = None
+        spec: PluginSpec | None = None
+        plugin = None
         plugin_params = node.params
         if node.kind.plugin_category is not None:
-            spec = self.registry.get(node.kind.plugin_category, node.plugin)
+            spec = self.registry.get(node.kind.plugin_category, cast(str, node.plugin))
             own = {p.name for p in node.kind.params}
             plugin_params = {k: v for k, v in node.params.items() if k not in own}
             try:
                 plugin = self.registry.load(spec)(**plugin_params)
-                if hasattr(plugin, "bind"):  # plugins that look up other plugins (a model, a device)
-                    plugin.bind(self.registry)
+                bind = optional(plugin, "bind")
+                if bind is not None:  # plugins that look up other plugins (a model, a device)
+                    bind(self.registry)
             except SbrdfError:
                 raise
             except Exception as e:
@@ -246,13 +256,16 @@ class Runner:
             damage = check_artifact(url)
             if not damage and state == "complete":
                 rep.wall_s = time.perf_counter() - t0
+                logger.info("node %r: cached, reusing %s (token %s)", node.name, url, token)
                 return rep
             note = f"damaged: {'; '.join(damage.problems)}; recomputing {damage.plan()}"
-            log.warning("node %r: %s", node.name, note)
+            logger.warning("node %r: %s", node.name, note)
             rep.notes.append(note)
             if damage:
                 repair(damage, graph.store, node.name)
         try:
+            ctx.prepared = self._prepare(node, ctx)
+            logger.info("node %r: building %s/%s", node.name, node.kind.name, node.plugin or "-")
             out = self._build(node, ctx)
         except SbrdfError:
             raise
@@ -266,6 +279,8 @@ class Runner:
         rep.status = "resumed" if n_done else "computed"
         rep.chunks_total = sum(lay.nchunks for lay in layouts.values())
         rep.chunks_resumed = n_done
+        logger.info("node %r: %s %d of %d chunks -> %s", node.name, "resuming" if n_done else "writing",
+                    len(writes.pending), rep.chunks_total, url)
         self._execute(node.name, token, writes, rep.chunks_total, n_done, sequential=out.sequential,
                       stream=out.stream)
         rep.chunks_written = len(writes.pending)
@@ -274,18 +289,106 @@ class Runner:
             extra.update(out.finalize(open_artifact(url, require_complete=False)))
         rep.wall_s = time.perf_counter() - t0
         extra["run"] = {"wall_s": rep.wall_s, "chunks_written": rep.chunks_written, "chunks_resumed": n_done,
-                        "finished": datetime.now(timezone.utc).isoformat()}
+                        "finished": datetime.now(UTC).isoformat()}
         writer.mark_complete(layouts, extra)
+        logger.info("node %r: %s in %.2f s (%d chunks written)", node.name, rep.status, rep.wall_s, rep.chunks_written)
         return rep
 
-    def _build(self, node: Node, ctx: BuildContext) -> Output:
+    def _rechunk_config(self) -> dict:
         import dask
 
         # dask picks p2p rechunking whenever a distributed client exists in the
         # process; p2p tasks only run on workers, so local runs must use tasks.
         method = dask.config.get("array.rechunk.method", None) if self._is_distributed() else "tasks"
-        with dask.config.set({"array.rechunk.method": method}):
+        return {"array.rechunk.method": method}
+
+    def _build(self, node: Node, ctx: BuildContext) -> Output:
+        import dask
+
+        with dask.config.set(self._rechunk_config()):
             return node.kind.build(ctx)
+
+    def _prepare(self, node: Node, ctx: BuildContext) -> dict[str, Any]:
+        """Compute what ``node.kind.prepare`` asks for, on this run's scheduler with the node's progress bar.
+
+        A value is a dask collection or a list/tuple of them (each one a unit
+        of progress per output key); the result keeps that shape.
+        """
+        import dask
+        from dask.base import is_dask_collection
+
+        with dask.config.set(self._rechunk_config()):
+            wanted = node.kind.prepare(ctx)
+        if not wanted:
+            return {}
+        flat: list[tuple[str, int | None, Any]] = []
+        for name, value in wanted.items():
+            if isinstance(value, (list, tuple)):
+                flat.extend((name, i, v) for i, v in enumerate(value))
+            else:
+                flat.append((name, None, value))
+        bad = [name for name, _, v in flat if not is_dask_collection(v)]
+        if bad:
+            raise RunError(f"node {node.name!r}: prepare must return dask collections; {sorted(set(bad))} are not")
+        colls = [v for _, _, v in flat]
+        t0 = time.perf_counter()
+        logger.info("node %r: preparing %s (%d collections)", node.name, ", ".join(wanted), len(colls))
+        results = self._compute(f"{node.name} prepare", colls)
+        logger.info("node %r: prepared in %.2f s", node.name, time.perf_counter() - t0)
+        prepared: dict[str, Any] = {}
+        for (name, i, _), result in zip(flat, results):
+            if i is None:
+                prepared[name] = result
+            else:
+                prepared.setdefault(name, []).append(result)
+        for name, value in wanted.items():
+            if isinstance(value, tuple):
+                prepared[name] = tuple(prepared[name])
+            elif isinstance(value, list) and not value:
+                prepared[name] = []
+        return prepared
+
+    def _compute(self, label: str, colls: list) -> list:
+        """``dask.compute(*colls)`` on this run's scheduler, with a progress bar counting output keys."""
+        import dask
+        from dask.callbacks import Callback
+
+        if not self._is_distributed():  # optimized first, so the keys counted are the keys computed
+            colls = list(dask.optimize(*colls))
+        keys = [set(_flatten(c.__dask_keys__())) for c in colls]
+        total = sum(map(len, keys))
+        bar = self._bar(label, total, 0, unit="key")
+        try:
+            if self._is_distributed():
+                client = self._connect()
+                from distributed import wait
+
+                futures = client.compute(colls)
+                pending = dict(zip(futures, map(len, keys)))
+                while pending:
+                    done = wait(list(pending), return_when="FIRST_COMPLETED").done
+                    for f in done:
+                        if f.status == "error":
+                            client.cancel(list(pending))
+                            f.result()  # raises the task's exception
+                        bar(pending.pop(f))
+                return [f.result() for f in futures]
+            every = set().union(*keys)
+            done = [0]
+
+            def posttask(key, result, dsk, state, worker_id):
+                if key in every:
+                    done[0] += 1
+                    bar(1)
+
+            with Callback(posttask=posttask):
+                results = dask.compute(*colls, scheduler=self.scheduler, num_workers=self.num_workers,
+                                       optimize_graph=False)
+            if done[0] < total:  # keys a scheduler renamed or ran without callbacks
+                bar(total - done[0])
+            return list(results)
+        finally:
+            bar(None)
 
     def _provenance(self, graph: Graph, node: Node, spec, inputs: dict, token: str) -> dict:
         return {
@@ -300,7 +403,7 @@ class Runner:
             "inputs": {port: {"url": a.url, "kind": a.kind, "token": a.token} for port, a in inputs.items()},
             "token": token,
             "sbrdf_version": __version__,
-            "created": datetime.now(timezone.utc).isoformat(),
+            "created": datetime.now(UTC).isoformat(),
             "host": socket.gethostname(),
             "user": _user(),
             "python": platform.python_version(),
@@ -368,10 +471,13 @@ class Runner:
         return not isinstance(s, str) or "://" in s
 
     def _connect(self):
-        from distributed import Client
-
         if self._client is None:
-            self._client = Client(self.scheduler) if isinstance(self.scheduler, str) else self.scheduler
+            if isinstance(self.scheduler, str):
+                distributed = require("distributed", feature=f"scheduler {self.scheduler!r} (a dask.distributed cluster)")
+                logger.info("connecting to the dask scheduler at %s", self.scheduler)
+                self._client = distributed.Client(self.scheduler)
+            else:
+                self._client = self.scheduler
         return self._client
 
     def _execute_distributed(self, node: str, units: Iterator, bar, window: int | None) -> None:
@@ -434,7 +540,7 @@ class Runner:
             else:
                 time.sleep(0.05)
 
-    def _bar(self, node: str, total: int, already: int):
+    def _bar(self, node: str, total: int, already: int, unit: str = "chunk"):
         if callable(self.progress):
             count = [already]
 
@@ -448,7 +554,7 @@ class Runner:
             return lambda n: None
         from tqdm import tqdm
 
-        t = tqdm(total=total, initial=already, desc=f"{node:<12}", unit="chunk", file=sys.stderr, leave=True)
+        t = tqdm(total=total, initial=already, desc=f"{node:<12}", unit=unit, file=sys.stderr, leave=True)
         return lambda n: t.close() if n is None else t.update(n)
 
     @staticmethod
@@ -485,6 +591,15 @@ def _regularise(out: Output) -> tuple[dict, dict[str, ArrayLayout]]:
         arrays[name] = arr
         layouts[name] = ArrayLayout(tuple(arr.shape), chunks, np.dtype(arr.dtype).name, fill, inner)
     return arrays, layouts
+
+
+def _flatten(keys) -> Iterator:
+    """The keys of a collection's nested ``__dask_keys__()`` lists."""
+    for k in keys:
+        if isinstance(k, list):
+            yield from _flatten(k)
+        else:
+            yield k
 
 
 def _jsonable(value: Any) -> Any:

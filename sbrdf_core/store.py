@@ -298,11 +298,10 @@ def open_artifact(url: str, kind: ArtifactKind | str | tuple | None = None, requ
     except Exception as e:
         raise ArtifactError(f"no artifact at {url}: {e}") from None
     art = Artifact(url, group)
-    if art.kind not in KINDS:  # plugins may declare kinds when they load (sbrdf_shading does)
-        from .registry import default_registry
-
-        default_registry()
-    if art.kind not in KINDS:
+    if art.kind not in KINDS:  # plugins' kinds are known once a Registry has loaded them
+        if isinstance(art.kind, str) and art.kind and art.attrs.get("version") is not None:
+            raise ArtifactError(f"{url} holds a {art.kind!r}, a kind no loaded plugin declares "
+                                f"(known: {', '.join(sorted(KINDS))}); is its plugin installed and enabled?")
         raise ArtifactError(f"{url} is not an sbrdf artifact (kind attribute is {art.kind!r})")
     if kind is not None:
         wanted = kind if isinstance(kind, tuple) else (kind,)

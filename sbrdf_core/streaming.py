@@ -16,6 +16,8 @@ and writes its chunks.  Two things follow:
 The data a graph carries as one key (``nodes.base.shared``: a Registration, a
 zarr array handle, every pose's light position) stays a separate key, which
 each worker fetches once.  Only the computed tasks are fused.
+
+The private dask API this needs is imported from :mod:`sbrdf_core._dask_compat` only.
 """
 
 from __future__ import annotations
@@ -38,8 +40,7 @@ class Subgraph:
 
 def run_group(sub: Subgraph, data_keys: Sequence, *data: Any) -> int:
     """Worker side: compute one chunk group's tasks in order; returns the chunks written."""
-    from dask._task_spec import DataNode
-    from dask.local import get_sync
+    from ._dask_compat import DataNode, get_sync
 
     get_sync({**sub.graph, **{k: DataNode(k, v) for k, v in zip(data_keys, data)}}, list(sub.keys))
     return len(sub.keys)
@@ -64,9 +65,9 @@ def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Ca
     graph is sent again with every submission.
     """
     from dask import delayed
-    from dask._task_spec import DataNode
-    from dask.base import collections_to_expr
     from dask.delayed import Delayed
+
+    from ._dask_compat import DataNode, merged_graph
 
     resolve = data or (lambda k, v: Delayed(k, {k: DataNode(k, v)}))
     by_group: dict[tuple, list] = {}
@@ -76,7 +77,7 @@ def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Ca
         chunks = by_group.pop(group)
         names = [name for name, _ in chunks]
         tasks = [writes.task(name, index) for name, index in chunks]
-        graph = dict(collections_to_expr(tasks, True).__dask_graph__())
+        graph = merged_graph(tasks)
         shared = {k: v for k, v in graph.items() if isinstance(v, DataNode)}
         inner = {k: v for k, v in graph.items() if k not in shared}
         key = f"write-{node}-{names[0]}-{'.'.join(map(str, group[1]))}-{token}"

@@ -19,8 +19,9 @@ def test_validate_run_info(write_graph, tmp_path):
     out = sbrdf("run", "-q", path)
     assert out.returncode == 0, out.stderr
     assert "fit" in out.stdout and "computed" in out.stdout
-    out = sbrdf("run", "-q", path)
+    out = sbrdf("-v", "run", "-q", path)
     assert out.stdout.count("cached") == 6
+    assert "INFO sbrdf_core.runner: node 'fit': cached, reusing" in out.stderr, out.stderr  # -v: the run's log
     out = sbrdf("info", tmp_path / "s")
     assert out.returncode == 0
     for text in ("CaptureSet v1  complete", "ParamMaps v1  complete", "plugin lm sbrdf", "params/rho_d", "input samples: SampledReflectance"):
@@ -46,3 +47,12 @@ def test_plugins_lists_parameters_and_disabling(tmp_path):
 def test_info_on_missing_store(tmp_path):
     out = sbrdf("info", tmp_path)
     assert out.returncode == 2 and "no sbrdf artifacts" in out.stderr
+
+
+def test_fit_table_describes_any_models_configuration():
+    """The fit table names no model's parameters: it shows a fit's model configuration as declared."""
+    from sbrdf_core.cli import describe_config
+
+    assert describe_config({"lobes": 2, "transmission_lobes": 1}) == " lobes=2 transmission_lobes=1"
+    assert describe_config({"anisotropic": True, "factors": "/some/store/path"}) == " anisotropic=true"
+    assert describe_config({}) == ""

@@ -113,9 +113,10 @@ def bench_root(tmp_path, monkeypatch):
         (root / "benchmarks" / f"{name}.py").write_text(f"ROGUE = {rogue}\n" + STUB.replace("NAME", name))
     (root / "docs" / "img" / "chart.png").write_bytes(b"old chart")
     (root / "docs" / "accuracy-vs-time.md").write_text(SUMMARY)
+    (root / "benchmarks" / "stages.toml").write_text(
+        '[[stage]]\nname = "stub"\nscript = "stub.py"\nwhat = "a stub"\n\n'
+        '[[stage]]\nname = "rogue"\nscript = "rogue.py"\nwhat = "writes charts anyway"\n')
     monkeypatch.setattr(bench, "repo_root", lambda: root)
-    monkeypatch.setattr(bench, "STAGES", {"stub": ("stub.py", "a stub"), "rogue": ("rogue.py", "writes charts anyway")})
-    monkeypatch.setattr(bench, "IMAGES", ())
     return root
 
 
@@ -214,3 +215,12 @@ def test_store_option_is_relative_to_the_current_directory(tmp_path):
 def test_info_on_a_missing_path_is_an_error_not_a_traceback(tmp_path):
     proc = sbrdf("info", str(tmp_path / "nothing"))
     assert proc.returncode != 0 and "no such store or artifact" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_bench_stages_are_declared_in_benchmarks():
+    """The core names no stage: benchmarks/stages.toml declares them, each with a script that exists."""
+    from sbrdf_core import bench
+
+    plan = bench.load_plan(ROOT)
+    assert plan.stages and all((ROOT / "benchmarks" / s.script).is_file() for s in plan.stages.values())
+    assert all((ROOT / "graphs" / g).is_file() for g, _, _ in plan.images)

@@ -61,7 +61,7 @@ def test_first_hour_edits_still_apply(registry, tmp_path):
     assert len(seds) == 2, seds
     for exprs, out in seds:
         text = demo
-        for sep, old, new in re.findall(r"'s(.)(.*?)\1(.*?)\1'", exprs):
+        for _sep, old, new in re.findall(r"'s(.)(.*?)\1(.*?)\1'", exprs):
             assert text.count(old) == 1, (out, old)
             text = text.replace(old, new)
         assert text != demo

@@ -9,8 +9,16 @@ import numpy as np
 import pytest
 
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.plot import (MIN_SAMPLES, Viewer, choose_views, direction, hemisphere_figure, incidence_figure,
-                             plot_views, spatial_figure)
+from sbrdf_core.plot import (
+    MIN_SAMPLES,
+    Viewer,
+    choose_views,
+    direction,
+    hemisphere_figure,
+    incidence_figure,
+    plot_views,
+    spatial_figure,
+)
 from sbrdf_core.runner import run_graph
 
 from .conftest import graph_yaml

@@ -5,60 +5,13 @@ Devices are not graph nodes: capture sources (a ``gonio`` rig, the
 with ``registry.create("device", name, params)``.  ``virtual-folder``
 (:mod:`sbrdf_cameras.capture`) is a Capture plugin: it photographs a camera
 device into an ``sbrdf-capture/1`` folder and reads it back as ``folder``
-does, so a graph can make its own simulated scan.  Implementation modules are
-imported only when a device or source is created.
+does, so a graph can make its own simulated scan.  Each implementation
+declares its parameters on its class (``params``, above ``__init__``);
+implementation modules are imported only when a device or source is created
+(or its parameters are asked for).
 """
 
-from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
-
-EFFECT_NAMES = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response",
-                "shadowing", "masking")
-
-VIRTUAL_CAMERA_PARAMS = (
-    Param("width", "int", 1024, "image width", bounds=(8, 16384), unit="px"),
-    Param("height", "int", 768, "image height", bounds=(8, 16384), unit="px"),
-    Param("focal_px", "float", 1400.0, "focal length in pixels (fx = fy)", bounds=(1.0, None), unit="px"),
-    Param("principal_point", "list", None, "[cx, cy]; default the image centre", length=2, item="float", nullable=True, unit="px"),
-    Param("dist", "list", [-0.08, 0.02, 0.0, 0.0, 0.0], "OpenCV distortion coefficients [k1, k2, p1, p2, k3]",
-          length=5, item="float"),
-    Param("sample_size_mm", "list", [100.0, 100.0], "sample area [x, y] inside the fiducial border", length=2, item="float",
-          bounds=(1e-3, None), unit="mm"),
-    Param("texels", "list", [256, 256], "texel grid [U, V] of the procedural material", length=2, item="int", bounds=(1, 16384)),
-    Param("model", "str", "lambert", "BRDF model of the procedural material", extra={"plugin_category": "brdf-model"}),
-    Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
-    Param("param_maps", "str", None, "path of a ParamMaps artifact to photograph instead (its model and maps)", nullable=True),
-    Param("carrier_margin_mm", "float", 20.0, "width of the printed border band around the sample", bounds=(1.0, None), unit="mm"),
-    Param("marker_size_mm", "float", 14.0, "ArUco marker side", bounds=(1.0, None), unit="mm"),
-    Param("markers_per_side", "int", 3, "markers per side of the border (4x this in all)", bounds=(1, 64)),
-    Param("dictionary", "str", "DICT_4X4_50", "cv2.aruco predefined dictionary of the markers"),
-    Param("intensity", "float", 250000.0, "point-light radiant intensity I (relative W/sr)", bounds=(0.0, None)),
-    Param("sensitivity", "float", 1.0, "signal per unit radiance and second; signal 1 saturates", bounds=(1e-12, None)),
-    Param("effects", "list", [], f"effects to simulate, any of {list(EFFECT_NAMES)}; none are computed unless listed",
-          item="str"),
-    Param("response_curve", "str", "srgb", "response effect: camera curve", choices=("gamma", "srgb", "cubic")),
-    Param("response_gamma", "float", 2.2, "response_curve gamma: g(z) = z^gamma", bounds=(0.1, 10.0)),
-    Param("response_coefficients", "list", [2.0, -0.05, -0.01], "response_curve cubic: log X = a1 y + a2 y² + a3 y³, y = log z",
-          length=3, item="float"),
-    Param("bit_depth", "int", 8, "response effect: bits per channel", choices=(8, 16)),
-    Param("record_response", "bool", True, "write the response table into capture.json (else readers recover it from brackets)"),
-    Param("full_well", "float", 20000.0, "noise effect: electrons at saturation (shot noise)", bounds=(1.0, None)),
-    Param("read_noise", "float", 0.001, "noise effect: read noise σ as a fraction of saturation", bounds=(0.0, None)),
-    Param("dark_current", "float", 0.002, "dark_current effect: mean dark signal per second (fraction of saturation)",
-          bounds=(0.0, None), unit="1/s"),
-    Param("vignetting_power", "float", 4.0, "vignetting effect: factor cos^p of the off-axis angle", bounds=(0.0, 16.0)),
-    Param("motor_rotation_deg", "float", 0.786, "motor_error effect: σ of the sample rotation (PTU-46-70 repeatability)",
-          bounds=(0.0, 45.0), unit="deg"),
-    Param("motor_light_mm", "float", 2.462, "motor_error effect: σ of the light position offset", bounds=(0.0, None), unit="mm"),
-    Param("blur_px", "float", 0.7, "blur effect: Gaussian lens-blur σ", bounds=(0.0, 50.0), unit="px"),
-    Param("seed", "int", 0, "seed of every random effect (per pose and exposure)"),
-    Param("row_chunk", "int", 128, "image rows rendered at once (bounds memory)", bounds=(1, 16384)),
-    Param("carrier_supersample", "int", 4, "rays per pixel side over the printed carrier (pixel-area integration of the "
-          "fiducials; 1 = point sampling)", bounds=(1, 16)),
-    Param("mesostructure", "dict", None, "photograph a height field with per-texel albedo instead of a flat sample: "
-          "{height_mm, albedo, facet} (sbrdf_cameras.mesostructure); effects shadowing/masking act on it",
-          nullable=True),
-)
 
 
 @hookimpl
@@ -67,31 +20,9 @@ def sbrdf_devices():
         PluginSpec(
             "virtual-camera",
             "sbrdf_cameras.virtual:VirtualCamera",
-            VIRTUAL_CAMERA_PARAMS,
             summary="Simulated camera photographing a known SBRDF on an ArUco carrier under a point light",
         ),
     ]
-
-
-VIRTUAL_FOLDER_PARAMS = (
-    Param("path", "str", doc="capture folder to write (resumed if a run was interrupted, re-rendered if this source "
-          "wrote it with other parameters), relative to the graph file", extra={"path": True}),
-    Param("camera", "dict", {"device": "virtual-camera", "params": {}},
-          "camera device {device, params}: the virtual-camera's parameters (size, focal_px, model, texels, effects, ...)"),
-    Param("poses", "int", 60, "number of poses: camera and light on two Fibonacci spirals over the hemisphere "
-          "(sbrdf_cameras.virtual.orbit_poses)", bounds=(1, 100000)),
-    Param("orbit", "dict", {}, "orbit_poses settings: camera_distance_mm (350), light_distance_mm (450), "
-          "max_camera_theta_deg (50), max_light_theta_deg (65)"),
-    Param("exposures", "list", [1.0], "exposure times in s: one bracket of 1-3 times for every pose, e.g. [0.25, 1.0], "
-          "or one bracket per pose [[...], ...]"),
-    Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera's light_info()",
-          nullable=True),
-    Param("read", "dict", {}, "parameters of the folder plugin that reads the folder back (response, saturation, "
-          "underexposure, colour_matrix, ...)"),
-    Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
-          choices=("png", "tif")),
-    Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
-)
 
 
 @hookimpl
@@ -100,7 +31,6 @@ def sbrdf_captures():
         PluginSpec(
             "virtual-folder",
             "sbrdf_cameras.capture:VirtualFolderCapture",
-            VIRTUAL_FOLDER_PARAMS,
             summary="Photograph a camera device (the virtual camera) into an sbrdf-capture/1 folder, then read it as "
                     "folder does: a graph that makes its own simulated scan",
         ),

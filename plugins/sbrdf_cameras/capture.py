@@ -45,8 +45,10 @@ from typing import Any
 
 import numpy as np
 
+from sbrdf_core.contracts import optional
 from sbrdf_core.errors import ParameterError
 from sbrdf_core.nodes.capture import CaptureDescription
+from sbrdf_core.params import REQUIRED, Param, plugin_reference
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +56,15 @@ SOURCE = "virtual-folder"
 ORBIT_KEYS = ("camera_distance_mm", "light_distance_mm", "max_camera_theta_deg", "max_light_theta_deg")
 #: ``folder`` parameters this source sets itself (everything else may be given under ``read``).
 READ_RESERVED = {"path", "allow_incomplete"}
+#: ``camera``: a device and its parameters.
+CAMERA_SCHEMA = plugin_reference("device", "camera")
+#: ``orbit``: :func:`~sbrdf_cameras.virtual.orbit_poses`'s settings.
+ORBIT_SCHEMA = (
+    Param("camera_distance_mm", "float", 350.0, "camera distance from the sample centre", unit="mm"),
+    Param("light_distance_mm", "float", 450.0, "light distance from the sample centre", unit="mm"),
+    Param("max_camera_theta_deg", "float", 50.0, "largest camera elevation from the normal", unit="deg"),
+    Param("max_light_theta_deg", "float", 65.0, "largest light elevation from the normal", unit="deg"),
+)
 
 
 def _jsonable(value: Any) -> Any:
@@ -63,7 +74,30 @@ def _jsonable(value: Any) -> Any:
 class VirtualFolderCapture:
     """Capture source: render a camera device's photographs into a capture folder, read it back (module docstring)."""
 
-    def __init__(self, path, camera, poses, orbit, exposures, light, read, image_format, durable):
+    params = (
+        Param("path", "str", REQUIRED, "capture folder to write (resumed if a run was interrupted, re-rendered if this source "
+              "wrote it with other parameters), relative to the graph file", extra={"path": True}),
+        Param("camera", "dict", {"device": "virtual-camera", "params": {}},
+              "camera device {device, params}: the virtual-camera's parameters (size, focal_px, model, texels, effects, ...)",
+              schema=CAMERA_SCHEMA),
+        Param("poses", "int", 60, "number of poses: camera and light on two Fibonacci spirals over the hemisphere "
+              "(sbrdf_cameras.virtual.orbit_poses)", bounds=(1, 100000)),
+        Param("orbit", "dict", {}, "orbit_poses settings: camera_distance_mm (350), light_distance_mm (450), "
+              "max_camera_theta_deg (50), max_light_theta_deg (65)", schema=ORBIT_SCHEMA),
+        Param("exposures", "list", [1.0], "exposure times in s: one bracket of 1-3 times for every pose, e.g. [0.25, 1.0], "
+              "or one bracket per pose [[...], ...]"),
+        Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera's light_info()",
+              nullable=True),
+        Param("read", "dict", {}, "parameters of the folder plugin that reads the folder back (response, saturation, "
+              "underexposure, colour_matrix, ...)"),
+        Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
+              choices=("png", "tif")),
+        Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
+    )
+
+    def __init__(self, *, path: str, camera: dict = {"device": "virtual-camera", "params": {}},  # noqa: B006
+                 poses: int = 60, orbit: dict = {}, exposures: list = [1.0], light: dict | None = None,  # noqa: B006
+                 read: dict = {}, image_format: str = "png", durable: bool = True):  # noqa: B006
         self.path = Path(str(path)).expanduser()
         if not isinstance(camera, dict) or "device" not in camera or set(camera) - {"device", "params"}:
             raise ParameterError(f"{SOURCE}: camera: expected {{device: <device plugin>, params: {{...}}}}, got {camera!r}")
@@ -113,7 +147,7 @@ class VirtualFolderCapture:
         """Create the camera device and the folder reader (cheap: nothing is rendered or read here)."""
         self.registry = registry
         self.camera = registry.create("device", self.camera_config["device"], self.camera_config["params"])
-        if hasattr(self.camera, "bind"):
+        if optional(self.camera, "bind", "device") is not None:
             self.camera.bind(registry)
         self.reader = registry.create("capture", "folder", {**self.read_config, "path": str(self.path)})
 
@@ -170,7 +204,7 @@ class VirtualFolderCapture:
             from sbrdf_core.registry import default_registry
 
             self.bind(default_registry())
-        from sbrdf_capture.capture_folder import MANIFEST, CaptureFolderError, load_manifest, parse_manifest
+        from sbrdf_lib.capture_folder import MANIFEST, CaptureFolderError, load_manifest, parse_manifest
 
         from .virtual import capture_to_folder
 
@@ -199,7 +233,7 @@ class VirtualFolderCapture:
                 overwrite = True
         light, R, t, times = self.planned()
         if overwrite:
-            from sbrdf_capture.capture_folder import CaptureFolderWriter, read_journal, resolve_image
+            from sbrdf_lib.capture_folder import CaptureFolderWriter, read_journal, resolve_image
 
             # Drop the images the old capture recorded (this source wrote them), so none outlives its manifest.
             for pose in old.poses + read_journal(self.path):

@@ -39,7 +39,7 @@ effect          what it does
                 its ray with the height field instead of the plane z = 0
 ==============  ==================================================================
 
-**Mesostructure** (``mesostructure`` parameter, :mod:`sbrdf_cameras.mesostructure`):
+**Mesostructure** (``mesostructure`` parameter, :mod:`sbrdf_lib.mesostructure`):
 the sample becomes a height field (mm) with per-texel albedo, each facet shaded in
 its own frame; without ``shadowing``/``masking`` it costs one normal lookup per pixel.
 
@@ -51,12 +51,16 @@ Random effects are seeded per pose (motor error) and per pose and exposure
 from __future__ import annotations
 
 import hashlib
+import logging
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from sbrdf_core.errors import ParameterError
+from sbrdf_core.params import Param
+
+logger = logging.getLogger(__name__)
 
 EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response",
            "shadowing", "masking")
@@ -64,6 +68,15 @@ EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "nois
 MESOSTRUCTURE_EFFECTS = ("shadowing", "masking")
 WHITE_ALBEDO = 0.80
 BLACK_ALBEDO = 0.04
+
+#: ``mesostructure``'s keys (:class:`sbrdf_lib.mesostructure.Mesostructure`).
+MESOSTRUCTURE_SCHEMA = (
+    Param("height_mm", "any", 0.0, "height field: a number, a .npy path (V, U) or {procedural: bumps|ridges|noise, ...}",
+          unit="mm"),
+    Param("albedo", "any", 0.8, "per-texel albedo: a number, [r, g, b], a .npy path (V, U[, 3]) or {procedural: ...}"),
+    Param("facet", "str", "lambert", "each facet reflects Lambertian, or with the camera's BRDF model",
+          choices=("lambert", "model")),
+)
 
 
 def _rotation(axis_angle: np.ndarray) -> np.ndarray:
@@ -81,11 +94,63 @@ class VirtualCamera:
     simulator adds :meth:`true_pose`, :meth:`sensor_radiance`, :meth:`dark_frame`.
     """
 
-    def __init__(self, width, height, focal_px, principal_point, dist, sample_size_mm, texels, model, model_params,
-                 param_maps, carrier_margin_mm, marker_size_mm, markers_per_side, dictionary, intensity, sensitivity,
-                 effects, response_curve, response_gamma, response_coefficients, bit_depth, record_response,
-                 full_well, read_noise, dark_current, vignetting_power, motor_rotation_deg, motor_light_mm, blur_px,
-                 seed, row_chunk, carrier_supersample=4, mesostructure=None):
+    params = (
+        Param("width", "int", 1024, "image width", bounds=(8, 16384), unit="px"),
+        Param("height", "int", 768, "image height", bounds=(8, 16384), unit="px"),
+        Param("focal_px", "float", 1400.0, "focal length in pixels (fx = fy)", bounds=(1.0, None), unit="px"),
+        Param("principal_point", "list", None, "[cx, cy]; default the image centre", length=2, item="float", nullable=True, unit="px"),
+        Param("dist", "list", [-0.08, 0.02, 0.0, 0.0, 0.0], "OpenCV distortion coefficients [k1, k2, p1, p2, k3]",
+              length=5, item="float"),
+        Param("sample_size_mm", "list", [100.0, 100.0], "sample area [x, y] inside the fiducial border", length=2, item="float",
+              bounds=(1e-3, None), unit="mm"),
+        Param("texels", "list", [256, 256], "texel grid [U, V] of the procedural material", length=2, item="int", bounds=(1, 16384)),
+        Param("model", "str", "lambert", "BRDF model of the procedural material", extra={"plugin_category": "brdf-model"}),
+        Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
+        Param("param_maps", "str", None, "path of a ParamMaps artifact to photograph instead (its model and maps)", nullable=True),
+        Param("carrier_margin_mm", "float", 20.0, "width of the printed border band around the sample", bounds=(1.0, None), unit="mm"),
+        Param("marker_size_mm", "float", 14.0, "ArUco marker side", bounds=(1.0, None), unit="mm"),
+        Param("markers_per_side", "int", 3, "markers per side of the border (4x this in all)", bounds=(1, 64)),
+        Param("dictionary", "str", "DICT_4X4_50", "cv2.aruco predefined dictionary of the markers"),
+        Param("intensity", "float", 250000.0, "point-light radiant intensity I (relative W/sr)", bounds=(0.0, None)),
+        Param("sensitivity", "float", 1.0, "signal per unit radiance and second; signal 1 saturates", bounds=(1e-12, None)),
+        Param("effects", "list", [], f"effects to simulate, any of {list(EFFECTS)}; none are computed unless listed",
+              item="str"),
+        Param("response_curve", "str", "srgb", "response effect: camera curve", choices=("gamma", "srgb", "cubic")),
+        Param("response_gamma", "float", 2.2, "response_curve gamma: g(z) = z^gamma", bounds=(0.1, 10.0)),
+        Param("response_coefficients", "list", [2.0, -0.05, -0.01], "response_curve cubic: log X = a1 y + a2 y² + a3 y³, y = log z",
+              length=3, item="float"),
+        Param("bit_depth", "int", 8, "response effect: bits per channel", choices=(8, 16)),
+        Param("record_response", "bool", True, "write the response table into capture.json (else readers recover it from brackets)"),
+        Param("full_well", "float", 20000.0, "noise effect: electrons at saturation (shot noise)", bounds=(1.0, None)),
+        Param("read_noise", "float", 0.001, "noise effect: read noise σ as a fraction of saturation", bounds=(0.0, None)),
+        Param("dark_current", "float", 0.002, "dark_current effect: mean dark signal per second (fraction of saturation)",
+              bounds=(0.0, None), unit="1/s"),
+        Param("vignetting_power", "float", 4.0, "vignetting effect: factor cos^p of the off-axis angle", bounds=(0.0, 16.0)),
+        Param("motor_rotation_deg", "float", 0.786, "motor_error effect: σ of the sample rotation (PTU-46-70 repeatability)",
+              bounds=(0.0, 45.0), unit="deg"),
+        Param("motor_light_mm", "float", 2.462, "motor_error effect: σ of the light position offset", bounds=(0.0, None), unit="mm"),
+        Param("blur_px", "float", 0.7, "blur effect: Gaussian lens-blur σ", bounds=(0.0, 50.0), unit="px"),
+        Param("seed", "int", 0, "seed of every random effect (per pose and exposure)"),
+        Param("row_chunk", "int", 128, "image rows rendered at once (bounds memory)", bounds=(1, 16384)),
+        Param("carrier_supersample", "int", 4, "rays per pixel side over the printed carrier (pixel-area integration of the "
+              "fiducials; 1 = point sampling)", bounds=(1, 16)),
+        Param("mesostructure", "dict", None, "photograph a height field with per-texel albedo instead of a flat sample: "
+              "{height_mm, albedo, facet} (sbrdf_lib.mesostructure); effects shadowing/masking act on it",
+              nullable=True, schema=MESOSTRUCTURE_SCHEMA),
+    )
+
+    def __init__(self, *, width: int = 1024, height: int = 768, focal_px: float = 1400.0,
+                 principal_point: Sequence[float] | None = None, dist: Sequence[float] = (-0.08, 0.02, 0.0, 0.0, 0.0),
+                 sample_size_mm: Sequence[float] = (100.0, 100.0), texels: Sequence[int] = (256, 256),
+                 model: str = "lambert", model_params: Mapping = {}, param_maps: str | None = None,  # noqa: B006
+                 carrier_margin_mm: float = 20.0, marker_size_mm: float = 14.0, markers_per_side: int = 3,
+                 dictionary: str = "DICT_4X4_50", intensity: float = 250000.0, sensitivity: float = 1.0,
+                 effects: Sequence[str] = (), response_curve: str = "srgb", response_gamma: float = 2.2,
+                 response_coefficients: Sequence[float] = (2.0, -0.05, -0.01), bit_depth: int = 8,
+                 record_response: bool = True, full_well: float = 20000.0, read_noise: float = 0.001,
+                 dark_current: float = 0.002, vignetting_power: float = 4.0, motor_rotation_deg: float = 0.786,
+                 motor_light_mm: float = 2.462, blur_px: float = 0.7, seed: int = 0, row_chunk: int = 128,
+                 carrier_supersample: int = 4, mesostructure: Mapping | None = None):
         unknown = [e for e in effects if e not in EFFECTS]
         if unknown:
             raise ParameterError(f"virtual-camera: unknown effect(s) {unknown}; known effects: {list(EFFECTS)}")
@@ -112,7 +177,7 @@ class VirtualCamera:
         self.carrier_supersample = int(carrier_supersample)
         self.mesostructure = None
         if mesostructure is not None:
-            from .mesostructure import Mesostructure
+            from sbrdf_lib.mesostructure import Mesostructure
 
             self.mesostructure = Mesostructure.from_config(mesostructure, self.texels, self.size_mm)
         if markers_per_side * 4 > self._dictionary_size():
@@ -154,7 +219,7 @@ class VirtualCamera:
         """The material's parameter maps, ``name -> (V, U, C)``."""
         self._ensure_model()
         if self._maps is None:
-            from sbrdf_capture.synthetic import pattern
+            from sbrdf_lib.patterns import pattern
 
             n_u, n_v = self.texels
             self._maps = {}
@@ -363,7 +428,7 @@ class VirtualCamera:
 
     def curve(self):
         if self._curve is None:
-            from sbrdf_capture.response import ResponseCurve, response_table
+            from sbrdf_lib.response import ResponseCurve, response_table
 
             self._curve = ResponseCurve(response_table(self.response_curve, self.bit_depth, self.response_gamma,
                                                        self.response_coefficients))
@@ -548,6 +613,7 @@ class VirtualCamera:
             raise ParameterError(f"virtual-camera: exposure time must be positive, got {exposure_s!r}")
         if pose_id is not None and pose_id < 0:
             raise ParameterError(f"virtual-camera: pose_id must be non-negative, got {pose_id}")
+        logger.debug("virtual-camera: photograph pose %s exposure %d (%g s)", pose_id, exposure_index, exposure_s)
         L = self.sensor_radiance(light_pos_mm, R, t, pose_id)
         key = pose_id if pose_id is not None else self._pose_key(light_pos_mm, R, t)
         return self._sensor(L, exposure_s, (key, exposure_index))
@@ -605,10 +671,10 @@ def capture_to_folder(camera, folder, light_pos, R, t, exposures, *, pose_ids: S
         Additional top-level manifest keys (e.g. the ``rig`` record of the
         ``virtual-folder`` capture source), beside ``simulation``.
 
-    Returns the final :class:`~sbrdf_capture.capture_folder.Manifest`, or
+    Returns the final :class:`~sbrdf_lib.capture_folder.Manifest`, or
     ``None`` when stopped early.
     """
-    from sbrdf_capture.capture_folder import CaptureFolderWriter
+    from sbrdf_lib.capture_folder import CaptureFolderWriter
 
     light_pos = np.asarray(light_pos, np.float64).reshape(-1, 3)
     P = light_pos.shape[0]

@@ -43,13 +43,23 @@ from pathlib import Path
 import numpy as np
 
 from sbrdf_core.nodes.capture import CaptureDescription
+from sbrdf_core.params import REQUIRED, Param
+from sbrdf_lib.capture_folder import (
+    MANIFEST,
+    CaptureFolderError,
+    Exposure,
+    Manifest,
+    PoseRecord,
+    inside_folder,
+    manifest_sections,
+    read_image,
+    resolve_image,
+    validate_folder,
+)
+from sbrdf_lib.response import ResponseCurve, ResponseError
 
-from .capture_folder import (MANIFEST, CaptureFolderError, Manifest, PoseRecord, inside_folder, resolve_image,
-                             validate_folder)
 from .hdr import merge_exposures, subtract_dark
-from .response import (ResponseCurve, ResponseError, bracket_samples, cubic_curve, recover_cubic_loglog,
-                       recover_debevec)
-
+from .response import bracket_samples, cubic_curve, recover_cubic_loglog, recover_debevec
 
 #: Codes below this (normalised) are left out of the response fit: dark pixels are
 #: noise-dominated and bias the log-log fit.  Merging still uses them down to ``underexposure``.
@@ -58,56 +68,36 @@ RECOVERY_LOW = 0.1
 log = logging.getLogger("sbrdf.capture.folder")
 
 
-def read_image(path: Path, where: str) -> np.ndarray:
-    """Decode one image as stored: float32 (EXR) or uint8/uint16 (PNG, TIFF), ``(H, W, 3)`` RGB."""
-    try:
-        if path.suffix.lower() == ".exr":
-            from sbrdf_core.io.images import read_exr
-
-            img = read_exr(str(path))
-        else:
-            import cv2
-
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise ValueError("cv2 cannot decode it")
-            if img.ndim == 2:
-                img = np.repeat(img[..., None], 3, axis=-1)
-            img = img[..., [2, 1, 0]] if img.shape[-1] >= 3 else img
-            if img.dtype not in (np.uint8, np.uint16):
-                raise ValueError(f"unsupported sample type {img.dtype}; PNG/TIFF images must be 8- or 16-bit")
-    except FileNotFoundError:
-        raise CaptureFolderError(f"{path}: image is missing ({where})") from None
-    except CaptureFolderError:
-        raise
-    except Exception as e:
-        raise CaptureFolderError(f"{path}: unreadable image ({where}): {e}") from None
-    return img
-
-
-def manifest_sections(m: Manifest, linear: bool) -> tuple[dict, dict, dict]:
-    """The CaptureSet's ``sample``, ``camera`` and ``light`` attributes for a manifest.
-
-    Shared by every source that reads a capture folder (``folder``, ``gonio``),
-    so the same scan has the same attributes whichever source produced it.
-    """
-    camera = {"width": m.camera.width, "height": m.camera.height, "K": [list(r) for r in m.camera.K],
-              "dist": list(m.camera.dist), "model": "pinhole", "response": "linear" if linear else "table",
-              **m.camera.extra}
-    sample = {"size_mm": list(m.sample.size_mm),
-              "fiducials": None if m.sample.fiducials is None else {
-                  "dictionary": m.sample.fiducials.dictionary,
-                  "markers": [{"id": k.id, "corners_mm": k.corners_mm} for k in m.sample.fiducials.markers]},
-              **m.sample.extra}
-    light = {"type": m.light.type, "intensity": m.light.intensity, **m.light.extra}
-    return sample, camera, light
-
-
 class FolderCapture:
     """Capture source reading an ``sbrdf-capture/1`` folder (see module docstring)."""
 
-    def __init__(self, path, response, response_method, response_poses, saturation, underexposure, dark_frame,
-                 dark_time_s, colour_matrix, allow_incomplete, negative_tolerance=0.01, negative_max_fraction=0.5):
+    params = (
+        Param("path", "str", REQUIRED, "the capture folder (holding capture.json and images/), relative to the graph file",
+              extra={"path": True}),
+        Param("response", "str", "auto", "auto: the manifest's curve, else recover it from brackets; manifest: require it; "
+              "recover: always recover; linear: treat pixel values as linear", choices=("auto", "manifest", "recover", "linear")),
+        Param("response_method", "str", "cubic", "recovery method: McAllister's cubic in log-log space or OpenCV's Debevec (8-bit)",
+              choices=("cubic", "debevec")),
+        Param("response_poses", "int", 8, "bracketed poses sampled for response recovery", bounds=(1, 10000)),
+        Param("saturation", "float", 0.98, "normalised level at or above which a pixel is saturated (invalid)", bounds=(0.0, 1.0)),
+        Param("underexposure", "float", 0.02, "normalised level at or below which a pixel is under-exposed (invalid)",
+              bounds=(0.0, 1.0)),
+        Param("dark_frame", "str", None, "image inside the folder taken with no light, subtracted after linearising", nullable=True),
+        Param("dark_time_s", "float", None, "exposure time of the dark frame (scaled to each exposure)", nullable=True,
+              bounds=(1e-9, None), unit="s"),
+        Param("colour_matrix", "list", None, "3x3 camera RGB -> working RGB matrix (row-major, 9 numbers)", nullable=True,
+              length=9, item="float"),
+        Param("allow_incomplete", "bool", False, "read the poses recorded so far of an interrupted capture"),
+        Param("negative_tolerance", "float", 0.01, "noise tolerance for negative radiance, a fraction of full scale: a "
+              "pixel below -tolerance is invalid and counted (docs/capture-folders.md)", bounds=(0.0, 1.0)),
+        Param("negative_max_fraction", "float", 0.5, "a pose with more than this fraction of its pixels negative beyond "
+              "the tolerance is an error, not noise", bounds=(0.0, 1.0)),
+    )
+
+    def __init__(self, *, path: str, response: str = "auto", response_method: str = "cubic", response_poses: int = 8,
+                 saturation: float = 0.98, underexposure: float = 0.02, dark_frame: str | None = None,
+                 dark_time_s: float | None = None, colour_matrix: list | None = None, allow_incomplete: bool = False,
+                 negative_tolerance: float = 0.01, negative_max_fraction: float = 0.5):
         self.path = Path(os.path.expanduser(str(path)))
         self.response_mode, self.response_method, self.response_poses = response, response_method, response_poses
         self.saturation, self.underexposure = saturation, underexposure
@@ -327,8 +317,6 @@ class FolderCapture:
                 "linear images, or try the other response_method") from None
 
     def _load_dark(self, m: Manifest) -> None:
-        from .capture_folder import Exposure
-
         e = Exposure(self.dark_frame_name, self.dark_time_s or 1.0)
         path = resolve_image(self.path, e, "dark_frame")
         img = read_image(path, "dark_frame")

@@ -13,28 +13,40 @@ Radiance per texel: L = f_r(ω_i, ω_o) · I · cos θ_i / r² (DESIGN.md).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
 from sbrdf_core.geometry import directions_to, fibonacci_hemisphere, look_at, texel_centres
 from sbrdf_core.nodes.capture import CaptureDescription
-
-
-def pattern(n_u: int, n_v: int, index: int, channel: int) -> np.ndarray:
-    """Smooth waves plus a 4×4 checker, in [0, 1], different per parameter and channel."""
-    u = (np.arange(n_u) + 0.5) / n_u
-    v = (np.arange(n_v) + 0.5) / n_v
-    uu, vv = np.meshgrid(u, v)
-    waves = 0.5 + 0.25 * np.sin(2 * np.pi * ((1 + index) * uu + channel / 3)) * np.cos(2 * np.pi * (1 + channel) * vv)
-    checker = ((np.floor(uu * 4) + np.floor(vv * 4)) % 2) * 0.5 - 0.25
-    return np.clip(waves + 0.8 * checker * (0.5 if index else 1.0), 0.0, 1.0)
+from sbrdf_core.params import Param
+from sbrdf_lib.patterns import pattern  # re-exported: sbrdf_capture.synthetic.pattern is its old home
 
 
 class SyntheticCapture:
     """Simulated gonioreflectometer capture of a procedural material."""
 
-    def __init__(self, texels, size_mm, poses, model, model_params, light_distance_mm, camera_distance_mm,
-                 max_theta_deg, intensity, noise, saturation, seed, pose_delay_s):
+    params = (
+        Param("texels", "list", [64, 64], "texel grid [U, V]", length=2, item="int", bounds=(1, 16384)),
+        Param("size_mm", "list", [100.0, 100.0], "sample size [x, y]", length=2, item="float", bounds=(1e-3, None), unit="mm"),
+        Param("poses", "int", 48, "number of light/camera poses", bounds=(1, 100000)),
+        Param("model", "str", "lambert", "BRDF model the synthetic material follows", extra={"plugin_category": "brdf-model"}),
+        Param("model_params", "dict", {}, "configuration of that model (e.g. lobes)", extra={"params_of": "model"}),
+        Param("light_distance_mm", "float", 600.0, "light distance from the sample centre", bounds=(1.0, None), unit="mm"),
+        Param("camera_distance_mm", "float", 800.0, "camera distance from the sample centre", bounds=(1.0, None), unit="mm"),
+        Param("max_theta_deg", "float", 75.0, "largest light/view elevation from the normal", bounds=(0.0, 89.9), unit="deg"),
+        Param("intensity", "float", None, "light radiant intensity I; default light_distance² (unit irradiance at the centre)",
+              bounds=(0.0, None), nullable=True),
+        Param("noise", "float", 0.0, "relative Gaussian noise on radiance (σ / L)", bounds=(0.0, None)),
+        Param("saturation", "float", None, "radiance above which a pixel saturates (marked invalid)", nullable=True, bounds=(0.0, None)),
+        Param("seed", "int", 0, "random seed of the noise (per pose, so resumed captures are identical)"),
+        Param("pose_delay_s", "float", 0.0, "simulated exposure and motor time per pose", bounds=(0.0, 60.0), unit="s"),
+    )
+
+    def __init__(self, *, texels: Sequence[int] = (64, 64), size_mm: Sequence[float] = (100.0, 100.0), poses: int = 48,
+                 model: str = "lambert", model_params: dict = {}, light_distance_mm: float = 600.0,  # noqa: B006
+                 camera_distance_mm: float = 800.0, max_theta_deg: float = 75.0, intensity: float | None = None,
+                 noise: float = 0.0, saturation: float | None = None, seed: int = 0, pose_delay_s: float = 0.0):
         self.texels = tuple(texels)
         self.size_mm = tuple(size_mm)
         self.poses = poses

@@ -36,7 +36,6 @@ def face_st(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
     xmaj = (ax >= ay) & (ax >= az)
     ymaj = ~xmaj & (ay >= az)
-    zmaj = ~xmaj & ~ymaj
     face = np.where(xmaj, np.where(x >= 0, 0, 1), np.where(ymaj, np.where(y >= 0, 2, 3), np.where(z >= 0, 4, 5)))
     ma = np.where(xmaj, ax, np.where(ymaj, ay, az))
     sc = np.select([face == 0, face == 1, face == 2, face == 3, face == 4], [-z, z, x, x, x], -x)

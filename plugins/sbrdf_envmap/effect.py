@@ -16,14 +16,18 @@ The maps are built once per (file, options) and cached in the process.
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
+from sbrdf_core.params import Param
 
 from . import cubemap, lobes, prefilter, sampling
+
+logger = logging.getLogger(__name__)
 
 METHODS = ("prefiltered-discrete", "prefiltered-mip", "sampling", "mc", "progressive")
 _CACHE: dict = {}
@@ -61,7 +65,34 @@ class EnvironmentEffect:
 
     name = "environment"
 
-    def __init__(self, method: str = "prefiltered-discrete", size: int = 32, prefiltered_size: int = 32,
+    params = (
+        Param("method", "str", "prefiltered-discrete", "prefiltered-discrete | prefiltered-mip (McAllister Eq 6.18), "
+              "sampling (Muehlbacher's deterministic in-lobe samples), mc (cpu Monte Carlo reference), progressive "
+              "(gl: mc_samples per frame, running mean over frames)",
+              choices=("prefiltered-discrete", "prefiltered-mip", "sampling", "mc", "progressive")),
+        Param("size", "int", 32, "cube face size of the environment (power of two); its MIP chain feeds sampling",
+              bounds=(1, 4096)),
+        Param("prefiltered_size", "int", 32, "face size of the specular maps S(., n) (MIP form: of n = 256)",
+              bounds=(1, 4096)),
+        Param("diffuse_size", "int", 16, "face size of the diffuse map D(N)", bounds=(1, 4096)),
+        Param("cosine", "str", "normalized", "Eq 6.18's cosine: N.p/|p| clamped at 0 (normalized) or the printed N.p "
+              "(literal)", choices=("normalized", "literal")),
+        Param("prefilter", "str", "auto", "where the maps are convolved: gl (a fragment pass), numpy (the float64 "
+              "reference integrator), auto (gl in the gl renderer, numpy in cpu)", choices=("auto", "gl", "numpy")),
+        Param("samples", "int", 7, "deterministic samples per lobe (Table 4.1: 3 to 19)", bounds=(1, 64)),
+        Param("estimator", "str", "4.25", "ratio estimator of the deterministic samples (Eq 4.23, 4.24 or 4.25)",
+              choices=("4.23", "4.24", "4.25")),
+        Param("xi_border", "float", 0.01, "lobe cut: the importance-sampling mass left outside the pattern",
+              bounds=(1e-6, 0.5)),
+        Param("ring_radius", "float", 0.6, "xi_1 of the ring (theta_h = 0.4 theta_thresh)", bounds=(0.0, 1.0)),
+        Param("line_threshold", "float", 4.0, "m_y/m_x (or m_x/m_y) above which the line pattern replaces the ring "
+              "(not given in the thesis)", bounds=(1.0, None)),
+        Param("mc_samples", "int", 64, "Monte Carlo samples per strategy and pixel (per frame when progressive)",
+              bounds=(1, 1 << 20)),
+        Param("seed", "int", 0, "seed of the scrambled Sobol points", bounds=(0, None)),
+    )
+
+    def __init__(self, *, method: str = "prefiltered-discrete", size: int = 32, prefiltered_size: int = 32,
                  diffuse_size: int = 16, cosine: str = "normalized", prefilter: str = "auto", samples: int = 7,
                  estimator: str = "4.25", xi_border: float = sampling.XI_BORDER, ring_radius: float = sampling.RING_RADIUS,
                  line_threshold: float = 4.0, mc_samples: int = 64, seed: int = 0):
@@ -79,16 +110,16 @@ class EnvironmentEffect:
 
     @staticmethod
     def wanted(scene) -> bool:
-        return scene.environment is not None
+        return scene.section("environment") is not None
 
     @staticmethod
     def options(scene) -> dict:
-        return dict(getattr(scene.environment, "options", None) or {})
+        return dict(getattr(scene.section("environment"), "options", None) or {})
 
     @staticmethod
     def check(scene) -> list[str]:
         """Problems :meth:`prepare` would meet, found when the graph is validated: the map is read at a tiny size."""
-        env = scene.environment
+        env = scene.section("environment")
         if "://" in env.file:
             return []
         try:
@@ -101,8 +132,9 @@ class EnvironmentEffect:
 
     def prepare(self, scene, materials=None, gl_context=None) -> None:
         """Load the map and build what the method needs (D(N), S maps, the MIP chain)."""
-        env = scene.environment
+        env = scene.section("environment")
         self.file = env.file
+        logger.info("environment %s (%s, intensity %g): method %s", env.file, env.layout, env.intensity, self.method)
         key = (os.path.abspath(env.file), os.path.getmtime(env.file) if os.path.exists(env.file) else 0, env.layout,
                env.intensity, self.size)
         with _LOCK:
@@ -112,7 +144,7 @@ class EnvironmentEffect:
             self.maps = _CACHE[key]
         use_gl = self.prefilter_on == "gl" or (self.prefilter_on == "auto" and gl_context is not None)
         if use_gl and gl_context is None:
-            from sbrdf_render.gl import context
+            from sbrdf_lib.gl import context
 
             gl_context = context()
         how = "gl" if use_gl else "numpy"
@@ -154,7 +186,7 @@ class EnvironmentEffect:
 
     def _surface_radiance(self, material, hits, view_dirs: np.ndarray) -> np.ndarray:
         """Eq 3 as a sum over the environment's directional lights, each through the material's own shading rule."""
-        from sbrdf_render.shapes import local_frame
+        from sbrdf_lib.surface import local_frame
 
         t, b, n = local_frame(hits.normal, hits.tangent)
         wo_w = -view_dirs
@@ -179,9 +211,9 @@ class EnvironmentEffect:
 
     def cpu_radiance(self, material, hits, view_dirs: np.ndarray, pixels: np.ndarray | None = None) -> np.ndarray:
         """Reflected environment radiance ``(R, 3)`` at hit points seen along ``view_dirs``."""
-        from sbrdf_render.shapes import local_frame
+        from sbrdf_lib.surface import local_frame
 
-        if getattr(material, "surface", None) is not None:
+        if material.surface is not None:
             return self._surface_radiance(material, hits, view_dirs)
         model = material.model
         n = hits.normal / np.linalg.norm(hits.normal, axis=1, keepdims=True)
@@ -290,7 +322,7 @@ class EnvironmentEffect:
         """Declarations and the statements (in ``main``, after the lights) that add the environment to ``L``."""
         from .glsl import fragment_code
 
-        surface = getattr(material, "surface", None)
+        surface = material.surface
         if surface is not None:  # the environment as directional lights through the material's own rule
             D = len(self.surface_lights()[0])
             loop = ["    for (int k = 0; k < ENV_LIGHTS; ++k) {",

@@ -220,7 +220,7 @@ def _progressive_block(effect, model, exprs) -> list[str]:
     strategies = ["hemisphere"]
     setup = []
     if kind == "cosine":
-        for j, (rho, c, n, beta) in enumerate(lobes.glsl_cosine_lobes(model, exprs)):
+        for j, (_rho, c, n, beta) in enumerate(lobes.glsl_cosine_lobes(model, exprs)):
             setup += [f"            vec3 pa{j} = lobe_peak({c}, {beta}, wo); pa{j} /= max(length(pa{j}), 1e-30);",
                       f"            float pe{j} = {n};",
                       f"            vec3 pu{j} = normalize(cross(abs(pa{j}.z) < 0.9 ? vec3(0.0, 0.0, 1.0) : vec3(1.0, 0.0, 0.0), pa{j}));",

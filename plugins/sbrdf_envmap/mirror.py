@@ -26,19 +26,34 @@ masks are ignored in the mirror pass.
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
+from sbrdf_core.params import Param
 
 from . import lobes, sampling
 from .effect import _frame_from_normal, mc_lobes
+
+logger = logging.getLogger(__name__)
 
 
 class MirrorEffect:
     name = "mirror"
 
-    def __init__(self, samples: int = 7, estimator: str = "4.25", xi_border: float = sampling.XI_BORDER,
+    params = (
+        Param("samples", "int", 7, "deterministic samples per lobe", bounds=(1, 64)),
+        Param("estimator", "str", "4.25", "ratio estimator (Eq 4.23, 4.24 or 4.25)", choices=("4.23", "4.24", "4.25")),
+        Param("xi_border", "float", 0.01, "lobe cut", bounds=(1e-6, 0.5)),
+        Param("ring_radius", "float", 0.6, "xi_1 of the ring", bounds=(0.0, 1.0)),
+        Param("line_threshold", "float", 4.0, "anisotropy ratio for the line pattern", bounds=(1.0, None)),
+        Param("refinements", "int", 1, "tangent-plane refinement steps of the projection (the thesis: 1)", bounds=(0, 8)),
+        Param("mc_samples", "int", 64, "cpu reference: Monte Carlo samples per strategy and pixel", bounds=(1, 1 << 20)),
+        Param("seed", "int", 0, "seed of the scrambled Sobol points", bounds=(0, None)),
+    )
+
+    def __init__(self, *, samples: int = 7, estimator: str = "4.25", xi_border: float = sampling.XI_BORDER,
                  ring_radius: float = sampling.RING_RADIUS, line_threshold: float = 4.0, refinements: int = 1,
                  mc_samples: int = 64, seed: int = 0):
         self.samples, self.estimator, self.xi_border = samples, estimator, xi_border
@@ -60,7 +75,7 @@ class MirrorEffect:
         idx = [k for k, o in enumerate(scene.objects) if o.shape == "plane" and o.params.get("reflector")]
         if len(idx) > 1:
             return [f"one reflector: true plane is supported, got {len(idx)}"]
-        if scene.environment is not None:
+        if scene.section("environment") is not None:
             return ["a reflector: true plane together with an environment map is not "
                     "supported (reflected objects do not occlude the environment yet)"]
         obj = scene.objects[idx[0]]
@@ -98,7 +113,7 @@ class MirrorEffect:
             if sel.size == 0:
                 continue
             m = self.materials[obj.material]
-            if getattr(m, "surface", None) is not None or "rho_d" not in {p.name for p in m.model.parameters}:
+            if m.surface is not None or "rho_d" not in {p.name for p in m.model.parameters}:
                 raise SbrdfError(f"mirror: material {obj.material!r} has no rho_d for the diffuse-only reflection")
             rho_d = np.asarray(m.model.unpack(m.lookup(hits.uv[sel]))["rho_d"])
             pos, nrm = hits.position[sel], hits.normal[sel]
@@ -114,8 +129,7 @@ class MirrorEffect:
         return out
 
     def cpu_radiance(self, material, hits, view_dirs, pixels=None) -> np.ndarray:
-        from sbrdf_render.cpu import cast
-        from sbrdf_render.shapes import local_frame
+        from sbrdf_lib.surface import cast, local_frame
 
         out = np.zeros((len(view_dirs), 3))
         if material.name != self.material:

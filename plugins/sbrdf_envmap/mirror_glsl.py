@@ -31,7 +31,7 @@ void main() {
 
 def pass_fragment(material, NP: int, ND: int) -> str:
     """Diffuse-only radiance, world position and normal of the mirrored view (three colour attachments)."""
-    from sbrdf_render.gl import parameter_exprs
+    from sbrdf_lib.gl import parameter_exprs
 
     ntex, exprs = parameter_exprs(material.model, "p")
     if "rho_d" not in exprs:

@@ -1,66 +1,10 @@
 """Built-in fitters (generic batched LM, McAllister's procedure, his line search), the SampleModel node and the
-Select node (the model with the lowest held-out error)."""
+Select node (the model with the lowest held-out error).
 
-from sbrdf_core.params import Param
+Each implementation declares its parameters on its class (``params``); the shared solver is :mod:`sbrdf_lib.lm`.
+"""
+
 from sbrdf_core.plugin import PluginSpec, hookimpl
-
-_MODEL = Param("model", "str", "lambert", "BRDF model to fit", extra={"plugin_category": "brdf-model"})
-_MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"})
-_ITERATIONS = Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000))
-_TOLERANCE = Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
-                   bounds=(0.0, 1.0))
-_STARTS = Param("starts", "int", 0, "LM runs per texel, from its best-scoring starting points (the model's guess and "
-                "a Sobol set over typical shapes, magnitudes solved); the texel keeps its best. 0 = the model's "
-                "suggestion (2 for Cook-Torrance, Phong, Ward and 3+ Lafortune lobes: 4); 1 = the guess alone",
-                bounds=(0, 64))
-
-LM_PARAMS = (
-    _MODEL,
-    _MODEL_PARAMS,
-    _ITERATIONS,
-    _TOLERANCE,
-    Param("damping", "float", 1e-3, "initial Marquardt damping λ", bounds=(0.0, None)),
-    _STARTS,
-    Param("fixed", "list", [], "fit-form parameter names held at their initial value", item="str"),
-    Param("seed", "int", 0, "seed of the Sobol starting points"),
-    Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1: outliers such as dust spikes "
-          "are down-weighted (iteratively reweighted)", choices=["linear", "huber", "soft-l1"]),
-    Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns from quadratic to linear; "
-          "0 = 1.4826 x the texel's median absolute residual", bounds=(0.0, None)),
-)
-
-_ROOT_FLOOR = Param("root_floor", "float", 0.01, "line search: drop samples whose luminance residual is below this "
-                    "fraction of the texel's peak (0 = as written, which fails at any noise: the n-th root of a "
-                    "near-zero noisy residual is near 1)", bounds=(0.0, 1.0))
-_LAFORTUNE = Param("model", "str", "lafortune", "BRDF model (McAllister's procedure fits Lafortune lobes)",
-                   choices=["lafortune"], extra={"plugin_category": "brdf-model"})
-_SHARED = (
-    _LAFORTUNE,
-    _MODEL_PARAMS,
-    Param("diffuse", "str", "percentile", "rho_d estimate per channel", choices=["percentile", "min", "weighted-mean"]),
-    Param("percentile", "float", 10.0, "percentile of the samples taken as rho_d", bounds=(0.0, 100.0)),
-    Param("colour_space", "str", "mcallister", "luminance weights of the working RGB space",
-          choices=["mcallister", "rec709", "rec2020"]),
-    Param("rho_s_guard", "float", 0.05, "Eq 4.10 uses samples whose luminance residual is at least this fraction "
-          "of the texel's largest", bounds=(0.0, 1.0)),
-)
-MCALLISTER_PARAMS = _SHARED + (
-    Param("lobe_fit", "str", "lm", "how the lobe shape is fitted to the luminance residual", choices=["lm", "line-search"]),
-    Param("lobe_2_start", "str", "text", "lobe 2 starts from the text's guess C=(1,1,1), n=5, or from the 1-lobe fit",
-          choices=["text", "one-lobe"]),
-    _ITERATIONS,
-    _TOLERANCE,
-    Param("starts", "int", 1, "starting points of the lobe fit: 1 = the procedure's own, more adds Sobol starts "
-          "and keeps the best", bounds=(1, 64)),
-    Param("objective", "str", "root", "line search residual: in n-th-root space (as written) or BRDF space",
-          choices=["root", "brdf"]),
-    _ROOT_FLOOR,
-)
-LINE_SEARCH_PARAMS = _SHARED + (
-    Param("objective", "str", "root", "residual in n-th-root space (as written, Eq 4.9) or BRDF space",
-          choices=["root", "brdf"]),
-    _ROOT_FLOOR,
-)
 
 
 @hookimpl
@@ -74,26 +18,10 @@ def sbrdf_node_kinds():
 @hookimpl
 def sbrdf_fitters():
     return [
-        PluginSpec("lm", "sbrdf_fitters.lm:LevenbergMarquardtFitter", LM_PARAMS,
+        PluginSpec("lm", "sbrdf_fitters.lm:LevenbergMarquardtFitter",
                    summary="Batched Levenberg-Marquardt fit of any BRDF model, vectorised over texels"),
-        PluginSpec("mcallister", "sbrdf_fitters.mcallister:McAllisterFitter", MCALLISTER_PARAMS,
+        PluginSpec("mcallister", "sbrdf_fitters.mcallister:McAllisterFitter",
                    summary="McAllister's procedure: percentile rho_d, lobes fitted to luminance, rho_s by Eq 4.10"),
-        PluginSpec("line-search", "sbrdf_fitters:LineSearchFitter", LINE_SEARCH_PARAMS,
+        PluginSpec("line-search", "sbrdf_fitters.mcallister:LineSearchFitter",
                    summary="McAllister's fast single-lobe fit: Brent search over n, least squares for C"),
     ]
-
-
-def LineSearchFitter(**params):  # noqa: N802 - a plugin factory reads like a class in the spec
-    """McAllister's procedure with the lobe shape from the line search."""
-    from .mcallister import McAllisterFitter
-
-    return McAllisterFitter(lobe_fit="line-search", lobe_2_start="text", iterations=1, tolerance=0.0, starts=1, **params)
-
-
-def _check_line_search(params):
-    from .mcallister import McAllisterFitter
-
-    return McAllisterFitter.check_params({**params, "lobe_fit": "line-search"})
-
-
-LineSearchFitter.check_params = _check_line_search

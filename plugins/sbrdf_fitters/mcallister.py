@@ -17,20 +17,40 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from sbrdf_core.brdf import above_horizon, luminance_weights
 from sbrdf_core.errors import ParameterError
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, rms_error, usable
+from sbrdf_core.params import Param
+from sbrdf_lib.lm import diffuse_percentile, fit_model
 
 from .line_search import line_search_lobe
-from .lm import fit_model
+from .lm import ITERATIONS, MODEL_PARAMS, TOLERANCE
+
+logger = logging.getLogger(__name__)
+
+ROOT_FLOOR = Param("root_floor", "float", 0.01, "line search: drop samples whose luminance residual is below this "
+                   "fraction of the texel's peak (0 = as written, which fails at any noise: the n-th root of a "
+                   "near-zero noisy residual is near 1)", bounds=(0.0, 1.0))
+#: The parameters McAllister's procedure and its line-search variant share.
+SHARED = (
+    Param("model", "str", "lafortune", "BRDF model (McAllister's procedure fits Lafortune lobes)",
+          choices=["lafortune"], extra={"plugin_category": "brdf-model"}),
+    MODEL_PARAMS,
+    Param("diffuse", "str", "percentile", "rho_d estimate per channel", choices=["percentile", "min", "weighted-mean"]),
+    Param("percentile", "float", 10.0, "percentile of the samples taken as rho_d", bounds=(0.0, 100.0)),
+    Param("colour_space", "str", "mcallister", "luminance weights of the working RGB space",
+          choices=["mcallister", "rec709", "rec2020"]),
+    Param("rho_s_guard", "float", 0.05, "Eq 4.10 uses samples whose luminance residual is at least this fraction "
+          "of the texel's largest", bounds=(0.0, 1.0)),
+)
 
 
 def diffuse_estimate(f_r, valid, wi, wo, method: str, percentile: float) -> np.ndarray:
     """ρ_d ``(T, 3)`` by ``percentile``, ``min`` or ``weighted-mean`` over valid samples."""
-    from sbrdf_models.lafortune import diffuse_percentile
-
     if method == "percentile":
         return diffuse_percentile(f_r, valid, percentile)
     if method == "min":
@@ -40,13 +60,36 @@ def diffuse_estimate(f_r, valid, wi, wo, method: str, percentile: float) -> np.n
 
 
 class McAllisterFitter:
-    """The ``mcallister`` fitter plugin (parameters: ``sbrdf_fitters.MCALLISTER_PARAMS``)."""
+    """McAllister's procedure: percentile ρ_d, lobes fitted to the luminance residual, ρ_s colour by Eq 4.10.
+
+    The luminance lobes are a one-channel Lafortune model, created through the
+    registry (:meth:`bind`), so this fitter imports no model plugin.
+    """
 
     model_name = "lafortune"
+    model_config: dict
 
-    def __init__(self, model, model_params, diffuse, percentile, colour_space, lobe_fit, lobe_2_start, rho_s_guard,
-                 iterations, tolerance, starts, objective="root", root_floor=0.01):
+    params = SHARED + (
+        Param("lobe_fit", "str", "lm", "how the lobe shape is fitted to the luminance residual",
+              choices=["lm", "line-search"]),
+        Param("lobe_2_start", "str", "text", "lobe 2 starts from the text's guess C=(1,1,1), n=5, or from the "
+              "1-lobe fit", choices=["text", "one-lobe"]),
+        ITERATIONS,
+        TOLERANCE,
+        Param("starts", "int", 1, "starting points of the lobe fit: 1 = the procedure's own, more adds Sobol starts "
+              "and keeps the best", bounds=(1, 64)),
+        Param("objective", "str", "root", "line search residual: in n-th-root space (as written) or BRDF space",
+              choices=["root", "brdf"]),
+        ROOT_FLOOR,
+    )
+
+    def __init__(self, *, model: str = "lafortune", model_params: dict = {}, diffuse: str = "percentile",  # noqa: B006
+                 percentile: float = 10.0, colour_space: str = "mcallister", rho_s_guard: float = 0.05,
+                 lobe_fit: str = "lm", lobe_2_start: str = "text", iterations: int = 50, tolerance: float = 1e-4,
+                 starts: int = 1, objective: str = "root", root_floor: float = 0.01):
+        # model_params' default equals the declaration (the registry checks) and is only read, never changed.
         self.model_config = dict(model_params)
+        self._registry = None
         self.diffuse, self.percentile, self.colour_space = diffuse, percentile, colour_space
         self.lobe_fit, self.lobe_2_start, self.rho_s_guard = lobe_fit, lobe_2_start, rho_s_guard
         self.iterations, self.tolerance, self.starts, self.objective = iterations, tolerance, starts, objective
@@ -63,6 +106,23 @@ class McAllisterFitter:
             return [("model_params", "the line search fits exactly one lobe without beta (seed 000 §4.3.2); "
                                      f"got model_params {dict(cfg)}")]
         return []
+
+    def bind(self, registry) -> None:
+        """The registry the one-channel lobe models come from (the runner calls this after construction)."""
+        self._registry = registry
+
+    def __getstate__(self):
+        # A registry holds locks and hook managers; a fitter shipped to a worker re-binds to the default one.
+        return {**self.__dict__, "_registry": None}
+
+    def _lafortune(self, lobes: int, anisotropic: bool, beta: bool):
+        """A one-channel Lafortune model (McAllister's lobe fit runs on luminance)."""
+        if self._registry is None:
+            from sbrdf_core.registry import default_registry
+
+            self._registry = default_registry()
+        model = self._registry.create("brdf-model", "lafortune", {"lobes": lobes, "anisotropic": anisotropic, "beta": beta})
+        return model.single_channel()
 
     def fit(self, model, f_r, valid, wi, wo) -> FitResult:
         T = f_r.shape[0]
@@ -104,15 +164,13 @@ class McAllisterFitter:
 
     def _lm_lobes(self, model, lum, use, wi, wo):
         """Eq 4.7: lobes without colour fitted to the luminance residual, in the C_z = 1 gauge."""
-        from sbrdf_models.lafortune import LafortuneModel
-
-        scalar = LafortuneModel(model.lobes, model.anisotropic, model.has_beta, channels=1)
+        scalar = self._lafortune(model.lobes, model.anisotropic, model.has_beta)
         form = scalar.fit_form()
         data = lum[..., None]
         opts = dict(iterations=self.iterations, tolerance=self.tolerance, fixed=("rho_d",), starts=self.starts)
         start = _zero_diffuse(form, data, use, wi, wo)
         if model.lobes >= 2 and self.lobe_2_start == "one-lobe":
-            one = LafortuneModel(1, model.anisotropic, model.has_beta, channels=1)
+            one = self._lafortune(1, model.anisotropic, model.has_beta)
             first, _, _ = fit_model(one, data, use, wi, wo, initial=_zero_diffuse(one.fit_form(), data, use, wi, wo), **opts)
             one_form = one.fit_form().from_model(first)
             for k, v in one_form.items():
@@ -122,7 +180,7 @@ class McAllisterFitter:
         fitted, converged, _ = fit_model(scalar, data, use, wi, wo, initial=start, **opts)
         fitted = scalar.canonical(fitted)
         lobes = []
-        for j, lobe in enumerate(scalar.lobe_list(fitted), 1):
+        for lobe in scalar.lobe_list(fitted):
             entry = {"a": lobe["rho_s"][:, 0], "c": np.concatenate([lobe["c_x"], lobe["c_y"], lobe["c_z"]], axis=1),
                      "exponent": lobe["exponent"][:, 0]}
             if scalar.has_beta:
@@ -138,6 +196,28 @@ class McAllisterFitter:
         count = ok.sum(axis=1)[:, None]
         grey = np.ones(3) / self.weights.sum()
         return np.where(count > 0, ratio.sum(axis=1) / np.maximum(count, 1), grey)
+
+
+class LineSearchFitter(McAllisterFitter):
+    """McAllister's fast single-lobe fit: his procedure with the lobe shape from the line search (§4.3.2)."""
+
+    params = SHARED + (
+        Param("objective", "str", "root", "residual in n-th-root space (as written, Eq 4.9) or BRDF space",
+              choices=["root", "brdf"]),
+        ROOT_FLOOR,
+    )
+
+    def __init__(self, *, model: str = "lafortune", model_params: dict = {}, diffuse: str = "percentile",  # noqa: B006
+                 percentile: float = 10.0, colour_space: str = "mcallister", rho_s_guard: float = 0.05,
+                 objective: str = "root", root_floor: float = 0.01):
+        super().__init__(model=model, model_params=model_params, diffuse=diffuse, percentile=percentile,
+                         colour_space=colour_space, rho_s_guard=rho_s_guard, lobe_fit="line-search",
+                         lobe_2_start="text", iterations=1, tolerance=0.0, starts=1, objective=objective,
+                         root_floor=root_floor)
+
+    @staticmethod
+    def check_params(params) -> list[tuple[str, str]]:
+        return McAllisterFitter.check_params({**params, "lobe_fit": "line-search"})
 
 
 def _zero_diffuse(form, data, use, wi, wo):

@@ -14,17 +14,10 @@ sharpens and brightens toward grazing, which Lafortune lobes cannot (seed 000
   GGX Λ = (√(1 + α² tan²θ) − 1)/2).  It is reciprocal, accounts for the masking/shadowing
   correlation the separable form ignores, and is no harder to differentiate.
 
-==========  ========  ======  =================================================
-parameter   channels  unit    meaning
-==========  ========  ======  =================================================
-rho_d       3         sr^-1   diffuse BRDF value (diffuse albedo / π), not Fresnel-weighted
-f0          3         1       Fresnel reflectance at normal incidence per RGB channel
-                              (3 channels: metals have coloured specular; a dielectric has f0 ≈ 0.04 grey)
-alpha       1         1       roughness (Beckmann RMS slope / GGX width)
-==========  ========  ======  =================================================
-
 There is no separate specular scale: F0 is the specular colour and magnitude
-(for small α the lobe's albedo at normal incidence is ≈ F0).  Grazing: the
+(for small α the lobe's albedo at normal incidence is ≈ F0); it has three
+channels because metals have a coloured specular (a dielectric has F0 ≈ 0.04,
+grey).  ρ_d is the diffuse BRDF value (albedo / π), not Fresnel-weighted.  Grazing: the
 cosines are floored at :data:`COS_FLOOR` (0.0001° from the horizon), where G
 already goes to 0 like cos θ, so f stays finite.  The fit form fits log α.
 
@@ -37,14 +30,11 @@ YAML::
 from __future__ import annotations
 
 import numpy as np
+
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
 from sbrdf_core.params import Param
-
-
-PARAMS = (
-    Param("distribution", "str", "ggx", "microfacet normal distribution D and its Smith Λ", choices=("beckmann", "ggx")),
-)
+from sbrdf_core.plugin import PluginSpec, hookimpl
 
 COS_FLOOR = 1e-6
 ALPHA_BOUNDS = (1e-3, 2.0)
@@ -61,7 +51,11 @@ class CookTorranceModel(BRDFModel):
         ModelParameter("alpha", 1, ALPHA_BOUNDS, (0.05, 0.5), 0.2, doc="roughness"),
     )
 
-    def __init__(self, distribution: str = "ggx"):
+    params = (
+        Param("distribution", "str", "ggx", "microfacet normal distribution D and its Smith Λ", choices=("beckmann", "ggx")),
+    )
+
+    def __init__(self, *, distribution: str = "ggx"):
         if distribution not in ("beckmann", "ggx"):
             raise ValueError(f"cook-torrance: distribution must be 'beckmann' or 'ggx', got {distribution!r}")
         self.distribution = distribution
@@ -179,3 +173,9 @@ class CookTorranceModel(BRDFModel):
         out, finer = clip_shape(out, ("alpha",), low=limits.min_roughness())
         out, wider = widen_to_peak(self, out, ("alpha",), limits)
         return out, changed | finer | wider
+
+
+@hookimpl
+def sbrdf_brdf_models():
+    return [PluginSpec("cook-torrance", "sbrdf_models.cook_torrance:CookTorranceModel",
+                       summary="Cook-Torrance microfacet: Beckmann or GGX D, Schlick F, height-correlated Smith G")]

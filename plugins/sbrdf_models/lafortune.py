@@ -7,18 +7,9 @@ angle β (C' = R(−β)·C·R(β), Eq 4.4).  The lobe shape (C, n) is shared by 
 RGB channels; ρ_d and ρ_s are RGB in sr⁻¹.  ``max(0, x)^n`` everywhere: a
 negative generalized dot product has no real fractional power.
 
-==============  ========  ======================================================
-parameter       channels  meaning
-==============  ========  ======================================================
-rho_d           3         diffuse term, sr⁻¹
-rho_s_<j>       3         lobe j magnitude, sr⁻¹
-c_xy_<j>        1         lobe j C_x = C_y (isotropic configuration)
-c_x_<j>, c_y_<j> 1        lobe j C_x, C_y (``anisotropic: true``)
-c_z_<j>         1         lobe j C_z
-exponent_<j>    1         lobe j exponent n
-beta            1         anisotropy angle, radians (``beta: true``), shared by lobes
-rho_m           3         mirror term ρ_m·δ (``mirror: true``): rendered, never fitted
-==============  ========  ======================================================
+The per-texel maps are named by lobe j: ``rho_s_<j>``, ``c_xy_<j>`` (``c_x_<j>``
+and ``c_y_<j>`` with ``anisotropic: true``), ``c_z_<j>``, ``exponent_<j>``; one
+``beta`` with ``beta: true``; ``rho_m`` with ``mirror: true`` (rendered, never fitted).
 
 Equivalences (a fit is judged modulo these; :meth:`LafortuneModel.canonical`
 picks one representative): (e·ρ_s, C·e^(−1/n)) is the same lobe for any e > 0;
@@ -37,17 +28,14 @@ YAML::
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon, positive_power
 from sbrdf_core.params import Param
-
-PARAMS = (
-    Param("lobes", "int", 1, "number of cosine lobes", bounds=(0, 8)),
-    Param("anisotropic", "bool", False, "separate C_x and C_y per lobe (otherwise C_x = C_y)"),
-    Param("beta", "bool", False, "per-texel anisotropy angle β shared by the lobes (needs anisotropic)"),
-    Param("mirror", "bool", False, "add the mirror term ρ_m (rendered by renderers, not fitted)"),
-)
+from sbrdf_core.plugin import PluginSpec, hookimpl
+from sbrdf_lib.lm import diffuse_percentile
 
 #: McAllister's initial guesses (§4.3.1): lobe 1 forward (mirror), lobe 2 back-scatter.
 INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
@@ -72,16 +60,28 @@ FIT_C_BOUNDS = C_BOUNDS
 class LafortuneModel(BRDFModel):
     name = "lafortune"
 
-    def __init__(self, lobes: int = 1, anisotropic: bool = False, beta: bool = False, mirror: bool = False,
-                 channels: int = 3):
-        """``channels=1`` gives the same lobes on scalar (luminance) data, for McAllister's lobe fit."""
-        self.channels = channels
+    params = (
+        Param("lobes", "int", 1, "number of cosine lobes", bounds=(0, 8)),
+        Param("anisotropic", "bool", False, "separate C_x and C_y per lobe (otherwise C_x = C_y)"),
+        Param("beta", "bool", False, "per-texel anisotropy angle β shared by the lobes (needs anisotropic)"),
+        Param("mirror", "bool", False, "add the mirror term ρ_m (rendered by renderers, not fitted)"),
+    )
+
+    def __init__(self, *, lobes: int = 1, anisotropic: bool = False, beta: bool = False, mirror: bool = False):
+        self.channels = 3
         if beta and not anisotropic:
             raise ValueError("lafortune: beta: true needs anisotropic: true (an isotropic lobe has no direction)")
         self.lobes, self.anisotropic, self.has_beta, self.mirror = lobes, anisotropic, beta, mirror
         self.parameters = self._declare(fit_form=False)
         # The compiled exponent scan of the initial guess finds 1-2 lobes' basin; 3+ lobes need starts (§4.3.1).
         self.suggested_starts = 1 if lobes <= 2 else 4
+
+    def single_channel(self) -> LafortuneModel:
+        """The same lobes on scalar (luminance) data, ρ_d and ρ_s with one channel: McAllister's lobe fit."""
+        out = copy.copy(self)
+        out.channels = 1
+        out.parameters = out._declare(fit_form=False)
+        return out
 
     # -- declarations ------------------------------------------------------------------
 
@@ -226,7 +226,7 @@ class LafortuneModel(BRDFModel):
 
     # -- fitting support ----------------------------------------------------------------------------
 
-    def fit_form(self) -> "LafortuneFitForm":
+    def fit_form(self) -> LafortuneFitForm:
         return LafortuneFitForm(self)
 
     def initial_guess(self, f_r, valid, wi, wo):
@@ -470,28 +470,6 @@ class LafortuneFitForm(LafortuneModel):
         return params
 
 
-def diffuse_percentile(f_r: np.ndarray, valid: np.ndarray, percentile: float) -> np.ndarray:
-    """Per-channel percentile of each texel's valid samples, ``(T, 3)``; 0 for a texel with none.
-
-    McAllister's ρ_d estimate (§4.3): the minimum is biased low by noise and
-    registration error, so a low percentile (10th by default) is used.
-    Vectorised (``np.nanpercentile`` loops over texels in Python): invalid
-    samples sort to the end, and each texel interpolates linearly between
-    its own order statistics, as numpy's default method does.
-    """
-    data = np.sort(np.where(valid[..., None], f_r, np.inf), axis=1)  # (T, S, C)
-    n = valid.sum(axis=1)  # (T,)
-    pos = np.clip(percentile / 100.0 * (n - 1), 0, None)
-    lo = np.floor(pos).astype(int)
-    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
-    frac = (pos - lo)[:, None]
-    take = lambda i: np.take_along_axis(data, i[:, None, None].repeat(data.shape[2], axis=2), axis=1)[:, 0]  # noqa: E731
-    a, b = take(lo), take(hi)
-    with np.errstate(invalid="ignore"):  # inf − inf in texels without samples, masked below
-        out = np.where(frac > 0, a + frac * (b - a), a)
-    return np.clip(np.where((n > 0)[:, None] & np.isfinite(out), out, 0.0), 0.0, None)
-
-
 def solve_magnitudes(model: LafortuneModel, params, f_r, valid, wi, wo) -> dict[str, np.ndarray]:
     """ρ_s per lobe by non-negative-clipped linear least squares on ``f_r − ρ_d`` with lobe shapes fixed."""
     pxx, pyy, pzz, _ = model.lobe_dots(params, wi, wo)
@@ -507,3 +485,9 @@ def solve_magnitudes(model: LafortuneModel, params, f_r, valid, wi, wo) -> dict[
     rho = np.clip(np.linalg.solve(A, rhs), 0.0, 1e6)
     rho = np.nan_to_num(rho, nan=0.0, posinf=0.0)
     return {f"rho_s_{j + 1}": rho[:, j, :] for j in range(B.shape[-1])}
+
+
+@hookimpl
+def sbrdf_brdf_models():
+    return [PluginSpec("lafortune", "sbrdf_models.lafortune:LafortuneModel",
+                       summary="Generalized cosine lobes (McAllister's SBRDF): rho_d + sum rho_s max(0, w_r C w_i)^n")]

@@ -1,11 +1,5 @@
 """lambert: the ideal diffuse reflector.
 
-=========  ========  =====  ====================================================
-parameter  channels  unit   meaning
-=========  ========  =====  ====================================================
-rho_d      3         sr^-1  diffuse BRDF value per RGB channel (albedo / π)
-=========  ========  =====  ====================================================
-
 f_r(ω_i, ω_o) = ρ_d for both directions above the horizon, 0 otherwise.
 Energy conservation requires ρ_d ≤ 1/π; measured data may exceed it (a fit
 reports what it finds), so the fitting bound is generous.  ρ_d is in sr⁻¹ as
@@ -21,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
+from sbrdf_core.plugin import PluginSpec, hookimpl
 
 
 class LambertModel(BRDFModel):
@@ -54,3 +49,9 @@ class LambertModel(BRDFModel):
 
     def glsl(self):
         return "vec3 brdf_lambert(vec3 wi, vec3 wo, vec3 rho_d) { return (wi.z > 0.0 && wo.z > 0.0) ? rho_d : vec3(0.0); }"
+
+
+@hookimpl
+def sbrdf_brdf_models():
+    return [PluginSpec("lambert", "sbrdf_models.lambert:LambertModel",
+                       summary="Lambertian diffuse reflector, f_r = rho_d")]

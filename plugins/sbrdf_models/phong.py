@@ -8,14 +8,6 @@ it is one lobe with C = (−1, −1, 1) and a magnitude tied to the exponent.
 
 with reflect(ω) = (−ω_x, −ω_y, ω_z) the mirror direction about the normal.
 
-=========  ========  ======  ===================================================
-parameter  channels  unit    meaning
-=========  ========  ======  ===================================================
-rho_d      3         sr^-1   diffuse BRDF value (as everywhere in sbrdf)
-rho_s      3         1       specular albedo at normal incidence
-exponent   1         1       Phong exponent n
-=========  ========  ======  ===================================================
-
 Units and energy: the diffuse albedo is π ρ_d (Lafortune & Willems' k_d is
 π ρ_d); the (n + 2)/(2π) factor makes the lobe's directional albedo exactly
 ρ_s at normal incidence and less elsewhere (the horizon cuts the lobe), so
@@ -36,6 +28,7 @@ import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints import clip_shape
+from sbrdf_core.plugin import PluginSpec, hookimpl
 
 EXPONENT_BOUNDS = (0.1, 20000.0)
 
@@ -118,3 +111,7 @@ class PhongModel(BRDFModel):
         return out, changed
 
 
+@hookimpl
+def sbrdf_brdf_models():
+    return [PluginSpec("phong", "sbrdf_models.phong:PhongModel",
+                       summary="Modified (energy-normalised) Phong: rho_d + rho_s (n+2)/(2 pi) cos^n(alpha)")]

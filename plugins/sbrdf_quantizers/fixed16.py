@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.nodes.quantize import Encoded
+from sbrdf_core.params import Param
 
 TOP = 65535
 #: Positive parameters whose declared bounds span more than this ratio are stored as logarithms.
@@ -58,7 +59,13 @@ def _canonical_block(packed, model):
 
 
 class Fixed16Quantizer:
-    def __init__(self, canonical: bool = False):
+    """16-bit fixed point over each channel's range; magnitudes, exponents and widths stored as logarithms."""
+
+    params = (
+        Param("canonical", "bool", False, "store the model's canonical parameters (Lafortune: C_z = 1)"),
+    )
+
+    def __init__(self, *, canonical: bool = False):
         self.canonical = canonical
 
     def encode(self, params, model) -> Encoded:

@@ -25,6 +25,7 @@ import numpy as np
 from sbrdf_core.brdf import LUMINANCE_WEIGHTS
 from sbrdf_core.io import read_exr_channels, write_exr_channels
 from sbrdf_core.nodes.quantize import Encoded
+from sbrdf_core.params import Param
 from sbrdf_core.store import join
 
 FORMAT = "sbrdf-material/1"
@@ -105,7 +106,13 @@ def _to_float(x, dtype):
 class FloatEXRQuantizer:
     """Float textures (exact for float32); the EXR + JSON pair is written beside them."""
 
-    def __init__(self, dtype: str = "float16", colour_space: str = "mcallister"):
+    params = (
+        Param("dtype", "str", "float16", "float32 (exact) or half float", choices=("float16", "float32")),
+        Param("colour_space", "str", "mcallister", "linear RGB primaries the material is in (recorded in the JSON)",
+              choices=("mcallister", "rec709", "rec2020")),
+    )
+
+    def __init__(self, *, dtype: str = "float16", colour_space: str = "mcallister"):
         self.dtype = np.dtype(dtype)
         if self.dtype.kind != "f":
             raise ValueError(f"float-exr: dtype must be float16 or float32, not {dtype}")

@@ -23,9 +23,13 @@ with the validity checks of Eq 5.2–5.16 in :func:`validity_report`.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from sbrdf_core.geometry import fibonacci_hemisphere
+
+logger = logging.getLogger(__name__)
 
 
 def uniform_pairs(n: int = 16, max_theta_deg: float = 85.0) -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +109,7 @@ def mip_lerp(params: dict) -> dict:
 
 def _fit(model, f, valid, wi, wo, starts_from=None, iterations=50):
     """LM fit, from the model's initial guess and (if given) from ``starts_from``; each texel keeps the better."""
-    from sbrdf_fitters.lm import fit_model
+    from sbrdf_lib.lm import fit_model
 
     params, _, cost = fit_model(model, f, valid, wi, wo, iterations=iterations)
     if starts_from is not None:
@@ -124,6 +128,7 @@ def mip_refit(model, params: dict, n_dirs: int = 12, iterations: int = 50) -> di
     T = Vc * Uc
     lerp = {k: v.reshape(T, -1) for k, v in mip_lerp(params).items()}
     f = target.reshape(T, *target.shape[2:])
+    logger.debug("mip refit of %d coarse texels (%s)", T, model.name)
     fit = _fit(model, f, np.ones(f.shape[:2], bool), np.broadcast_to(wi, (T,) + wi.shape[1:]),
                np.broadcast_to(wo, (T,) + wo.shape[1:]), lerp, iterations)
     return {k: v.reshape(Vc, Uc, -1) for k, v in fit.items()}

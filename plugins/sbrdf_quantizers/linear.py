@@ -13,10 +13,17 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.nodes.quantize import Encoded
+from sbrdf_core.params import Param
 
 
 class LinearQuantizer:
-    def __init__(self, dtype: str):
+    """One texture per model parameter: fixed point with per-channel scale/bias over the data range, or float."""
+
+    params = (
+        Param("dtype", "str", "uint8", "texel storage type", choices=("uint8", "uint16", "float16", "float32")),
+    )
+
+    def __init__(self, *, dtype: str = "uint8"):
         self.dtype = np.dtype(dtype)
 
     def encode(self, params, model) -> Encoded:

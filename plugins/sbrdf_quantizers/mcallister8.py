@@ -44,6 +44,7 @@ from functools import lru_cache
 import numpy as np
 
 from sbrdf_core.nodes.quantize import Encoded
+from sbrdf_core.params import Param
 
 RESCALES = ("max", "balanced", "none")
 
@@ -114,12 +115,24 @@ def _encode_block(packed, model, strategy, c_range, names):
 class McAllister8Quantizer:
     """The hardware layout; ``decode`` is exact given the codes (the only loss is in ``encode``)."""
 
-    def __init__(self, rescale: str = "max", c_range: float = 1.0, alpha: str | None = None):
+    params = (
+        Param("rescale", "str", "max", "per-texel rho_s/C gauge: max(rho_s) = 1, min(rho_s) = min|C|, or as fitted",
+              choices=("max", "balanced", "none")),
+        Param("c_range", "float", 1.0, "C biased over -1..1 (7 bits) or -2..2 (6 bits, keeps |C| > 1)",
+              choices=(1.0, 2.0)),
+        Param("alpha", "str", None, "transparency mask: a PNG of the texel grid (0 = cut away) stored as "
+              "rho_d's alpha; relative to the graph file", nullable=True, extra={"path": True}),
+    )
+
+    def __init__(self, *, rescale: str = "max", c_range: float = 1.0, alpha: str | None = None):
         if rescale not in RESCALES:
             raise ValueError(f"mcallister8: unknown rescale {rescale!r}; known: {', '.join(RESCALES)}")
         if c_range not in (1.0, 2.0):
             raise ValueError(f"mcallister8: c_range must be 1 (−1..1) or 2 (−2..2), not {c_range}")
         self.rescale, self.c_range, self.alpha = rescale, float(c_range), alpha
+
+    #: The hardware's exponent lookup table, for renderers that emulate it (``gf4``) through the registry.
+    exponent_table = staticmethod(exponent_table)
 
     def alpha_codes(self, shape) -> np.ndarray | None:
         """The transparency mask (``alpha``: an 8- or 16-bit PNG of the texel grid; 0 = cut away), as uint8."""

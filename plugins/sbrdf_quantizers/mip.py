@@ -24,8 +24,9 @@ when a scene material says ``filter: trilinear``.  YAML::
 
     mip: {kind: Mip, in: {params: fit}, params: {method: refit}}
 
-The levels are computed in memory (one LM fit per coarse texel for ``refit``):
-the texel count of level 1 is a quarter of the fit's.
+The levels are computed in memory (one LM fit per coarse texel for ``refit``),
+in the node's prepare step (the runner's scheduler and progress bar): the
+texel count of level 1 is a quarter of the fit's.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from sbrdf_core.params import Param
 
 from . import interpolate
 
-log = logging.getLogger("sbrdf.mip")
+log = logging.getLogger(__name__)
 
 
 def max_levels(V: int, U: int) -> int:
@@ -107,27 +108,40 @@ class Mip(NodeKind):
     )
 
     @classmethod
-    def build(cls, ctx: BuildContext) -> Output:
+    def prepare(cls, ctx: BuildContext) -> dict:
+        """The levels, their errors and the seconds they took: one delayed task over the concrete level 0."""
         import dask
-        import dask.array as da
 
         p = ctx.params
         art = ctx.inputs["params"]
         if p["method"] == "samples" and "samples" not in ctx.inputs:
             raise SbrdfError(f"node {ctx.node!r}: method: samples needs in: {{samples: <SampledReflectance>}}")
         model = ctx.registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
-        names = [q.name for q in model.parameters]
-        base = dict(zip(names, dask.compute(*[art.array(f"params/{n}") for n in names])))
+        base = {q.name: art.array(f"params/{q.name}") for q in model.parameters}
         samples = None
         if p["method"] == "samples":
             s = ctx.inputs["samples"]
-            f_r, valid = dask.compute(s.array("f_r"), s.array("valid"))
-            samples = {"f_r": f_r, "valid": valid, "size_mm": tuple(s.attrs["size_mm"]),
+            samples = {"f_r": s.array("f_r"), "valid": s.array("valid"), "size_mm": tuple(s.attrs["size_mm"]),
                        "light_pos": s.read("light_pos"), "camera_pos": s.read("camera_pos")}
-        t0 = time.perf_counter()
-        levels = build_levels(model, base, p["method"], p["levels"], p["directions"], p["iterations"], samples)
-        seconds = time.perf_counter() - t0
-        errors = level_errors(model, base, levels, p["directions"])
+        return {"levels": dask.delayed(_make_levels)(model, base, p["method"], p["levels"], p["directions"],
+                                                     p["iterations"], samples)}
+
+    @classmethod
+    def build(cls, ctx: BuildContext) -> Output:
+        import dask.array as da
+
+        p = ctx.params
+        art = ctx.inputs["params"]
+        prepared = ctx.prepared
+        if prepared is None:  # built outside a runner (a test, a notebook): compute it here
+            import dask
+
+            wanted = cls.prepare(ctx)
+            prepared = dict(zip(wanted, dask.compute(*wanted.values())))
+        levels, errors, seconds = prepared["levels"]
+        model = ctx.registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
+        names = [q.name for q in model.parameters]
+        base = {n: art.array(f"params/{n}") for n in names}
         V, U = next(iter(base.values())).shape[:2]
         shapes = [[V, U]] + [list(next(iter(lv.values())).shape[:2]) for lv in levels]
         log.info("node %r: %d MIP levels by %s in %.1f s; mean error per level %s", ctx.node, len(levels),
@@ -142,6 +156,14 @@ class Mip(NodeKind):
                         "seconds": seconds}
         summary = dict(art.attrs.get("summary", {}))
         return Output(arrays=arrays, attrs=attrs, finalize=lambda a: {"summary": summary})
+
+
+def _make_levels(model, base, method, levels, n_dirs, iterations, samples):
+    """``(levels, errors, seconds)`` from concrete level-0 maps (and samples): what ``Mip.prepare`` computes."""
+    t0 = time.perf_counter()
+    out = build_levels(model, base, method, levels, n_dirs, iterations, samples)
+    seconds = time.perf_counter() - t0
+    return out, level_errors(model, base, out, n_dirs), seconds
 
 
 def read_levels(art, model) -> list[dict]:

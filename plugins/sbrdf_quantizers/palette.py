@@ -31,6 +31,7 @@ import numpy as np
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.io import read_png, write_png
 from sbrdf_core.nodes.quantize import Encoded
+from sbrdf_core.params import Param
 from sbrdf_core.store import join
 
 
@@ -155,14 +156,30 @@ def _take_block(index, pal):
 
 
 class PaletteQuantizer:
-    def __init__(self, k: int = 256, directions: int = 12, seed: int = 0):
+    """K ≤ 256 representative BRDFs clustered in sampled-BRDF space; an index PNG and the palette."""
+
+    params = (
+        Param("k", "int", 256, "palette entries at most (8-bit index)", bounds=(1, 256)),
+        Param("directions", "int", 12, "Fibonacci directions per side of the sampled-BRDF vectors", bounds=(2, 64)),
+        Param("seed", "int", 0, "k-means seed"),
+    )
+
+    def __init__(self, *, k: int = 256, directions: int = 12, seed: int = 0):
         self.k, self.directions, self.seed = k, directions, seed
 
-    def encode(self, params, model) -> Encoded:
+    def prepare(self, params, model) -> dict:
+        """Every texel's parameters: the clustering is global, so ``encode`` needs them all concrete."""
+        import dask.array as da
+
+        return {p.name: da.asarray(params[p.name]) for p in model.parameters}
+
+    def encode(self, params, model, prepared=None) -> Encoded:
         import dask.array as da
 
         names = [p.name for p in model.parameters]
-        arrays = {n: np.asarray(da.asarray(params[n]).compute(), np.float64) for n in names}  # clustering is global
+        if prepared is None:  # called directly, outside a Quantize node
+            prepared = dict(zip(names, da.compute(*(da.asarray(params[n]) for n in names))))
+        arrays = {n: np.asarray(prepared[n], np.float64) for n in names}
         V, U = arrays[names[0]].shape[:2]
         flat = {n: a.reshape(V * U, -1) for n, a in arrays.items()}
         index, palette, _ = build_palette(model, flat, self.k, self.directions, self.seed)

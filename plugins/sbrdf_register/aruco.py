@@ -60,6 +60,7 @@ camera.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -69,6 +70,9 @@ from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import camera_centre, texel_centres
 from sbrdf_core.nodes.base import shared
 from sbrdf_core.nodes.register import Registration
+from sbrdf_core.params import Param
+
+logger = logging.getLogger(__name__)
 
 #: Pixels of bicubic support on each side of a sample point (the kernel is 4×4).
 BICUBIC_RADIUS = 2
@@ -158,8 +162,38 @@ def tone_map(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
 class ArucoRegistration:
     """Register plugin ``aruco`` (see the module docstring)."""
 
-    def __init__(self, texels, max_rms_mm, min_markers, max_pose_deg, pose_from, correct_light, refine_win_px,
-                 max_subsamples, edge_margin_px, corner_refine="edges", edge="renormalise", edge_min_weight=0.25):
+    params = (
+        Param("texels", "list", [256, 256], "texel grid [U, V] every pose is resampled onto", length=2, item="int",
+              bounds=(1, 65536)),
+        Param("max_rms_mm", "float", 0.5, "reject poses whose homography RMS residual on the sample plane exceeds this",
+              bounds=(0.0, None), unit="mm"),
+        Param("min_markers", "int", 2, "reject poses with fewer markers detected (4 corners each)", bounds=(1, None)),
+        Param("max_pose_deg", "float", 10.0, "reject poses whose measured orientation differs from the nominal one "
+              "by more than this; null disables the check", bounds=(0.0, 180.0), nullable=True, unit="deg"),
+        Param("pose_from", "str", "fiducials", "camera pose used for ω_r: measured from the fiducials (solvePnP) "
+              "or the nominal motor pose", choices=("fiducials", "nominal")),
+        Param("correct_light", "bool", True, "move the nominal light into the measured sample frame (the sample, "
+              "not the lab, moved)"),
+        Param("corner_refine", "str", "edges", "sub-pixel corners: lines fitted to each marker's outer edges in "
+              "the linear image, or OpenCV's cornerSubPix", choices=("edges", "subpix")),
+        Param("refine_win_px", "int", 5, "half-size of the sub-pixel corner refinement window", bounds=(1, 64), unit="px"),
+        Param("max_subsamples", "int", 4, "most bicubic sub-samples per texel axis before an extra pyramid octave "
+              "of pre-blur is used", bounds=(1, 16)),
+        Param("edge_margin_px", "float", 2.0, "pixels next to the sample edge that are never used (lens blur "
+              "mixes in the carrier), and extra pixels kept clear of invalid pixels", bounds=(0.0, 64.0),
+              unit="px"),
+        Param("edge", "str", "renormalise", "texels whose filter reaches past the sample edge or the image "
+              "border: renormalise (the filter is clipped to the usable pixels and its weights renormalised) "
+              "or strict (the texel is invalid for that pose: the whole outer ring is lost)",
+              choices=("renormalise", "strict")),
+        Param("edge_min_weight", "float", 0.25, "renormalise: a clipped texel is valid when at least this "
+              "fraction of its filter's weight falls on usable pixels", bounds=(0.0, 1.0)),
+    )
+
+    def __init__(self, *, texels=(256, 256), max_rms_mm: float = 0.5, min_markers: int = 2,
+                 max_pose_deg: float | None = 10.0, pose_from: str = "fiducials", correct_light: bool = True,
+                 corner_refine: str = "edges", refine_win_px: int = 5, max_subsamples: int = 4,
+                 edge_margin_px: float = 2.0, edge: str = "renormalise", edge_min_weight: float = 0.25):
         self.texels = (int(texels[0]), int(texels[1]))
         self.max_rms_mm = float(max_rms_mm)
         self.min_markers = int(min_markers)
@@ -175,9 +209,8 @@ class ArucoRegistration:
 
     # -- measuring (once per capture, before any resampling) --------------------------------------
 
-    def register(self, capture) -> Registration:
-        import dask
-
+    def _camera(self, capture) -> tuple[dict, np.ndarray, np.ndarray]:
+        """The capture's fiducials, K and distortion; refuses captures aruco cannot register."""
         cam = capture.attrs.get("camera", {})
         sample = capture.attrs.get("sample", {})
         if cam.get("model", "pinhole") != "pinhole":
@@ -189,9 +222,20 @@ class ArucoRegistration:
                              "the printed marker corners (capture.json sample.fiducials)")
         K = np.asarray(cam["K"], float)
         dist = np.asarray(cam.get("dist", [0] * 5), float)
-        light_nom = capture.read("light_pos")
+        return fid, K, dist
+
+    def prepare(self, capture) -> dict:
+        """Marker detection and pose measurement of every photograph, lazily: ``{"blocks": [delayed, ...]}``.
+
+        The runner computes it on the run's scheduler with the node's progress
+        bar; :meth:`register` gets the results as ``prepared``.
+        """
+        import dask
+
+        fid, K, dist = self._camera(capture)
+        sample = capture.attrs.get("sample", {})
         R_nom, t_nom = capture.read("camera_R"), capture.read("camera_t")
-        P = light_nom.shape[0]
+        P = capture.zarr_array("light_pos").shape[0]
         # One task measures a block of poses, reading each photograph from the capture's
         # zarr arrays (one shared graph key each), and returns one small record array:
         # per-pose tasks or results were O(poses) task specs and Python objects, and the
@@ -202,8 +246,23 @@ class ArucoRegistration:
         R_, t_ = shared(R_nom), shared(t_nom)
         measure = dask.delayed(_measure_poses, pure=True)
         k = max(1, min(MEASURE_BLOCK, -(-P // 8)))  # at least 8 tasks keep every core busy on small scans
-        blocks = [measure(lo, min(P, lo + k), images, valids, fid_, K_, dist_, R_, t_, settings) for lo in range(0, P, k)]
-        results = dask.compute(*blocks)
+        return {"blocks": [measure(lo, min(P, lo + k), images, valids, fid_, K_, dist_, R_, t_, settings)
+                           for lo in range(0, P, k)]}
+
+    def register(self, capture, prepared: dict | None = None) -> Registration:
+        """Accept or reject every pose from :meth:`prepare`'s computed ``prepared`` and build the Registration.
+
+        Outside a run (``prepared`` not given) the measurement is computed here, on dask's default scheduler.
+        """
+        if prepared is None:
+            import dask
+
+            prepared = dask.compute(self.prepare(capture))[0]
+        _, K, dist = self._camera(capture)
+        light_nom = capture.read("light_pos")
+        R_nom, t_nom = capture.read("camera_R"), capture.read("camera_t")
+        results = prepared["blocks"]
+        logger.info("capture %s: measured %d poses in %d blocks", capture.url, light_nom.shape[0], len(results))
         fits = np.concatenate([r[0] for r in results])
         reasons = {pose: why for r in results for pose, why in r[1].items()}
         return self._assemble(capture, fits, reasons, K, dist, light_nom, R_nom, t_nom)

@@ -2,31 +2,44 @@
 
 from __future__ import annotations
 
+import logging
+
+from sbrdf_core import contracts
+from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import check_scene_param, load_scene, scene_fingerprint
+from sbrdf_core.params import Param
+from sbrdf_lib.mesh import load_obj
+from sbrdf_lib.scene import SceneError, load_scene, scene_fingerprint
 
 from . import materials as mat
+
+logger = logging.getLogger(__name__)
+
+SCENE = Param("scene", "str", doc="scene file (YAML, docs/scenes.md), relative to the graph file",
+              extra={"path": True})
+EXPOSURE = Param("exposure", "float", None, "display exposure for the PNG; default: the scene's, else automatic",
+                 nullable=True, bounds=(0.0, None))
 
 
 def check_scene(params, registry=None) -> list[tuple[str, str]]:
     """``check_params`` of the scene renderers: everything a render would fail on that can be checked up front.
 
-    The scene file and its effects (:func:`sbrdf_core.scene.check_scene_param`),
+    The scene file and the scene effects it wants (:func:`effect_problems`),
     then what only a renderer knows how to read: every mesh is parsed with
-    the renderer's OBJ loader, and every uniform material (``model:`` with
-    ``params:``) is constructed.  Stores named by ``artifact:`` or
-    ``shading_map:`` are opened at render time (another node may write them).
+    the OBJ loader, and every uniform material (``model:`` with ``params:``)
+    is constructed.  Stores named by ``artifact:`` or a plugin's store key
+    (``shading_map:``) are opened at render time (another node may write them).
     """
-    from sbrdf_core.errors import SbrdfError
     from sbrdf_core.registry import default_registry
 
-    from .shapes import load_obj
-
     registry = registry if registry is not None else default_registry()
-    problems = check_scene_param(params, registry)
+    try:
+        scene = load_scene(params["scene"], registry=registry)
+    except SceneError as e:
+        return [("scene", "; ".join(str(p) for p in e.problems))]
+    problems = [("scene", msg) for msg in effect_problems(scene, registry)]
     if problems:
         return problems
-    scene = load_scene(params["scene"])
     out = []
     for o in scene.objects:
         if o.shape == "mesh" and "://" not in o.params["file"]:
@@ -43,7 +56,7 @@ def check_scene(params, registry=None) -> list[tuple[str, str]]:
             continue
         try:
             model = registry.create("brdf-model", ref.model, dict(ref.model_params))
-            if ref.shading is None:
+            if ref.surface is None:
                 mat.uniform(name, model, ref.params, ref.filter)
         except SbrdfError as e:
             msg = str(e)
@@ -51,10 +64,43 @@ def check_scene(params, registry=None) -> list[tuple[str, str]]:
     return [("scene", m) for m in out]
 
 
+def effect_problems(scene, registry) -> list[str]:
+    """What would stop a renderer constructing the scene's effects, found without rendering.
+
+    Every installed scene effect the scene wants is constructed from its
+    options (a constructor only stores and checks them); one that defines
+    ``check(scene) -> [message]`` then checks what it will read (an
+    environment map's file).  Effects named in ``effects:`` that no plugin
+    provides are reported too; keys of a plugin that is not installed are
+    already unknown to the scene loader.
+    """
+    out: list[str] = []
+    provided: set[str] = set()
+    for name in registry.names("scene-effect"):
+        try:
+            cls = registry.load(registry.get("scene-effect", name))
+            if not cls.wanted(scene):
+                continue
+            provided.add(name)
+            effect = registry.create("scene-effect", name, cls.options(scene))
+            check = contracts.optional(effect, "check", "scene-effect")
+            out += [f"{scene.file}: scene effect {name!r}: {m}" for m in (check(scene) if callable(check) else [])]
+        except SbrdfError as e:
+            msg = str(e)
+            out.append(f"{scene.file}: " + (msg if msg.startswith("scene-effect ") else f"scene effect {name!r}: {msg}"))
+    missing = sorted(set(scene.effects) - provided)
+    if missing:
+        out.append(f"{scene.file}: effects: no installed scene effect provides {missing} "
+                   "(see `sbrdf plugins --category scene-effect`)")
+    return out
+
+
 class SceneRenderer:
     """Base of Render plugins that draw a scene file; subclasses implement ``render``."""
 
-    def __init__(self, scene: str, exposure: float | None = None):
+    params = (SCENE, EXPOSURE)
+
+    def __init__(self, *, scene: str, exposure: float | None = None):
         self.scene_path, self.exposure = scene, exposure
         self.registry = None
 
@@ -67,12 +113,24 @@ class SceneRenderer:
         return check_scene(params, registry)
 
     def fingerprint(self) -> str:
-        return scene_fingerprint(self.scene_path)
+        return scene_fingerprint(self.scene_path, self.registry)
 
-    def load(self, material):
-        """The scene and its resolved materials (``material``: the Render node's input)."""
-        scene = load_scene(self.scene_path)
-        return scene, mat.resolve(scene, material, self.registry)
+    def prepare(self, material) -> dict:
+        """The parameter maps of the scene's store-backed materials, lazy: the runner computes them before build."""
+        scene = load_scene(self.scene_path, registry=self.registry)
+        return mat.prepare(scene, material, self._registry())
+
+    def load(self, material, prepared: dict | None = None):
+        """The scene and its resolved materials (``material``: the Render node's input; ``prepared``: see above)."""
+        scene = load_scene(self.scene_path, registry=self.registry)
+        return scene, mat.resolve(scene, material, self._registry(), prepared)
+
+    def _registry(self):
+        if self.registry is None:
+            from sbrdf_core.registry import default_registry
+
+            self.registry = default_registry()
+        return self.registry
 
     def result(self, scene, image, attrs: dict) -> RenderResult:
         exposure = self.exposure if self.exposure is not None else scene.exposure

@@ -11,7 +11,7 @@ Antialiasing (the scene's ``antialias: n²``, 4 unless it says) supersamples:
 every pixel is n×n rays through a stratified sub-pixel grid (centres at
 ((a + ½)/n, (b + ½)/n) of the pixel), i.e. the image is cast at n times the
 resolution and n×n blocks are averaged in linear radiance
-(:meth:`~sbrdf_core.scene.Scene.supersampled`, :func:`~sbrdf_core.scene.downsample`).
+(:meth:`~sbrdf_lib.scene.Scene.supersampled`, :func:`~sbrdf_lib.scene.downsample`).
 ``gl`` rasterises the same points, so the two still agree pixel for pixel.
 ``antialias: 1`` casts one ray through each pixel centre.
 
@@ -25,40 +25,26 @@ same per-pixel tangent frames and parameter lookups as the GPU.
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
 
+from sbrdf_core import contracts
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import downsample
+from sbrdf_lib.scene import downsample
+from sbrdf_lib.surface import Hits, cast, local_frame
 
 from . import materials as mat
 from .base import SceneRenderer
 from .effects import active_effects, check_covered
-from .shapes import Hits, intersect, local_frame, tessellate
+
+__all__ = ["BATCH", "CPURenderer", "cast", "lods", "occluded", "render_scene", "shade", "texel_edges"]
+
+logger = logging.getLogger(__name__)
 
 #: Pixels shaded per BRDF evaluation: bounds the temporaries of multi-lobe models at 1080p.
 BATCH = 1 << 16
-
-
-def cast(scene, materials, dirs: np.ndarray, origin: np.ndarray, meshes: dict | None = None):
-    """Nearest alpha-surviving hit per ray, and the index of its object (−1 for a miss)."""
-    meshes = meshes if meshes is not None else {}
-    best = Hits.empty(len(dirs))
-    which = np.full(len(dirs), -1)
-    for k, obj in enumerate(scene.objects):
-        mesh = meshes.get(k)
-        if obj.shape == "mesh" and mesh is None:
-            mesh = meshes[k] = tessellate(obj)
-        m = materials[obj.material]
-        for hits in intersect(obj, origin, dirs, mesh):
-            hit = np.isfinite(hits.t) & (hits.t < best.t)
-            if m.alpha is not None and hit.any():
-                idx = np.nonzero(hit)[0]
-                hit[idx[~m.alive(hits.uv[idx])]] = False
-            best.take(hits, hit)
-            which[hit] = k
-    return best, which
 
 
 def occluded(scene, materials, points: np.ndarray, to_light: np.ndarray, distance: np.ndarray, meshes: dict) -> np.ndarray:
@@ -75,7 +61,7 @@ def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray
     ``lod``: each hit's MIP level of detail (trilinear materials, :func:`lods`).
     """
     model = material.model
-    two_sided = bool(getattr(model, "two_sided", False))  # transmissive: lit from either side, |N·ω_l|
+    two_sided = bool(contracts.optional(model, "two_sided", "brdf-model"))  # transmissive: lit from either side, |N·ω_l|
     out = np.zeros((len(view_dirs), 3))
     for s in range(0, len(view_dirs), BATCH):
         sl = slice(s, s + BATCH)
@@ -202,7 +188,8 @@ def texel_edges(scene, materials: dict, n: int = 8, meshes: dict | None = None) 
 class CPURenderer(SceneRenderer):
     """``Render`` plugin ``cpu``: one scene file, rendered by :func:`render_scene`."""
 
-    def render(self, material) -> RenderResult:
-        scene, materials = self.load(material)
+    def render(self, material, prepared: dict | None = None) -> RenderResult:
+        scene, materials = self.load(material, prepared)
         image, stats = render_scene(scene, materials, registry=self.registry)
+        logger.info("cpu render of %s: %.2f s", self.scene_path, stats["total_s"])
         return self.result(scene, image, stats)

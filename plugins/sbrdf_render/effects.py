@@ -6,7 +6,11 @@ the protocol is documented on :func:`sbrdf_core.hookspecs.sbrdf_scene_effects`.
 
 from __future__ import annotations
 
+import logging
+
 from sbrdf_core.errors import SbrdfError
+
+logger = logging.getLogger(__name__)
 
 
 def active_effects(scene, materials: dict, registry=None, gl_context=None) -> list:
@@ -24,19 +28,17 @@ def active_effects(scene, materials: dict, registry=None, gl_context=None) -> li
         except SbrdfError as e:
             raise SbrdfError(f"{scene.file}: scene effect {name!r}: {e}") from None
         effect.prepare(scene, materials, gl_context)
+        logger.debug("scene effect %r prepared for %s", name, scene.file)
         out.append(effect)
     return out
 
 
 def check_covered(scene, effects) -> None:
-    """An error when the scene needs an effect no installed plugin provides (rather than ignoring it)."""
-    if scene.environment is not None and not any(getattr(e, "name", "") == "environment" for e in effects):
-        raise SbrdfError(f"{scene.file}: environment lighting needs the environment scene effect (plugin "
-                         "sbrdf_envmap), which is not installed")
-    if any(o.params.get("reflector") for o in scene.objects) and not any(getattr(e, "name", "") == "mirror"
-                                                                       for e in effects):
-        raise SbrdfError(f"{scene.file}: reflector: true needs the mirror scene effect (plugin sbrdf_envmap), which "
-                         "is not installed")
+    """An error when the scene names an effect no installed plugin provides (rather than ignoring it).
+
+    Keys that call for a plugin's effect (``environment:``, ``reflector:``) come from that plugin's
+    ``sbrdf_scene_keys``, so without the plugin the scene loader already refuses them.
+    """
     missing = sorted(set(scene.effects) - {getattr(e, "name", "") for e in effects})
     if missing:
         raise SbrdfError(f"{scene.file}: effects: no installed scene effect provides {missing} (see `sbrdf plugins "

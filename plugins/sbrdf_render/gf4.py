@@ -10,7 +10,7 @@ Two passes per lobe per light (Table 6.2: 2 × lobes × lights), additive blendi
 * **Pass 2**: reads that target at ``gl_FragCoord`` (Eq 6.12's
   un-perspective-corrected screen coordinates), does the dependent read
   s = T[x', n'] in the 256×256 8-bit exponent table
-  (:func:`~sbrdf_quantizers.mcallister8.exponent_table`, NEAREST), and adds
+  (the ``mcallister8`` quantizer's ``exponent_table()``, NEAREST), and adds
   (ρ_d δ(j, 1) + ρ_s,j · s) · E_l to the frame; E_l, the light's irradiance
   power × clamp(N·ω_l, 0) [/ d²], is computed per vertex (COL0), as the text
   does.  Texels whose ρ_d alpha is below ½ are killed in both passes.
@@ -22,7 +22,7 @@ Two passes per lobe per light (Table 6.2: 2 × lobes × lights), additive blendi
 The parameters are the ``mcallister8`` textures (RGBA8/RGB8, normalised):
 the material's own when it came from an ``mcallister8`` TextureSet, otherwise
 its parameter maps encoded on the fly with that quantizer's defaults.  The
-per-pixel result equals :func:`~sbrdf_quantizers.mcallister8.hardware_shade`
+per-pixel result equals the ``mcallister8`` plugin's ``hardware_shade``
 up to 8-bit rounding ties (tests/plugins/test_render_gf4.py), so it shows the
 documented artifacts: no brightening at grazing (x clamped at 1), banding in
 highlight tails (x', n' rounded to 8 bits), exponents above 255 clamped.
@@ -35,15 +35,19 @@ are renormalised in float (the card used an 8-bit normalisation cube map).
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
+from sbrdf_lib.gl import Drawer, Frame, clip_planes, context
+from sbrdf_lib.surface import tessellate
 
 from . import materials as mat
-from .gl import SHADOW_LOOKUP, Drawer, Frame, clip_planes, context
-from .shapes import tessellate
+from .gl import SHADOW_LOOKUP
+
+logger = logging.getLogger(__name__)
 
 #: Texture units: the same in both passes' programs.
 UNIT_LOBE, UNIT_RHO_S, UNIT_RHO_D, UNIT_PBUFFER, UNIT_TABLE, UNIT_SHADOW = 0, 1, 2, 3, 4, 5
@@ -153,9 +157,73 @@ void main() {{
 """
 
 
-def hardware_textures(m: mat.SceneMaterial) -> dict:
-    """The material's ``mcallister8`` textures, scale and bias (its own, or its maps encoded now)."""
-    if getattr(m.model, "name", "") != "lafortune" or not hasattr(m.model, "lobe_list"):
+def _lafortune(model) -> bool:
+    return getattr(model, "name", "") == "lafortune" and hasattr(model, "lobe_list")
+
+
+def _quantizer(registry):
+    """The ``mcallister8`` quantizer, through the registry: its layout is the GeForce 4's."""
+    if registry is None:
+        from sbrdf_core.registry import default_registry
+
+        registry = default_registry()
+    return registry.create("quantizer", "mcallister8", {})
+
+
+def _encode(quantizer, name: str, model, params: dict):
+    try:
+        return quantizer.encode(params, model)
+    except ValueError as err:
+        raise SbrdfError(f"gl renderer, pipeline geforce4: material {name!r}: {err}") from None
+
+
+def prepare_hardware(scene, input_material, registry) -> dict:
+    """The 8-bit textures the geforce4 path encodes from float maps, lazy, keyed ``<material>/gf4/<texture>``.
+
+    Store-backed maps are cast to float32 as :func:`materials.from_material` packs them, so the codes
+    equal those :func:`hardware_textures` would compute from the packed maps; materials the path
+    refuses are left to :func:`hardware_textures` to report.
+    """
+    import dask.array as da
+    from dask.base import is_dask_collection
+
+    stored = mat.inputs(scene, input_material, registry)
+    quantizer = _quantizer(registry)
+    out = {}
+    for name in sorted({o.material for o in scene.objects}):
+        ref = scene.materials[name]
+        try:
+            if name in stored:
+                m = stored[name]
+                model = m.model
+                if (m.encoded or {}).get("quantizer") == "mcallister8" or not _lafortune(model):
+                    continue
+                params = {p.name: m.params[p.name].astype(np.float32).astype(np.float64) for p in model.parameters}
+            elif ref.artifact is None:
+                model = registry.create("brdf-model", ref.model, dict(ref.model_params))
+                if not _lafortune(model):
+                    continue
+                maps = mat.uniform(name, model, ref.params, ref.filter).maps
+                params, off = {}, 0
+                for p in model.parameters:
+                    params[p.name] = da.from_array(np.asarray(maps[..., off:off + p.channels], np.float64))
+                    off += p.channels
+            else:
+                continue
+            e = _encode(quantizer, name, model, params)
+        except SbrdfError:
+            continue  # refused again, with its message, when the scene is drawn
+        out.update({f"{name}/gf4/{k}": t for k, t in e.textures.items() if is_dask_collection(t)})
+    return out
+
+
+def hardware_textures(m: mat.SceneMaterial, quantizer=None, computed: dict | None = None) -> dict:
+    """The material's ``mcallister8`` textures, scale and bias (its own, or its maps encoded now).
+
+    ``computed``: :func:`prepare_hardware` computed (the runner's prepare step); ``quantizer``: the
+    ``mcallister8`` quantizer (default: from the installed plugins).
+    """
+    if not _lafortune(m.model):
         raise SbrdfError(f"gl renderer, pipeline geforce4: material {m.name!r} uses model {m.model.name!r}; the "
                          "GeForce 4 path renders Lafortune lobes only (use pipeline: float)")
     enc = m.encoded
@@ -165,17 +233,19 @@ def hardware_textures(m: mat.SceneMaterial) -> dict:
                 "bias": {k: np.asarray(b, np.float64) for k, b in enc["bias"].items()}}
     import dask.array as da
 
-    from sbrdf_quantizers.mcallister8 import McAllister8Quantizer
-
+    quantizer = quantizer if quantizer is not None else _quantizer(None)
     params, off = {}, 0
     for p in m.model.parameters:
         params[p.name] = da.from_array(np.asarray(m.maps[..., off:off + p.channels], np.float64))
         off += p.channels
-    try:
-        e = McAllister8Quantizer().encode(params, m.model)
-    except ValueError as err:
-        raise SbrdfError(f"gl renderer, pipeline geforce4: material {m.name!r}: {err}") from None
-    textures = {k: np.asarray(t.compute() if hasattr(t, "compute") else t) for k, t in e.textures.items()}
+    e = _encode(quantizer, m.name, m.model, params)
+    textures = {}
+    for k, t in e.textures.items():
+        key = f"{m.name}/gf4/{k}"
+        if computed is not None and key in computed:
+            textures[k] = np.asarray(computed[key])
+        else:  # direct use (tests, benchmarks): no runner computed it
+            textures[k] = np.asarray(t.compute() if hasattr(t, "compute") else t)
     if m.alpha is not None:
         textures["rho_d"] = textures["rho_d"].copy()
         textures["rho_d"][..., 3] = np.clip(np.round(255.0 * m.alpha), 0, 255).astype(np.uint8)
@@ -185,15 +255,20 @@ def hardware_textures(m: mat.SceneMaterial) -> dict:
 class GF4Scene(Drawer):
     """A scene uploaded for the two-pass GeForce 4 path: same interface as :class:`~sbrdf_render.gl.GLScene`."""
 
-    def __init__(self, scene, materials: dict[str, mat.SceneMaterial], meshes: dict | None = None):
+    def __init__(self, scene, materials: dict[str, mat.SceneMaterial], meshes: dict | None = None, registry=None,
+                 prepared: dict | None = None):
         import moderngl
 
-        from sbrdf_quantizers.mcallister8 import exponent_table
-
         self.scene, self.materials = scene, materials
-        if scene.environment is not None:
+        if scene.section("environment") is not None:
             raise SbrdfError(f"{scene.file}: the geforce4 pipeline draws point and directional lights only")
-        hardware = {name: hardware_textures(m) for name, m in materials.items()}  # refuse before allocating GL objects
+        quantizer = _quantizer(registry)
+        table_of = getattr(quantizer, "exponent_table", None)  # the hardware's lookup table, from its layout's owner
+        if table_of is None:
+            raise SbrdfError("gl renderer, pipeline geforce4: the mcallister8 quantizer plugin does not provide "
+                             "exponent_table()")
+        # refuse before allocating GL objects
+        hardware = {name: hardware_textures(m, quantizer, prepared) for name, m in materials.items()}
         self.ctx = ctx = context()
         W, H = scene.camera.resolution
         self._res = []
@@ -202,7 +277,7 @@ class GF4Scene(Drawer):
         self.pbuffer_tex = self._keep(ctx.texture((W, H), 4, dtype="f1"))  # RGBA8: the p-buffer's precision
         self.pbuffer_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.pbuffer = self._keep(ctx.framebuffer([self.pbuffer_tex], depth))
-        table = np.ascontiguousarray(exponent_table())  # row i = x', column j = n'
+        table = np.ascontiguousarray(table_of())  # row i = x', column j = n'
         self.table = self._keep(ctx.texture((256, 256), 1, table.tobytes(), dtype="f1"))
         self.table.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.table.repeat_x = self.table.repeat_y = False

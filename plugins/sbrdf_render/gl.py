@@ -19,47 +19,33 @@ supersampling with the ``cpu`` renderer's pattern: the scene is drawn into a
 framebuffer n times larger in each direction (every fragment centre is a
 sub-sample centre ((a + ½)/n, (b + ½)/n) of an output pixel), read back as
 float32 linear radiance and averaged over n×n blocks
-(:meth:`~sbrdf_core.scene.Scene.supersampled`).  MSAA would shade once per
+(:meth:`~sbrdf_lib.scene.Scene.supersampled`).  MSAA would shade once per
 pixel and so not converge to the reference where parameter textures change
 inside a pixel, which is where the error is.
 """
 
 from __future__ import annotations
 
+import logging
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from sbrdf_core import contracts
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
-from sbrdf_core.scene import Features, downsample
+from sbrdf_core.params import Param
+from sbrdf_lib.gl import Drawer, Frame, check_size, clip_planes, context, device_name, parameter_exprs
+from sbrdf_lib.scene import Features, downsample, load_scene
+from sbrdf_lib.surface import tessellate
 
 from . import materials as mat
 from .base import SceneRenderer
-from .shapes import tessellate
 
-_CONTEXT = None
+__all__ = ["Drawer", "Frame", "GLRenderer", "GLScene", "SHADOW_LOOKUP", "VERTEX", "clip_planes", "context",
+           "device_name", "fragment_source", "parameter_exprs"]
 
-
-def context():
-    """The process's standalone EGL context (created once; EGL contexts are expensive)."""
-    global _CONTEXT
-    if _CONTEXT is None:
-        import moderngl
-
-        try:
-            _CONTEXT = moderngl.create_context(standalone=True, backend="egl", require=330)
-        except Exception as e:  # no libEGL, no driver
-            raise SbrdfError(f"gl renderer: cannot create an OpenGL 3.3 context through EGL ({e}); install "
-                             "Mesa's EGL (Debian: libegl1 libgl1-mesa-dri) or use the cpu renderer") from None
-    return _CONTEXT
-
-
-def device_name() -> str:
-    ctx = context()
-    return f"{ctx.info['GL_RENDERER']} ({ctx.info['GL_VENDOR']})"
-
+logger = logging.getLogger(__name__)
 
 # -- shader generation -------------------------------------------------------------------------------------------------
 
@@ -80,23 +66,13 @@ void main() {{
 """
 
 
-def parameter_exprs(model, samplers: str = "u_params") -> tuple[int, dict[str, str]]:
-    """Number of RGBA textures holding the packed parameters, and each parameter's GLSL expression."""
-    exprs, offset = {}, 0
-    for p in model.parameters:
-        comps = [f"{samplers}_{(offset + c) // 4}.{'xyzw'[(offset + c) % 4]}" for c in range(p.channels)]
-        exprs[p.name] = comps[0] if p.channels == 1 else f"vec{p.channels}({', '.join(comps)})"
-        offset += p.channels
-    return (offset + 3) // 4, exprs
-
-
 def fragment_source(material: mat.SceneMaterial, features: Features, effects: tuple = ()) -> str:
     """The fragment shader for one material under the scene's lights and effects: only the code the scene needs."""
     model = material.model
     surface = material.surface  # a shading rule of its own (shading maps) replaces f_r · E · cos θ
     ntex, exprs = parameter_exprs(model, "p") if surface is None else (0, {})
     aniso = material.anisotropic
-    two_sided = bool(getattr(model, "two_sided", False))
+    two_sided = bool(contracts.optional(model, "two_sided", "brdf-model"))
     NP, ND = features.point_lights, features.directional_lights
     out = ["#version 330", "in vec3 v_pos;", "in vec3 v_normal;"]
     if aniso:
@@ -178,70 +154,14 @@ SHADOW_LOOKUP = """float shadow_visibility(sampler2DShadow map, mat4 mvp, vec3 p
 """
 
 
-def clip_planes(camera, meshes: dict) -> tuple[float, float]:
-    """Near and far planes from the vertices' depths along the view (meshes of any size), with a margin."""
-    forward = camera.basis()[2]
-    depth = np.concatenate([(m.positions - camera.position) @ forward for m in meshes.values()])
-    far = float(depth.max(initial=1.0)) * 1.01 + 1e-6
-    return max(far * 1e-5, float(depth.min(initial=0.0)) * 0.99), far
-
-
 # -- drawing ------------------------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Frame:
-    image: np.ndarray  # (H, W, 3) float32 linear, row 0 at the top
-    gpu_ms: float  # GL time-elapsed query around the draw calls
-    wall_ms: float  # including glFinish
-    stats: dict = field(default_factory=dict)
-
-
-class Drawer:
-    """What the GL drawers (:class:`GLScene`, :class:`~sbrdf_render.gf4.GF4Scene`) share: resources released
-    together, and the end of a frame (timing and read-back)."""
-
-    _res: list
-
-    def _keep(self, obj):
-        self._res.append(obj)
-        return obj
-
-    def _finish(self, target, t0: float, read: bool) -> tuple[np.ndarray | None, float, float]:
-        """Wait for the frame; its image from ``target`` (row 0 at the top) if ``read``, GPU and wall ms."""
-        self.ctx.finish()
-        wall = (time.perf_counter() - t0) * 1e3
-        elapsed = self.query.elapsed
-        gpu = elapsed / 1e6 if 0 < elapsed < 2**32 - 1 else wall  # llvmpipe may answer UINT_MAX on a first frame
-        image = None
-        if read:
-            W, H = self.scene.camera.resolution
-            raw = np.frombuffer(target.read(components=3, dtype="f4"), dtype=np.float32).reshape(H, W, 3)
-            image = raw[::-1].copy()  # GL's row 0 is the bottom
-        return image, gpu, wall
-
-    def release(self) -> None:
-        for obj in reversed(self._res):
-            if hasattr(obj, "release"):  # moderngl's Query has no release()
-                obj.release()
-        self._res = []
-
-
-def check_size(ctx, scene) -> None:
-    """An error, rather than a driver failure, when the (supersampled) framebuffer exceeds what the driver allows."""
-    W, H = scene.camera.resolution
-    limit = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384) or 16384)
-    if max(W, H) > limit:
-        raise SbrdfError(f"{scene.file}: gl renderer: the framebuffer would be {W}×{H} (the camera's resolution "
-                         f"× √antialias) but this driver allows {limit} pixels per side; lower antialias: or the "
-                         "resolution, or use the cpu renderer")
 
 
 class GLScene(Drawer):
     """A scene uploaded to the GPU: meshes, textures and one program per material.
 
     Build once, :meth:`draw` many times (benchmarks), :meth:`release` at the end.  With ``antialias: n²``
-    everything is built for :meth:`~sbrdf_core.scene.Scene.supersampled` (``self.scene``: the framebuffer,
+    everything is built for :meth:`~sbrdf_lib.scene.Scene.supersampled` (``self.scene``: the framebuffer,
     the effects, what ``drawer.scene.camera`` tells them) and :meth:`draw` returns the n×n block averages
     at the scene's own resolution; effects passed in are used as prepared.
     """
@@ -342,7 +262,7 @@ class GLScene(Drawer):
             t.filter = filt
             texs.append(("u_alpha", t))
         # Material-wide textures a model declares for its own GLSL (separable factors); it filters them itself.
-        for uniform, array in (getattr(m.model, "gl_textures", lambda: {})() or {}).items():
+        for uniform, array in ((contracts.optional(m.model, "gl_textures", "brdf-model") or dict)() or {}).items():
             a = np.ascontiguousarray(array, np.float32)
             t = self._keep(ctx.texture((a.shape[1], a.shape[0]), a.shape[2], a.tobytes(), dtype="f4"))
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -415,20 +335,39 @@ class GLScene(Drawer):
 class GLRenderer(SceneRenderer):
     """``Render`` plugin ``gl``: the scene file drawn by :class:`GLScene` (or the GeForce 4 emulation)."""
 
-    def __init__(self, scene: str, exposure: float | None = None, pipeline: str = "float", frames: int = 1):
-        super().__init__(scene, exposure)
+    params = SceneRenderer.params + (
+        Param("pipeline", "str", "float", "float: one float pass per material; geforce4: McAllister's GeForce 4 path "
+              "emulated (8-bit textures, x² and exponent lookup table, x clamped at 1, 2 passes per lobe per light)",
+              choices=("float", "geforce4")),
+        Param("frames", "int", 1, "frames drawn (their GL-query times are recorded; the last is stored)",
+              bounds=(1, 10000)),
+    )
+
+    def __init__(self, *, scene: str, exposure: float | None = None, pipeline: str = "float", frames: int = 1):
+        super().__init__(scene=scene, exposure=exposure)
         self.pipeline, self.frames = pipeline, frames
 
-    def render(self, material) -> RenderResult:
-        scene, materials = self.load(material)
+    def prepare(self, material) -> dict:
+        """The store-backed materials' maps and, for ``geforce4``, their 8-bit hardware textures, lazy."""
+        out = super().prepare(material)
         if self.pipeline == "geforce4":
-            if scene.environment is not None:
+            from .gf4 import prepare_hardware
+
+            scene = load_scene(self.scene_path, registry=self.registry)
+            out.update(prepare_hardware(scene, material, self._registry()))
+        return out
+
+    def render(self, material, prepared: dict | None = None) -> RenderResult:
+        scene, materials = self.load(material, prepared)
+        if self.pipeline == "geforce4":
+            if scene.section("environment") is not None:
                 raise SbrdfError(f"{scene.file}: the geforce4 pipeline draws point and directional lights only; "
                                  "use pipeline: float for environment lighting")
             from .gf4 import GF4Scene
 
             check_size(context(), scene.supersampled())
-            drawer = GF4Scene(scene.supersampled(), materials)  # antialiased as the float path: n×n block means
+            drawer = GF4Scene(scene.supersampled(), materials, registry=self._registry(),
+                              prepared=prepared)  # antialiased as the float path: n×n block means
         else:
             drawer = GLScene(scene, materials, registry=self.registry)
         try:
@@ -436,6 +375,8 @@ class GLRenderer(SceneRenderer):
         finally:
             drawer.release()
         gpu = [f.gpu_ms for f in frames]
+        logger.info("gl render of %s (%s): %d frame(s), median %.2f GPU ms", self.scene_path, self.pipeline,
+                    len(frames), float(np.median(gpu)))
         image = frames[-1].image
         if self.pipeline == "geforce4":
             image = downsample(image, scene.subpixels)

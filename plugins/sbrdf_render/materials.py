@@ -12,13 +12,17 @@ footprint (:func:`lod`), λ clamped to [0, L]: ``GL_LINEAR_MIPMAP_LINEAR``.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from sbrdf_core.contracts import optional
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import Material, open_material
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -31,7 +35,8 @@ class SceneMaterial:
     alpha: np.ndarray | None  # (V, U) in [0, 1]; fragments below 0.5 are killed
     filter: str
     encoded: dict | None = None  # a TextureSet's quantizer name and NumPy textures, scale, bias
-    #: A shading rule of its own instead of f_r · E · cos θ (shading maps): ``radiance(uv, wi, wo, E)`` on
+    #: A shading rule of its own instead of f_r · E · cos θ (shading maps, through their kind's adapter):
+    #: ``radiance(uv, wi, wo, E)`` on
     #: the CPU; ``glsl()``, ``glsl_radiance(wi, wo, E)``, ``gl_textures(ctx)``, ``gl_uniforms()`` on the GPU.
     surface: Any = None
     #: MIP levels 1 … L, packed like ``maps``: ``[(V >> l, U >> l, K)]`` float32 (empty: no levels).
@@ -44,7 +49,7 @@ class SceneMaterial:
 
     @property
     def anisotropic(self) -> bool:
-        return bool(getattr(self.model, "anisotropic", False))
+        return bool(optional(self.model, "anisotropic", "brdf-model"))
 
     def lookup(self, uv: np.ndarray, lod: np.ndarray | None = None) -> np.ndarray:
         """Packed parameters ``(R, K)`` (float64) at texture coordinates ``uv (R, 2)``.
@@ -140,24 +145,42 @@ def pack_levels(model, levels: list) -> list:
                             for p in model.parameters], -1) for lv in levels]
 
 
-def from_material(name: str, material: Material, filter: str) -> SceneMaterial:
-    """Compute a (lazy) :class:`~sbrdf_core.nodes.render.Material` into packed in-memory maps."""
-    import dask
-
+def lazy_arrays(name: str, material: Material, filter: str) -> dict:
+    """What :func:`from_material` needs computed, by key (``<name>/params/<p>``, ``<name>/alpha``, …), lazy."""
     model = material.model
-    arrays = [material.params[p.name] for p in model.parameters]
-    extra = [material.alpha] if material.alpha is not None else []
+    out = {f"{name}/params/{p.name}": material.params[p.name] for p in model.parameters}
+    if material.alpha is not None:
+        out[f"{name}/alpha"] = material.alpha
+    for n in sorted((material.encoded or {}).get("textures", {})):
+        out[f"{name}/textures/{n}"] = material.encoded["textures"][n]
+    levels = list(getattr(material, "levels", None) or []) if filter == "trilinear" else []
+    for l, lv in enumerate(levels, 1):
+        out.update({f"{name}/mip/{l}/{k}": a for k, a in lv.items()})
+    return out
+
+
+def from_material(name: str, material: Material, filter: str, computed: dict | None = None) -> SceneMaterial:
+    """A (lazy) :class:`~sbrdf_core.nodes.render.Material` as packed in-memory maps.
+
+    ``computed``: :func:`lazy_arrays` computed (the renderer's ``prepare``, run by the runner); without it
+    they are computed here (direct use outside a graph).
+    """
+    if computed is None:
+        import dask
+
+        computed = dask.compute(lazy_arrays(name, material, filter))[0]
+    model = material.model
+    arrays = [computed[f"{name}/params/{p.name}"] for p in model.parameters]
     enc = material.encoded or {}
     tex_names = sorted(enc.get("textures", {}))
     levels = list(getattr(material, "levels", None) or []) if filter == "trilinear" else []
-    computed_levels = dask.compute(levels)[0] if levels else []
-    computed = dask.compute(*arrays, *extra, *[enc["textures"][n] for n in tex_names])
-    maps = np.concatenate([np.asarray(a, np.float32).reshape(a.shape[0], a.shape[1], -1) for a in computed[:len(arrays)]], -1)
-    alpha = np.asarray(computed[len(arrays)], np.float32)[..., 0] if extra else None
+    computed_levels = [{k: computed[f"{name}/mip/{l}/{k}"] for k in lv} for l, lv in enumerate(levels, 1)]
+    maps = np.concatenate([np.asarray(a, np.float32).reshape(a.shape[0], a.shape[1], -1) for a in arrays], -1)
+    alpha = np.asarray(computed[f"{name}/alpha"], np.float32)[..., 0] if material.alpha is not None else None
     encoded = None
     if enc:
         encoded = {"quantizer": enc["quantizer"], "scale": enc["scale"], "bias": enc["bias"],
-                   "textures": dict(zip(tex_names, (np.asarray(t) for t in computed[len(arrays) + len(extra):])))}
+                   "textures": {n: np.asarray(computed[f"{name}/textures/{n}"]) for n in tex_names}}
     return SceneMaterial(name, model, maps, alpha, filter, encoded, levels=pack_levels(model, computed_levels))
 
 
@@ -180,45 +203,86 @@ def uniform(name: str, model, values: dict, filter: str = "nearest") -> SceneMat
     return SceneMaterial(name, model, np.concatenate(packed).astype(np.float32)[None, None], None, filter)
 
 
-def resolve(scene, input_material: Material | None, registry) -> dict[str, SceneMaterial]:
-    """Every material the scene's objects use, loaded once."""
+def inputs(scene, input_material, registry) -> dict[str, Material]:
+    """The scene's materials that come from stores (the Render node's input, ``artifact:`` paths), lazy, by name."""
+    out = {}
+    for name in sorted({o.material for o in scene.objects}):
+        ref = scene.materials[name]
+        if ref.artifact == "input" and isinstance(input_material, Material):
+            out[name] = input_material
+        elif ref.artifact not in (None, "input"):
+            out[name] = open_material(registry, ref.artifact)
+    return out
+
+
+def prepare(scene, input_material, registry) -> dict:
+    """Every array the scene's store-backed materials need, lazy (a renderer's ``prepare``)."""
+    out = {}
+    for name, m in inputs(scene, input_material, registry).items():
+        out.update(lazy_arrays(name, m, scene.materials[name].filter))
+    return out
+
+
+def resolve(scene, input_material: Material | None, registry, prepared: dict | None = None) -> dict[str, SceneMaterial]:
+    """Every material the scene's objects use, loaded once; ``prepared``: :func:`prepare` computed."""
     used = {o.material for o in scene.objects}
     out = {}
     from sbrdf_core.nodes.render import InputArtifact
 
+    stored = None
     for name in sorted(used):
         ref = scene.materials[name]
         if isinstance(input_material, InputArtifact) and ref.artifact == "input":
             raise SbrdfError(f"{scene.file}: material {name!r} is the Render node's input, a "
-                             f"{input_material.artifact.kind}: give it as shading_map: input with model: and params:")
-        if ref.artifact == "input":
-            if input_material is None:
-                raise SbrdfError(f"{scene.file}: material {name!r} is the Render node's input, but there is none")
-            out[name] = from_material(name, input_material, ref.filter)
-        elif ref.artifact is not None:
-            out[name] = from_material(name, open_material(registry, ref.artifact), ref.filter)
+                             f"{input_material.artifact.kind}: give it as {_store_keys(registry)}: input with model: "
+                             "and params:")
+        if ref.artifact == "input" and input_material is None:
+            raise SbrdfError(f"{scene.file}: material {name!r} is the Render node's input, but there is none")
+        if ref.artifact is not None:
+            if stored is None:
+                stored = inputs(scene, input_material, registry)
+            out[name] = from_material(name, stored[name], ref.filter, prepared)
         else:
             model = registry.create("brdf-model", ref.model, dict(ref.model_params))
-            if ref.shading is not None:
-                shading = dict(ref.shading)
-                if shading["store"] == "input":
-                    if not isinstance(input_material, InputArtifact):
-                        raise SbrdfError(f"{scene.file}: material {name!r} takes its shading map from the Render "
-                                         "node's input, which is not a ShadingMap or PowerShadingMap")
-                    shading["store"] = input_material.artifact.url
-                out[name] = shading_mapped(name, model, ref.params, shading)
+            if ref.surface is not None:
+                out[name] = surface_mapped(scene, name, model, ref, input_material)
             else:
                 out[name] = uniform(name, model, ref.params, ref.filter)
     return out
 
 
-def shading_mapped(name: str, model, values: dict, shading: dict) -> SceneMaterial:
-    """A shading map looked up with ``model`` (global parameters ``values``) chosen at render time."""
-    try:
-        from sbrdf_shading.surface import ShadingSurface
-    except ImportError as e:  # pragma: no cover - the plugin ships with sbrdf
-        raise SbrdfError(f"material {name!r}: shading maps need the sbrdf_shading plugin ({e})") from None
-    base = uniform(name, model, values, "nearest")
-    base.surface = ShadingSurface.open(shading["store"], model, model.unpack(base.maps.reshape(1, -1).astype(float)),
-                                       shading["variant"], shading["above_max"], shading["sigma"])
+def _store_keys(registry) -> str:
+    """The material keys that take a renderable store (``shading_map``), as a scene would write them."""
+    from sbrdf_lib.scene import plugin_keys
+
+    keys = [p.name for p in plugin_keys(registry).material_params if (p.extra or {}).get("store")]
+    return " or ".join(keys) or "a store key"
+
+
+def surface_mapped(scene, name: str, model, ref, input_material) -> SceneMaterial:
+    """A material of a renderable artifact kind (a shading map), looked up with ``model`` chosen at render time.
+
+    The store's kind names its adapter (``ArtifactKind.material``, from the plugin that declares the kind):
+    ``adapter(artifact, model, params, **options) -> surface``.
+    """
+    from sbrdf_core.artifacts import KINDS
+    from sbrdf_core.nodes.render import InputArtifact
+    from sbrdf_core.registry import import_path
+    from sbrdf_core.store import open_artifact
+
+    surface = ref.surface
+    if surface["store"] == "input":
+        if not isinstance(input_material, InputArtifact):
+            kinds = " or ".join(k.kind for k in KINDS.values() if k.material)
+            raise SbrdfError(f"{scene.file}: material {name!r} takes its {surface['key']} from the Render "
+                             f"node's input, which is not a {kinds}")
+        art = input_material.artifact
+    else:
+        art = open_artifact(surface["store"], tuple(k.kind for k in KINDS.values() if k.material))
+    kind = KINDS.get(art.kind)
+    if kind is None or not kind.material:
+        raise SbrdfError(f"material {name!r}: {art.url} is a {art.kind}, which no installed plugin renders")
+    base = uniform(name, model, ref.params, "nearest")
+    adapter = import_path(kind.material)
+    base.surface = adapter(art, model, model.unpack(base.maps.reshape(1, -1).astype(float)), **surface["options"])
     return base

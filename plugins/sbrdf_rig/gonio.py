@@ -34,7 +34,7 @@ measures the real ones).
 Motors connect in :meth:`~GonioCapture.describe` (which the runner calls only
 when the node actually runs, never for a cached node): every planned angle is
 checked against the drivers' soft limits (and the rig geometry's) *before
-anything moves*.  A motor fault (:class:`~sbrdf_rig.errors.DeviceError`)
+anything moves*.  A motor fault (:class:`~sbrdf_lib.serial.errors.DeviceError`)
 halts every motor and stops the capture with :class:`GonioCaptureError`,
 naming the pose, the motor, its port and the command; the folder then holds
 exactly the completed poses and the CaptureSet stays incomplete.
@@ -57,11 +57,20 @@ from typing import Any
 
 import numpy as np
 
+from sbrdf_core.contracts import optional
 from sbrdf_core.errors import ParameterError, SbrdfError
 from sbrdf_core.nodes.capture import CaptureDescription
-
-from .errors import DeviceError, LinkLost, SoftLimitError
-from .kinematics import RigGeometry, forward
+from sbrdf_core.params import REQUIRED, Param, plugin_reference
+from sbrdf_lib.capture_folder import (
+    MANIFEST,
+    CaptureFolderError,
+    CaptureFolderWriter,
+    load_manifest,
+    manifest_sections,
+    parse_manifest,
+)
+from sbrdf_lib.rig_geometry import RigGeometry, forward
+from sbrdf_lib.serial.errors import DeviceError, LinkLost, SoftLimitError
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +89,51 @@ EXPOSURE_PLANNER_KEYS = {"diffuse_time_s", "highlight_time_s", "highlight_halfwi
                          "stops_per_exposure", "max_exposures", "min_time_s", "max_time_s"}
 #: ``folder`` parameters the gonio source sets itself (everything else may be given under ``read``).
 READ_RESERVED = {"path", "allow_incomplete", "dark_frame", "dark_time_s"}
+
+# -- declared sub-schemas of the nested parameters (validated with paths like ``motors.arm.device``) -------------
+
+#: One entry of ``motors``.
+MOTOR_SCHEMA = (
+    Param("device", "str", REQUIRED, "device plugin: ptu, indexer or any device with MotorController's API",
+          extra={"plugin_category": "device"}),
+    Param("params", "dict", {}, "the device's parameters ({port: /dev/ttyUSB0 | sim, ...})", nullable=True),
+    Param("axes", "dict", None, "joint -> driver axis; default ptu {pan: pan_deg, tilt: tilt_deg}, indexer "
+          "{light: angle_deg}", nullable=True),
+)
+#: ``camera``: a device and its parameters.
+CAMERA_SCHEMA = plugin_reference("device", "camera")
+#: ``geometry``: the fields of :class:`~sbrdf_lib.rig_geometry.RigGeometry` (defaults: the thesis rig).
+GEOMETRY_SCHEMA = (
+    Param("camera_distance_mm", "float", 1084.0, "camera distance from the pan axis", unit="mm"),
+    Param("light_distance_mm", "float", 1000.0, "light arm radius", unit="mm"),
+    Param("camera_height_mm", "float", 0.0, "camera height above the tilt axis", unit="mm"),
+    Param("light_height_mm", "float", 0.0, "light height above the tilt axis", unit="mm"),
+    Param("tilt_axis_offset_mm", "list", [0.0, 0.0, 0.0], "tilt axis offset from the pan axis (pan frame)",
+          length=3, item="float", unit="mm"),
+    Param("sample_standoff_mm", "float", 25.4, "sample surface in front of the tilt axis", unit="mm"),
+    Param("sample_center_offset_mm", "list", [0.0, 0.0], "sample centre offset from the roll axis", length=2,
+          item="float", unit="mm"),
+    Param("pan_zero_deg", "float", 0.0, "pan encoder zero", unit="deg"),
+    Param("tilt_zero_deg", "float", 0.0, "tilt encoder zero", unit="deg"),
+    Param("roll_zero_deg", "float", 0.0, "roll encoder zero", unit="deg"),
+    Param("light_zero_deg", "float", 0.0, "light arm encoder zero", unit="deg"),
+    Param("pan_limits_deg", "list", [-170.0, 170.0], "pan range [low, high]", length=2, item="float", unit="deg"),
+    Param("tilt_limits_deg", "list", [-80.0, 80.0], "tilt range [low, high]", length=2, item="float", unit="deg"),
+    Param("roll_limits_deg", "list", [-180.0, 180.0], "roll range [low, high]", length=2, item="float", unit="deg"),
+    Param("light_limits_deg", "list", [10.0, 175.0], "light arm range [low, high]", length=2, item="float",
+          unit="deg"),
+)
+#: ``plan``: explicit motor angles, or the pose planner's settings (one or the other; checked by the source).
+PLAN_SCHEMA = (
+    Param("angles_deg", "list", None, "explicit poses [[pan, tilt, roll, light], ...]", nullable=True, unit="deg"),
+    Param("theta_d_deg", "float", None, "planner: angular sampling density", nullable=True, unit="deg"),
+    Param("isotropic", "bool", True, "planner: the material is isotropic (drop azimuth-equivalent poses)"),
+    Param("source", "str", "directions", "planner: plan over direction pairs or scan the motors",
+          choices=("directions", "motors")),
+    Param("step_deg", "float", None, "planner, source motors: motor step", nullable=True, unit="deg"),
+    Param("max_theta_i_deg", "float", 75.0, "planner: largest light elevation from the normal", unit="deg"),
+    Param("max_theta_r_deg", "float", 65.0, "planner: largest view elevation from the normal", unit="deg"),
+)
 
 
 class GonioCaptureError(DeviceError):
@@ -145,7 +199,34 @@ class GonioCapture:
     #: Hardware: the runner takes poses one at a time, in plan order, in this process.
     sequential = True
 
-    def __init__(self, path, motors, camera, light, geometry, plan, exposures, read, settle_s, image_format, durable):
+    params = (
+        Param("path", "str", REQUIRED, "capture folder written pose by pose (resumed if a run was interrupted), "
+              "relative to the graph file", extra={"path": True}),
+        Param("motors", "dict", REQUIRED, "motor name -> {device, params, axes}; joints pan, tilt, roll, light; "
+              "port: sim in params starts the device's pty simulator in-process", values=MOTOR_SCHEMA),
+        Param("camera", "dict", {"device": "virtual-camera", "params": {}}, "camera device {device, params}",
+              schema=CAMERA_SCHEMA),
+        Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera device's "
+              "light_info()", nullable=True),
+        Param("geometry", "dict", {}, "rig geometry (RigGeometry fields; the *_limits_deg are also the planner's "
+              "limits)", schema=GEOMETRY_SCHEMA),
+        Param("plan", "dict", {"theta_d_deg": 20.0, "isotropic": True},
+              "poses: {angles_deg: [[pan, tilt, roll, light], ...]} or the pose planner's settings", schema=PLAN_SCHEMA),
+        Param("exposures", "dict", {"times_s": [1.0]}, "exposure brackets: {times_s: [t, ...] (all poses) or "
+              "[[...], ...] (per pose)} or the exposure planner {diffuse_time_s, highlight_time_s, ...}"),
+        Param("read", "dict", {}, "parameters of the folder plugin that reads poses back (response, "
+              "response_method, response_poses, saturation, underexposure, colour_matrix)"),
+        Param("settle_s", "float", 0.0, "wait after the motors stop before photographing (arm vibration)",
+              bounds=(0.0, 600.0), unit="s"),
+        Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
+              choices=("png", "tif")),
+        Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
+    )
+
+    def __init__(self, *, path: str, motors: dict, camera: dict = {"device": "virtual-camera", "params": {}},  # noqa: B006
+                 light: dict | None = None, geometry: dict = {}, plan: dict = {"theta_d_deg": 20.0, "isotropic": True},  # noqa: B006
+                 exposures: dict = {"times_s": [1.0]}, read: dict = {}, settle_s: float = 0.0,  # noqa: B006
+                 image_format: str = "png", durable: bool = True):
         self.path = Path(str(path)).expanduser()
         self.motors = self._parse_motors(motors)
         self.camera_config = self._parse_device(camera, "camera")
@@ -263,7 +344,7 @@ class GonioCapture:
             m.values = values
         device, params = self.camera_config
         self.camera = registry.create("device", device, params)
-        if hasattr(self.camera, "bind"):
+        if optional(self.camera, "bind", "device") is not None:
             self.camera.bind(registry)
         self.reader = registry.create("capture", "folder", {**self.read_config, "path": str(self.path)})
 
@@ -343,9 +424,6 @@ class GonioCapture:
         self._check_light_above(angles, np.asarray(nominal.light_pos_mm, np.float64))
         if not self._started:
             self._start(angles, times)
-        from sbrdf_capture.capture_folder import parse_manifest
-        from sbrdf_capture.folder import manifest_sections
-
         header = parse_manifest({**self._header(), "complete": False, "poses": []}, f"{self.path} (gonio header)")
         mode = self.reader.response_mode
         linear = mode == "linear" or header.camera.response == "linear"
@@ -396,8 +474,6 @@ class GonioCapture:
         return mode == "recover" or (mode == "auto" and not isinstance(given, dict) and given != "linear")
 
     def _start(self, angles: np.ndarray, times: list[list[float]]) -> None:
-        from sbrdf_capture.capture_folder import MANIFEST, CaptureFolderError, load_manifest, parse_manifest
-
         self._started = True
         manifest = self.path / MANIFEST
         if manifest.exists():
@@ -420,8 +496,6 @@ class GonioCapture:
         try:
             self._check_limits(angles)
             extra = {k: v for k, v in self._header().items() if k not in ("format", "sample", "camera", "light")}
-            from sbrdf_capture.capture_folder import CaptureFolderWriter
-
             h = self._header()
             self.writer = CaptureFolderWriter(self.path, h["sample"], h["camera"], h["light"],
                                               image_format=self.image_format, durable=self.durable, extra=extra)
@@ -438,8 +512,6 @@ class GonioCapture:
 
     def _check_recorded(self, poses, angles: np.ndarray, times: list[list[float]], complete: bool) -> None:
         """Poses already in the folder must be the plan's (a planner change must not mix two scans)."""
-        from sbrdf_capture.capture_folder import MANIFEST, CaptureFolderError
-
         P = len(angles)
         ids = sorted(p.id for p in poses)
         if complete and ids != list(range(P)):

@@ -45,13 +45,17 @@ acceleration are read back after they are set and must equal what was sent
 
 from __future__ import annotations
 
+import logging
 import re
 import time
 from collections.abc import Sequence
 
-from .controller import MotorController
-from .errors import DeviceRefused, GarbledReply, ImplausibleReply, ReplyTimeout
-from .link import SerialLink
+from sbrdf_core.params import Param
+from sbrdf_lib.serial.controller import LINK_PARAMS, MotorController
+from sbrdf_lib.serial.errors import DeviceRefused, GarbledReply, ImplausibleReply, ReplyTimeout
+from sbrdf_lib.serial.link import SerialLink
+
+logger = logging.getLogger(__name__)
 
 _PROMPTS = (">", "?")
 #: Plausible resolutions, steps (counts) per motor revolution: the 6000 series accepts DRES 200..1,024,000.
@@ -75,7 +79,19 @@ class Indexer(MotorController):
 
     axes = ("angle_deg",)
 
-    def __init__(self, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
+    params = (
+        *LINK_PARAMS,
+        Param("axis", "int", 1, "controller axis number", bounds=(1, 4)),
+        Param("gear_ratio", "float", 90.0, "motor revolutions per output revolution", bounds=(1e-3, None)),
+        Param("limits_deg", "list", [10.0, 175.0], "soft limits [low, high] of the output shaft (light arm: 10-175 deg)",
+              length=2, item="float", bounds=(-3600.0, 3600.0), unit="deg"),
+        Param("speed_deg_s", "float", 20.0, "output-shaft speed", bounds=(0.01, 1000.0), unit="deg/s"),
+        Param("acceleration_deg_s2", "float", 40.0, "output-shaft acceleration", bounds=(0.01, 10000.0),
+              unit="deg/s^2"),
+        Param("poll_s", "float", 0.01, "status polling interval while a move runs", bounds=(0.0, 1.0), unit="s"),
+    )
+
+    def __init__(self, *, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
                  tolerance_deg: float = 0.05, axis: int = 1, gear_ratio: float = 90.0,
                  limits_deg: Sequence[float] = (10.0, 175.0), speed_deg_s: float = 20.0,
                  acceleration_deg_s2: float = 40.0, move_timeout_s: float = 60.0, poll_s: float = 0.01):
@@ -110,6 +126,8 @@ class Indexer(MotorController):
         except Exception:
             self.close()
             raise
+        logger.info("indexer on %s axis %d: connected; %.4g steps/deg, soft limits %s", port, n, self.steps_per_deg,
+                    self.limits["angle_deg"])
 
     # -- protocol ---------------------------------------------------------------------
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kinematics import RigGeometry, forward, inverse
+from sbrdf_lib.rig_geometry import RigGeometry, forward, inverse
 
 # =====================================================================================================
 # Sampling density (Eq 3.1-3.6) and motor tolerance (§3.3.1)
@@ -376,7 +376,7 @@ def plan_poses(geometry: RigGeometry, theta_d_deg: float, *, isotropic: bool, st
     thesis did (default step 1°; expensive for small θ_d); ``"directions"``
     scans a quasi-uniform set of direction pairs (default step θ_d / 3),
     keeps those the rig can reach, and solves the motor angles of the chosen
-    ones with :func:`~sbrdf_rig.kinematics.inverse`.
+    ones with :func:`~sbrdf_lib.rig_geometry.inverse`.
     """
     if source == "motors":
         angles = motor_candidates(geometry, step_deg or 1.0, isotropic=isotropic, max_theta_r_deg=max_theta_r_deg)

@@ -38,22 +38,26 @@ What is verified (a digit changed by line noise keeps a reply valid ASCII):
   default the PTU-46 family: 185.1428″/2^k for full to 1/32 steps, which
   includes the PTU-46-70's 46.2857″); ``46.2857`` read once as ``41.2857``
   costs one extra query, a persistent wrong value is an
-  :class:`~sbrdf_rig.errors.ImplausibleReply` before anything moves;
+  :class:`~sbrdf_lib.serial.errors.ImplausibleReply` before anything moves;
 * the factory limits (``PN``/``PX``/``TN``/``TX``) likewise must agree twice,
   with minimum < maximum within ±360°;
 * each speed (``PS<n>``) is read back (``PS``) and must equal what was sent
   (re-sent once if not);
-* every move is read back (:class:`~sbrdf_rig.controller.MotorController`).
+* every move is read back (:class:`~sbrdf_lib.serial.controller.MotorController`).
 """
 
 from __future__ import annotations
 
+import logging
 import re
 from collections.abc import Sequence
 
-from .controller import MotorController
-from .errors import DeviceRefused, GarbledReply, ImplausibleReply
-from .link import SerialLink
+from sbrdf_core.params import Param
+from sbrdf_lib.serial.controller import LINK_PARAMS, MotorController
+from sbrdf_lib.serial.errors import DeviceRefused, GarbledReply, ImplausibleReply
+from sbrdf_lib.serial.link import SerialLink
+
+logger = logging.getLogger(__name__)
 
 _AXIS = {"pan_deg": ("P", "Pan"), "tilt_deg": ("T", "Tilt")}
 _ACK = re.compile(r"^\*\s*$")
@@ -82,7 +86,20 @@ class PanTiltUnit(MotorController):
 
     axes = ("pan_deg", "tilt_deg")
 
-    def __init__(self, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
+    params = (
+        *LINK_PARAMS,
+        Param("pan_limits_deg", "list", [-159.0, 159.0], "pan soft limits [low, high], intersected with the unit's",
+              length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
+        Param("tilt_limits_deg", "list", [-47.0, 31.0], "tilt soft limits [low, high], intersected with the unit's",
+              length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
+        Param("speed_deg_s", "float", 20.0, "pan and tilt speed", bounds=(0.01, 1000.0), unit="deg/s"),
+        Param("resolutions_arcsec", "list", list(PTU46_RESOLUTIONS_ARCSEC),
+              "resolutions the controller model can report (PTU-46 family by default); a PR/TR reading must be one of "
+              "them and read the same twice; [] checks agreement only", item="float", bounds=(1e-6, None),
+              unit="arcsec"),
+    )
+
+    def __init__(self, *, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
                  tolerance_deg: float = 0.05, pan_limits_deg: Sequence[float] = (-159.0, 159.0),
                  tilt_limits_deg: Sequence[float] = (-47.0, 31.0), speed_deg_s: float = 20.0,
                  move_timeout_s: float = 60.0, resolutions_arcsec: Sequence[float] | None = PTU46_RESOLUTIONS_ARCSEC):
@@ -118,6 +135,7 @@ class PanTiltUnit(MotorController):
         except Exception:
             self.close()
             raise
+        logger.info("ptu on %s: connected; arcsec/step %s, soft limits %s", port, self.arcsec_per_step, self.limits)
 
     # -- verification ------------------------------------------------------------------
 

@@ -237,7 +237,7 @@ def svd(fn: BRDF, param, size: int, terms: int = 1, clamp_max: float | None = No
             G[:k, :, c] = (U * root).T
             H[:k, :, c] = Vt * root[:, None]
             sigma[:k, c] = S
-    del M, V
+    M = V = None  # release the matrix now (the closures above are done with it)
     return _factors(G, H, s, "svd", {"solver": solver, "impute": impute, "singular_values": sigma.tolist(),
                                      "seconds": time.perf_counter() - t0})
 

@@ -77,11 +77,11 @@ class Factors:
     def size(self) -> int:
         return self.g.shape[1]
 
-    def truncated(self, terms: int) -> "Factors":
+    def truncated(self, terms: int) -> Factors:
         return Factors(self.g[:terms], self.h[:terms], self.parameterization, dict(self.parameterization_config),
                        {**self.meta, "terms": terms})
 
-    def encoded(self, encoding: str) -> "Factors":
+    def encoded(self, encoding: str) -> Factors:
         """The factors as they decode after storing with ``encoding`` (what a renderer would see)."""
         if encoding == "float32":
             return self

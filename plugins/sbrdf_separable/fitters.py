@@ -15,15 +15,38 @@ For an analytic model there is no need for a graph: call
 
 from __future__ import annotations
 
+import logging
 import os
 
 import numpy as np
 
 from sbrdf_core.nodes.fit import FitResult, rms_error
+from sbrdf_core.params import REQUIRED, Param
 
 from .decompose import nd, parameterization, svd
 from .factors import ENCODINGS, save
+from .parameterizations import MAP_PARAM
 from .sources import ScatteredBRDF
+
+logger = logging.getLogger(__name__)
+
+#: Parameters both decompositions take.
+COMMON = (
+    Param("factors", "str", REQUIRED, "path of the SeparableFactors store to write (local; relative to the graph file); "
+          "the fitted model reads it from there", extra={"path": True}),
+    Param("parameterization", "str", "gram-schmidt", "change of variables (a parameterization plugin)",
+          extra={"plugin_category": "parameterization"}),
+    MAP_PARAM,
+    Param("size", "int", 32, "factor texture size K (K x K texels per factor)", bounds=(2, 1024)),
+    Param("terms", "int", 1, "number of terms N", bounds=(1, 64)),
+    Param("clamp_max", "float", None, "limit the BRDF to [0, clamp_max] before decomposing (the text uses 5)",
+          bounds=(0.0, None), nullable=True, unit="sr^-1"),
+    Param("encoding", "str", "float32", "factor storage: float textures, or 8-bit with per-factor scale/bias "
+          "(signed factors biased, seed 001 §6.1)", choices=("float32", "float16", "unorm8")),
+    Param("neighbours", "int", 4, "samples blended (inverse distance) per factor-grid point", bounds=(1, 64)),
+    Param("impute", "int", 1, "passes that fill grid points below the horizon with the current estimate",
+          bounds=(0, 100)),
+)
 
 
 class SeparableFitter:
@@ -31,8 +54,9 @@ class SeparableFitter:
 
     method = ""
     model_name = "separable"
+    model_config: dict
 
-    def __init__(self, factors: str, parameterization: str = "gram-schmidt", map: str = "xy",  # noqa: A002
+    def __init__(self, *, factors: str, parameterization: str = "gram-schmidt", map: str = "xy",  # noqa: A002
                  size: int = 32, terms: int = 1, p: float = 2.0, clamp_max: float | None = None,
                  encoding: str = "float32", neighbours: int = 4, impute: int = 1, solver: str = "arpack",
                  refine: int = 1):
@@ -77,8 +101,21 @@ class SeparableFitter:
 
 
 class SVDFitter(SeparableFitter):
+    """Separable BRDF by truncated SVD of the sampled K² × K² matrix (one material)."""
+
     method = "svd"
+    params = COMMON + (
+        Param("solver", "str", "arpack", "ARPACK (the first N singular triples) or a dense LAPACK SVD of the whole matrix",
+              choices=("dense", "arpack")),
+    )
 
 
 class NDFitter(SeparableFitter):
+    """Separable BRDF by normalized decomposition, streamed (one material)."""
+
     method = "nd"
+    params = COMMON + (
+        Param("p", "float", 2.0, "exponent of the p-norm normalizing each row", bounds=(1e-3, None)),
+        Param("refine", "int", 1, "power-iteration passes per residual term (signs the rows; 0 = the text's ND)",
+              bounds=(0, 100)),
+    )

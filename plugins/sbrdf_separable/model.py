@@ -9,12 +9,6 @@ on periodic axes).  The factors are material-global and live in a
 ``SeparableFactors`` store written by the ``svd`` / ``nd`` fitters; the only
 per-texel parameter is an RGB ``scale`` (1 = the decomposed material).
 
-==========  ========  ======  =================================================
-parameter   channels  unit    meaning
-==========  ========  ======  =================================================
-scale       3         1       multiplier of the factor product (per texel)
-==========  ========  ======  =================================================
-
 Configuration: ``factors`` (the store's path; ``null`` gives one constant
 term, f_r = scale/π, a placeholder with no textures) and ``terms`` (use the
 first N terms only).  The approximation is exactly reciprocal only for the
@@ -42,12 +36,6 @@ from sbrdf_core.params import Param
 
 from .factors import Factors, bilinear, load
 
-PARAMS = (
-    Param("factors", "str", None, "path of the SeparableFactors store (null: one constant term, scale/pi)",
-          nullable=True),
-    Param("terms", "int", None, "use the first N terms only (null: all stored)", bounds=(1, None), nullable=True),
-)
-
 INV_PI = 1.0 / np.pi
 
 
@@ -58,7 +46,13 @@ class SeparableModel(BRDFModel):
                        doc="RGB multiplier of the material-global factor product"),
     )
 
-    def __init__(self, factors: str | None = None, terms: int | None = None):
+    params = (
+        Param("factors", "str", None, "path of the SeparableFactors store (null: one constant term, scale/pi)",
+              nullable=True),
+        Param("terms", "int", None, "use the first N terms only (null: all stored)", bounds=(1, None), nullable=True),
+    )
+
+    def __init__(self, *, factors: str | None = None, terms: int | None = None):
         self.factors_url, self.terms = factors, terms
         self._factors: Factors | None = None
         self._param = None

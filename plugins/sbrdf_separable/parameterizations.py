@@ -93,7 +93,9 @@ class Parameterization:
     #: Per factor (x, y), per texture axis (u, v): periodic?
     wrap = ((False, False), (False, False))
 
-    def __init__(self, map: str = "xy"):  # noqa: A002 - the declared parameter's name
+    params = (MAP_PARAM,)
+
+    def __init__(self, *, map: str = "xy"):  # noqa: A002 - the declared parameter's name
         if map not in ("xy", "parabolic"):
             raise ValueError(f"parameterization {self.name!r}: map must be 'xy' or 'parabolic', got {map!r}")
         self.map = map
@@ -134,8 +136,8 @@ class ElevationAzimuth(Parameterization):
     name = "elevation-azimuth"
     wrap = ((False, False), (True, True))
 
-    def __init__(self, map: str = "xy"):  # noqa: A002 - accepted for a uniform signature; angles need no map
-        super().__init__(map)
+    def __init__(self, *, map: str = "xy"):  # noqa: A002 - accepted for a uniform signature; angles need no map
+        super().__init__(map=map)
 
     def config(self):
         return {}

@@ -12,14 +12,6 @@ velvet is not available; this analytic stand-in has the same character:
 of fibre slopes, D peaks at grazing half-vectors; the denominator is their
 smooth replacement of the masking term, reciprocal by construction).
 
-==========  ========  ======  =================================================
-parameter   channels  unit    meaning
-==========  ========  ======  =================================================
-rho_d       3         sr^-1   diffuse term
-rho_s       3         1       sheen colour and strength
-sigma       1         1       fibre slope spread: small = sheen only at grazing
-==========  ========  ======  =================================================
-
 At h = n, sin θ_h = 0 and the Gaussian term is exp(−∞) = 0: sin²θ_h is
 floored at 1e-12 so the quotient stays 0, never 0/0.  The denominator is
 floored at 1e-6 (both directions at the horizon).

@@ -18,11 +18,15 @@ Two capture sources, both plain configurations of existing parts:
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
 
 from sbrdf_core.errors import ParameterError
+from sbrdf_core.params import Param
+
+logger = logging.getLogger(__name__)
 
 #: Light elevations θ_i from the normal, degrees: 10° steps, as in the paper (the rig's arm cannot reach 5°).
 DEFAULT_ARC = (15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0, 85.0)
@@ -36,7 +40,7 @@ def light_arc_angles(theta_i_deg=DEFAULT_ARC, geometry=None) -> np.ndarray:
     triangle (axis, sample, light) gives the arm angle ``a = θ − asin(s sin θ / d)``.
     Raises ``ValueError`` when an angle is outside the arm's limits.
     """
-    from sbrdf_rig.kinematics import RigGeometry
+    from sbrdf_lib.rig_geometry import RigGeometry
 
     g = geometry if geometry is not None else RigGeometry()
     theta = np.radians(np.asarray(theta_i_deg, np.float64).reshape(-1))
@@ -62,13 +66,36 @@ class LightArcCapture:
 
     sequential = True
 
-    def __init__(self, theta_i_deg, **gonio):
+    params = (
+        Param("theta_i_deg", "list", [15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0, 85.0],
+              "light elevations from the sample normal at its centre, degrees (the paper: ~10 deg steps)", item="float"),
+        # The gonio source's own parameters, passed through (its plan is the light arc).
+        Param("path", "str", doc="capture folder written pose by pose (as the gonio source), relative to the graph file",
+              extra={"path": True}),
+        Param("motors", "dict", doc="the gonio source's motors (port: sim for the simulators)"),
+        Param("camera", "dict", {"device": "virtual-camera", "params": {}}, "camera device {device, params}"),
+        Param("light", "dict", None, "the manifest's light section; default the camera device's", nullable=True),
+        Param("geometry", "dict", {}, "rig geometry (RigGeometry fields); the arc needs zero heights and offsets"),
+        Param("exposures", "dict", {"times_s": [1.0]}, "exposure brackets, as the gonio source"),
+        Param("read", "dict", {}, "parameters of the folder plugin that reads poses back"),
+        Param("settle_s", "float", 0.0, "wait after the motors stop", bounds=(0.0, 600.0), unit="s"),
+        Param("image_format", "str", "png", "file format of 8/16-bit images", choices=("png", "tif")),
+        Param("durable", "bool", True, "fsync every image and journal line"),
+    )
+
+    def __init__(self, *, theta_i_deg=list(DEFAULT_ARC), path: str, motors: dict,  # noqa: B006 (read only)
+                 camera={"device": "virtual-camera", "params": {}}, light=None, geometry={},  # noqa: B006 (read only)
+                 exposures={"times_s": [1.0]}, read={}, settle_s: float = 0.0, image_format: str = "png",  # noqa: B006
+                 durable: bool = True):
         self.theta_i_deg = [float(t) for t in theta_i_deg]
-        self.gonio_params = gonio
+        # The gonio source's own parameters, passed through (its plan is the light arc).
+        self.gonio_params = {"path": path, "motors": motors, "camera": camera, "light": light, "geometry": geometry,
+                             "exposures": exposures, "read": read, "settle_s": settle_s, "image_format": image_format,
+                             "durable": durable}
         self.source = None
 
     def bind(self, registry) -> None:
-        from sbrdf_rig.kinematics import RigGeometry
+        from sbrdf_lib.rig_geometry import RigGeometry
 
         geometry = self.gonio_params.get("geometry") or {}
         try:
@@ -99,9 +126,30 @@ class LightArcCapture:
 class MesostructureArcCapture:
     """``mesostructure-arc``: texel-aligned images of a height field under a light on an arc."""
 
-    def __init__(self, texels, size_mm, mesostructure, theta_i_deg, azimuth_deg, light_distance_mm, camera_distance_mm,
-                 intensity, shadowing):
-        from sbrdf_cameras.mesostructure import Mesostructure
+    params = (
+        Param("texels", "list", [128, 128], "texel grid [U, V] = image size", length=2, item="int", bounds=(1, 16384)),
+        Param("size_mm", "list", [20.0, 20.0], "sample size [x, y]", length=2, item="float", bounds=(1e-6, None), unit="mm"),
+        Param("mesostructure", "dict", {"height_mm": {"procedural": "bumps", "amplitude_mm": 0.3, "period_mm": 2.0},
+                                        "albedo": 0.7},
+              "height field and albedo {height_mm, albedo} (sbrdf_lib.mesostructure)"),
+        Param("theta_i_deg", "list", [15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0, 85.0], "light elevations from the normal",
+              item="float"),
+        Param("azimuth_deg", "float", 0.0, "azimuth of the arc's plane from +x", unit="deg"),
+        Param("light_distance_mm", "float", 1000.0, "distance of the point light from the sample centre", bounds=(1e-3, None),
+              unit="mm"),
+        Param("camera_distance_mm", "float", 1000.0, "nominal camera distance (recorded; the view is orthographic)",
+              bounds=(1e-3, None), unit="mm"),
+        Param("intensity", "float", None, "light intensity I; default light_distance_mm^2 (unit irradiance)", nullable=True),
+        Param("shadowing", "bool", False, "compute self-shadowing (a ray march per texel and image)"),
+    )
+
+    def __init__(self, *, texels=[128, 128], size_mm=[20.0, 20.0],  # noqa: B006 (read only)
+                 mesostructure={"height_mm": {"procedural": "bumps", "amplitude_mm": 0.3, "period_mm": 2.0},  # noqa: B006
+                                "albedo": 0.7},
+                 theta_i_deg=list(DEFAULT_ARC), azimuth_deg: float = 0.0,  # noqa: B006 (read only)
+                 light_distance_mm: float = 1000.0,
+                 camera_distance_mm: float = 1000.0, intensity: float | None = None, shadowing: bool = False):
+        from sbrdf_lib.mesostructure import Mesostructure
 
         self.texels, self.size_mm = tuple(texels), tuple(size_mm)
         self.meso = Mesostructure.from_config(mesostructure, self.texels, self.size_mm)

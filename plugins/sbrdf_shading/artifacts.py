@@ -1,8 +1,10 @@
 """The two artifact kinds of decoupled mesostructure (Kautz et al. 2003, seed 002).
 
-Declared here, beside the node kinds that write them, and added to
-:data:`sbrdf_core.artifacts.KINDS` when the plugin loads (see
-:func:`register_kinds`), so ``open_artifact`` and ``sbrdf info`` know them.
+Declared here, beside the node kinds that write them, and contributed through
+the ``sbrdf_artifact_kinds`` hook, so ``open_artifact`` and ``sbrdf info`` know
+them.  Both are renderable: ``material`` names the adapter
+(:func:`sbrdf_shading.surface.open_surface`) the ``cpu`` and ``gl`` renderers
+shade a scene material through (a shading map is a material).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ ShadingMap = ArtifactKind(
         ArraySpec("image_average", "P", "float64", "average a_j of each acquired image, sr^-1 (BRDF times cosine)"),
         ArraySpec("theta_i_deg", "P", "float64", "light elevation from the normal of each acquired image, degrees"),
     ),
+    material="sbrdf_shading.surface:open_surface",
 )
 
 PowerShadingMap = ArtifactKind(
@@ -32,17 +35,8 @@ PowerShadingMap = ArtifactKind(
         ArraySpec("exponent", "VUC", "float32", "fitted exponent K"),
         ArraySpec("rms", "VU", "float32", "RMS of fit minus shading map over the texel's slices and channels, sr^-1"),
     ),
+    material="sbrdf_shading.surface:open_surface",
 )
 
 KINDS = (ShadingMap, PowerShadingMap)
 
-
-def register_kinds() -> None:
-    """Make the kinds known to :mod:`sbrdf_core.store` (idempotent; a clash with another plugin is an error)."""
-    from sbrdf_core import artifacts
-
-    for kind in KINDS:
-        known = artifacts.KINDS.get(kind.kind)
-        if known is not None and known != kind:
-            raise ValueError(f"artifact kind {kind.kind!r} is already declared differently by another plugin")
-        artifacts.KINDS[kind.kind] = kind

@@ -15,6 +15,8 @@ one chunk) and records the overall RMS as Table 1 reports it.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from sbrdf_core.artifacts import RegisteredStack
@@ -23,6 +25,8 @@ from sbrdf_core.params import Param
 
 from .artifacts import PowerShadingMap, ShadingMap
 from .compress import COARSE_STEP, EXPONENT_RANGE, FINE_STEP
+
+logger = logging.getLogger(__name__)
 
 
 def unit_light_factor(light_pos: np.ndarray, texels, size_mm, intensity: float) -> np.ndarray:
@@ -63,6 +67,7 @@ class ShadingMapNode(NodeKind):
 
         stack = ctx.inputs["stack"]
         N, tile = int(ctx.params["slices"]), int(ctx.params["tile"])
+        logger.info("ShadingMap of %s: %d slices", stack.url, N)
         U, V = stack.attrs["texels"]
         light_pos = stack.read("light_pos")
         P = len(light_pos)

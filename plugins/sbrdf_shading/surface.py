@@ -21,8 +21,21 @@ from sbrdf_core.store import open_artifact
 from .glsl import shading_glsl, uniform_values
 from .shade import ShadingData, shade
 
+__all__ = ["ShadingSurface", "open_surface"]
+
+
+def open_surface(art, model, params: dict, *, variant: str = "r", above_max: str = "clamp",
+                 sigma: float = 1.0) -> ShadingSurface:
+    """The renderers' adapter of the kinds' ``material``: a ShadingMap or PowerShadingMap artifact, looked up with
+    ``model`` at the global parameter values ``params`` (name -> ``(1, C)``) and the scene material's options."""
+    data = (ShadingData.from_artifacts(compressed=art) if art.kind == "PowerShadingMap"
+            else ShadingData.from_artifacts(shading_map=art))
+    return ShadingSurface(data, model, params, variant, above_max, sigma)
+
 
 class ShadingSurface:
+    """A scene material that shades by a shading map (the renderers' ``surface`` protocol)."""
+
     def __init__(self, data: ShadingData, model, params: dict, variant: str = "r", above_max: str = "clamp",
                  sigma: float = 1.0):
         self.data, self.model, self.params = data, model, {k: np.asarray(v)[0] for k, v in params.items()}
@@ -31,10 +44,8 @@ class ShadingSurface:
     @classmethod
     def open(cls, url: str, model, params: dict, variant: str, above_max: str, sigma: float) -> ShadingSurface:
         """From a ShadingMap store or a PowerShadingMap store (compressed)."""
-        art = open_artifact(url, ("ShadingMap", "PowerShadingMap"))
-        data = (ShadingData.from_artifacts(compressed=art) if art.kind == "PowerShadingMap"
-                else ShadingData.from_artifacts(shading_map=art))
-        return cls(data, model, params, variant, above_max, sigma)
+        return open_surface(open_artifact(url, ("ShadingMap", "PowerShadingMap")), model, params, variant=variant,
+                            above_max=above_max, sigma=sigma)
 
     # -- cpu ----------------------------------------------------------------------------------------------------------
 

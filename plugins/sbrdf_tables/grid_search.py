@@ -27,14 +27,18 @@ What the thesis does, and how it is vectorised here:
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, rms_error, usable
+from sbrdf_core.params import Param
 
 from .kurt import beckmann, lobe, lobe_geometry
+
+logger = logging.getLogger(__name__)
 
 #: Default search box of a lobe's (coefficient, m_x, m_y, r_0, α) when ``search`` does not name it.
 DEFAULT_BOX = {"k": (0.0, 1.0), "m_x": (0.005, 0.5), "m_y": (0.005, 0.5), "r_0": (0.0, 1.0), "alpha": (0.0, 1.0)}
@@ -254,7 +258,7 @@ def refine_lm(model, start: TableFit, theta_i, theta_o, wi, wo, p, *, iterations
     The residual of entry s is sqrt(sin θ_o |cos θ_i|)·|cos θ_o|·(f_model − f_meas): LM works in BSDF
     space (the contract's least-squares problem), the weight turns it into the metric's p-space.
     """
-    from sbrdf_fitters.lm import levenberg_marquardt
+    from sbrdf_lib.lm import levenberg_marquardt
 
     t0 = time.perf_counter()
     p = np.asarray(p, float)
@@ -286,8 +290,30 @@ def refine_lm(model, start: TableFit, theta_i, theta_o, wi, wo, p, *, iterations
 class GridSearchFitter:
     """The ``grid-search`` fitter plugin: :func:`fit_table` per texel, optionally refined by LM."""
 
-    def __init__(self, model, model_params, n, iterations, alternations, search, fixed, histogram_bins, lm_refine,
-                 lm_iterations):
+    model_name: str
+    model_config: dict
+
+    params = (
+        Param("model", "str", "kurt-transmissive", "BRDF model (the grid search fits kurt-transmissive lobes)",
+              choices=["kurt-transmissive"], extra={"plugin_category": "brdf-model"}),
+        Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
+        Param("n", "int", 9, "values per parameter and level (n^P candidates per level)", bounds=(2, 64)),
+        Param("iterations", "int", 4, "grid levels: the first over the search box, each further one ± one step "
+              "around the best", bounds=(1, 50)),
+        Param("alternations", "int", 2, "passes over the lobes of one hemisphere when there are several",
+              bounds=(1, 20)),
+        Param("search", "dict", {}, "search box per model parameter, e.g. {m_x_1: [0.01, 0.3]}"),
+        Param("fixed", "dict", {}, "model parameters held at a value, e.g. {alpha_1: 0.5, k_d: 0.003}"),
+        Param("histogram_bins", "int", 64, "bins of the k_d histogram (linear over [0, 2 x median])",
+              bounds=(4, 10000)),
+        Param("lm_refine", "bool", False, "refine the grid result by Levenberg-Marquardt (same weights, squared)"),
+        Param("lm_iterations", "int", 100, "LM iterations at most", bounds=(1, 10000)),
+    )
+
+    # The dict defaults equal the declaration (the registry checks); they are copied, never changed.
+    def __init__(self, *, model: str = "kurt-transmissive", model_params: dict = {}, n: int = 9,  # noqa: B006
+                 iterations: int = 4, alternations: int = 2, search: dict = {}, fixed: dict = {},  # noqa: B006
+                 histogram_bins: int = 64, lm_refine: bool = False, lm_iterations: int = 100):
         self.model_name, self.model_config = model, dict(model_params)
         self.n, self.iterations, self.alternations = n, iterations, alternations
         self.search, self.fixed, self.histogram_bins = dict(search), dict(fixed), histogram_bins
@@ -341,4 +367,5 @@ class GridSearchFitter:
             for name, v in res.params.items():
                 params[name][texel] = v[0]
         n = valid.sum(axis=1)
+        logger.debug("grid search of %d texels: %d evaluations", T, sum(r.evaluations for r in self.last if r))
         return FitResult(params, rms_error(model, params, f_r, valid, wi, wo), n, flags)

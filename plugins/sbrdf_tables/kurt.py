@@ -25,30 +25,18 @@ and the Beckmann exponent is capped, so grazing and exactly-horizontal
 directions give large but finite values, never NaN.  ``k_d``, ``k_s``, ``k_t``
 are RGB (3 channels; a single-channel table gives equal channels); the lobe
 shape (m_x, m_y, r_0, α) is shared by the channels.  The fit form fits log m.
-
-==============  ========  ===================================================
-parameter       channels  meaning
-==============  ========  ===================================================
-k_d             3         diffuse albedo (f = k_d/π on the reflection side)
-k_s_j           3         reflection lobe j coefficient
-m_x_j, m_y_j    1         Beckmann roughness along tangent (+x) / bitangent (+y)
-r_0_j           1         Schlick reflectance at normal incidence
-alpha_j         1         Kurt's shadowing exponent α ∈ [0, 1]
-k_t_j           3         transmission lobe j coefficient
-m_x_t_j ...     1         the same shape parameters for transmission lobe j
-==============  ========  ===================================================
+The per-texel maps: ``k_d``; per reflection lobe j ``k_s_j``, ``m_x_j``,
+``m_y_j`` (Beckmann roughness along tangent / bitangent), ``r_0_j`` (Schlick
+reflectance at normal incidence), ``alpha_j`` (Kurt's shadowing exponent);
+per transmission lobe ``k_t_j`` and the same shape names with ``t_``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter
 from sbrdf_core.params import Param
-
-PARAMS = (
-    Param("lobes", "int", 1, "reflection lobes", bounds=(0, 16)),
-    Param("transmission_lobes", "int", 0, "transmission lobes (thin slab, ω_t = −ω_i)", bounds=(0, 16)),
-)
 
 #: Floor on cosines and on ω_o·h: keeps 1/(ω_o·h) and (cos θ_i cos θ_o)^-α finite at the horizon.
 COS_FLOOR = 1e-6
@@ -110,7 +98,12 @@ def lobe(g, m_x, m_y, r_0, alpha, transmission: bool):
 class KurtTransmissiveModel(BRDFModel):
     name = "kurt-transmissive"
 
-    def __init__(self, lobes: int = 1, transmission_lobes: int = 0):
+    params = (
+        Param("lobes", "int", 1, "reflection lobes", bounds=(0, 16)),
+        Param("transmission_lobes", "int", 0, "transmission lobes (thin slab, ω_t = −ω_i)", bounds=(0, 16)),
+    )
+
+    def __init__(self, *, lobes: int = 1, transmission_lobes: int = 0):
         if lobes < 0 or transmission_lobes < 0:
             raise ValueError("kurt-transmissive: lobe counts must be >= 0")
         self.lobes, self.transmission_lobes = int(lobes), int(transmission_lobes)

@@ -1,8 +1,13 @@
-"""What a node kind is: typed ports, an output artifact kind, and a ``build``.
+"""What a node kind is: typed ports, an output artifact kind, a ``prepare`` and a ``build``.
 
 ``build`` describes the computation as lazy dask arrays and never computes;
 the runner (:mod:`sbrdf_core.runner`) decides which chunks still need writing
-and executes them.  Kernels stay plain NumPy so they can be tested without dask.
+and executes them.  What ``build`` must know as concrete values (per-pose
+marker measurements, a codebook) is declared by ``prepare`` as lazy dask
+collections: the runner computes them on the run's scheduler, with the node's
+progress bar, and hands the results to ``build`` in ``ctx.prepared``.  So
+building never computes on whatever scheduler happens to be ambient.  Kernels
+stay plain NumPy so they can be tested without dask.
 """
 
 from __future__ import annotations
@@ -111,6 +116,9 @@ class BuildContext:
     spec: PluginSpec | None = None
     registry: Registry | None = None
     url: str = ""
+    #: What :meth:`NodeKind.prepare` asked for, computed (same keys, NumPy/Python values);
+    #: ``None`` until the runner has run the prepare step.
+    prepared: dict[str, Any] | None = None
 
 
 class NodeKind:
@@ -134,8 +142,20 @@ class NodeKind:
     @classmethod
     def fingerprint(cls, ctx: BuildContext) -> str:
         """Extra cache-key material beyond parameters and inputs (e.g. files on disk)."""
-        fp = getattr(ctx.plugin, "fingerprint", None)
+        from ..contracts import optional
+
+        fp = optional(ctx.plugin, "fingerprint")
         return fp() if callable(fp) else ""
+
+    @classmethod
+    def prepare(cls, ctx: BuildContext) -> dict[str, Any]:
+        """Lazy dask collections ``build`` needs computed, by name; the runner computes them first.
+
+        The default asks for nothing.  A node kind whose plugin needs concrete
+        data delegates to the plugin's optional ``prepare`` with the inputs of
+        its main call (Register: ``plugin.prepare(capture)``).
+        """
+        return {}
 
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:  # pragma: no cover - abstract

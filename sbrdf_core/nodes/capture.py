@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..artifacts import CaptureSet
+from ..contracts import optional
 from .base import BuildContext, NodeKind, Output, shared
 
 
@@ -88,5 +89,5 @@ class Capture(NodeKind):
                 "exposure_s": small(desc.exposure_s),
             },
             attrs=desc.attrs(),
-            sequential=bool(getattr(source, "sequential", False)),
+            sequential=bool(optional(source, "sequential", "capture")),
         )

@@ -25,6 +25,7 @@ BRDF model to fit (the node constructs it from the registry), and
 from __future__ import annotations
 
 import inspect
+import logging
 import time
 import warnings
 from dataclasses import dataclass
@@ -36,6 +37,8 @@ from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbou
 from ..geometry import tile_directions
 from ..params import Param
 from .base import BuildContext, NodeKind, Output, Port
+
+logger = logging.getLogger(__name__)
 
 
 #: Bits of the ``flags`` map: why a texel's fit is missing or doubtful.  Stored
@@ -234,6 +237,8 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     rms = np.where(bad | empty, 0.0, rms)
     rms_holdout = np.where(bad | empty, np.nan, rms_holdout)
     seconds = np.full(T, (time.perf_counter() - t0) / T)
+    logger.debug("fit tile of %d texels with %s: %.3f s, %d flagged", T, type(fitter).__name__, seconds.sum(),
+                  int((flags != 0).sum()))
     out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, bounded_by, seconds], axis=1)], axis=1)
     return out.reshape(grid + (-1,)).astype(np.float32)
 

@@ -16,7 +16,11 @@ Optional, for layouts that are more than arrays:
   beside the arrays (an EXR, a JSON description, PNGs) and returns attributes
   to record (``{"files": [...]}``);
 - ``bytes_per_texel(textures) -> float``: when the stored arrays are not what
-  a renderer would hold (a palette index plus a shared palette).
+  a renderer would hold (a palette index plus a shared palette);
+- ``prepare(params, model) -> {name: dask collection}``: global data the
+  encoding needs concrete (a palette's clustering sees every texel).  The
+  runner computes it before ``build`` on the run's scheduler, with progress,
+  and ``encode`` then gets ``prepared=`` the results: building never computes.
 
 The node measures what quantizing cost, identically for every layout: per
 texel, the RMS difference in sr⁻¹ between the model with original and with
@@ -34,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance, TextureSet
+from ..contracts import optional
 from ..geometry import fibonacci_hemisphere, tile_directions
 from .base import BuildContext, NodeKind, Output, Port
 
@@ -113,13 +118,32 @@ class Quantize(NodeKind):
     plugin_category = "quantizer"
 
     @classmethod
+    def prepare(cls, ctx: BuildContext) -> dict:
+        """The quantizer's optional ``prepare(params, model)``: what its ``encode`` needs computed."""
+        prepare = optional(ctx.plugin, "prepare", "quantizer")
+        if not callable(prepare):
+            return {}
+        pm = ctx.inputs["params"]
+        model = model_of(ctx, pm)
+        return prepare({p.name: pm.array(f"params/{p.name}") for p in model.parameters}, model)
+
+    @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
 
         pm = ctx.inputs["params"]
         model = model_of(ctx, pm)
         params = {p.name: pm.array(f"params/{p.name}") for p in model.parameters}
-        enc: Encoded = ctx.plugin.encode(params, model)
+        if callable(optional(ctx.plugin, "prepare", "quantizer")):
+            prepared = ctx.prepared
+            if prepared is None:  # built outside a runner (a test, a notebook): compute it here
+                import dask
+
+                wanted = cls.prepare(ctx)
+                prepared = dict(zip(wanted, dask.compute(*wanted.values())))
+            enc: Encoded = ctx.plugin.encode(params, model, prepared=prepared)
+        else:
+            enc = ctx.plugin.encode(params, model)
         decoded = ctx.plugin.decode(enc.textures, enc.scale, enc.bias, model)
         original = da.concatenate([params[p.name] for p in model.parameters], axis=-1)
         restored = da.concatenate([da.asarray(decoded[p.name]).astype(np.float32) for p in model.parameters], axis=-1)
@@ -146,10 +170,10 @@ class Quantize(NodeKind):
                 samples.read("light_pos"), samples.read("camera_pos"), drop_axis=[2], dtype=np.float32,
                 name=f"quantize-error-own-{ctx.node}")
             arrays["error_own"] = own.rechunk(original.chunks[:2])
-        sized = getattr(ctx.plugin, "bytes_per_texel", None)
+        sized = optional(ctx.plugin, "bytes_per_texel", "quantizer")
         bytes_per_texel = (sized(enc.textures) if callable(sized) else
                            int(sum(np.dtype(t.dtype).itemsize * t.shape[-1] for t in enc.textures.values())))
-        write_files = getattr(ctx.plugin, "write_files", None)
+        write_files = optional(ctx.plugin, "write_files", "quantizer")
 
         def finalize(art):
             rms = lambda e: float(np.sqrt(np.mean(e.astype(np.float64) ** 2)))  # noqa: E731

@@ -3,15 +3,22 @@
 The plugin measures per-pose geometry once (``register``) and resamples one
 pose at a time inside dask tasks (``resample``).  Rejected poses are dropped
 from the stack and listed, with their reasons, in the artifact.
+
+A plugin whose measurement needs the photographs (fiducial detection) returns
+that work lazily from its optional ``prepare(capture)`` (name -> dask
+collection); the runner computes it with the run's scheduler and progress bar,
+and ``register(capture, prepared=...)`` receives the results.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ..artifacts import CaptureSet, RegisteredStack
+from ..contracts import optional
 from ..store import texel_tile
 from .base import BuildContext, NodeKind, Output, Port, shared
 
@@ -74,11 +81,19 @@ class Register(NodeKind):
     plugin_category = "registration"
 
     @classmethod
+    def prepare(cls, ctx: BuildContext) -> dict[str, Any]:
+        prepare = optional(ctx.plugin, "prepare", "registration")
+        return dict(prepare(ctx.inputs["capture"])) if prepare is not None else {}
+
+    @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
 
         capture = ctx.inputs["capture"]
-        reg: Registration = ctx.plugin.register(capture)
+        if optional(ctx.plugin, "prepare", "registration") is not None:
+            reg: Registration = ctx.plugin.register(capture, prepared=ctx.prepared or {})
+        else:
+            reg = ctx.plugin.register(capture)
         U, V = reg.texels
         ids = np.asarray(reg.pose_ids, dtype=np.int64)
         # The plugin, the Registration (per-pose geometry, O(poses)) and the capture's

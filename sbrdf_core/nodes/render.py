@@ -1,13 +1,18 @@
 """Render: images of a material, as linear EXR and display PNG.
 
-Renderer protocol: ``render(material) -> RenderResult`` with a lazy or
-NumPy ``(H, W, 3)`` linear image.  The node accepts fitted ParamMaps or
-quantized TextureSets; a TextureSet is decoded by the quantizer that wrote
-it, so the renderer always sees the model and its parameter maps (and, for
-renderers that emulate a texture format, the encoded textures too).
-Renderers that draw scenes read the scene file themselves
-(:mod:`sbrdf_core.scene`) and may load further materials with
-:func:`load_material`.
+Renderer protocol (:class:`sbrdf_core.contracts.Renderer`): ``render(material)
+-> RenderResult`` with a lazy or NumPy ``(H, W, 3)`` linear image.  The node
+accepts fitted ParamMaps or quantized TextureSets; a TextureSet is decoded by
+the quantizer that wrote it, so the renderer always sees the model and its
+parameter maps (and, for renderers that emulate a texture format, the encoded
+textures too).  It also accepts every kind a plugin declares renderable
+(``ArtifactKind.material``, e.g. a shading map), handed over as an
+:class:`InputArtifact`.  Renderers that draw scenes read the scene file
+themselves and may load further materials with :func:`load_material`.
+
+A renderer that needs arrays in memory declares ``prepare(material) ->
+{name: dask collection}``: the runner computes them before build, and the
+renderer gets ``render(material, prepared=...)`` — building never computes.
 """
 
 from __future__ import annotations
@@ -18,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from ..artifacts import Images, ParamMaps, TextureSet
+from .. import contracts
+from ..artifacts import KINDS, Images, ParamMaps, TextureSet
 from ..io import linear_to_srgb8, write_exr, write_png
 from ..store import join, open_artifact
 from .base import BuildContext, NodeKind, Output, Port
@@ -76,7 +82,7 @@ def open_material(registry, url: str) -> Material:
 
 @dataclass
 class InputArtifact:
-    """A Render input that is not a BRDF material (a shading map): renderers look it up by its kind."""
+    """A Render input of a kind a plugin renders (a shading map): renderers look its adapter up by its kind."""
 
     artifact: Any
 
@@ -85,8 +91,26 @@ class InputArtifact:
         return self.artifact.url
 
 
-def material_from(ctx: BuildContext, art) -> Material:
-    return load_material(ctx.registry, art)
+def material_from(ctx: BuildContext, art) -> Material | InputArtifact:
+    """The Render node's input as the renderer sees it: a :class:`Material`, or an :class:`InputArtifact`."""
+    if art.kind in (ParamMaps.kind, TextureSet.kind):
+        return load_material(ctx.registry, art)
+    return InputArtifact(art)
+
+
+class MaterialPort(Port):
+    """Accepts ParamMaps, TextureSets and every kind a loaded plugin declares renderable (``ArtifactKind.material``).
+
+    The kinds are read when asked, so a plugin's kind is accepted once a registry has loaded it.
+    """
+
+    @property  # type: ignore[override]
+    def kinds(self) -> tuple:
+        return (ParamMaps, TextureSet) + tuple(k for k in KINDS.values() if k.material)
+
+    @kinds.setter
+    def kinds(self, value) -> None:  # the dataclass __init__ assigns the declared tuple; the property decides
+        pass
 
 
 def display_exposure(image: np.ndarray) -> float:
@@ -107,17 +131,25 @@ def to_display(image: np.ndarray, exposure: float, gamma: str = "srgb") -> np.nd
 class Render(NodeKind):
     name = "Render"
     doc = "Render a material; writes image.exr (linear) and image.png (display) beside the arrays."
-    #: Shading maps (kinds of the sbrdf_shading plugin) are rendered with a BRDF chosen in the scene.
-    inputs = (Port("material", (ParamMaps, TextureSet, "ShadingMap", "PowerShadingMap"),
-                   "fitted or quantized material, or a shading map"),)
+    #: Plugins' renderable kinds (shading maps) are rendered with a BRDF chosen in the scene.
+    inputs = (MaterialPort("material", (), "fitted or quantized material, or a kind a plugin renders (a shading map)"),)
     output = Images
     plugin_category = "renderer"
 
     @classmethod
+    def prepare(cls, ctx: BuildContext) -> dict[str, Any]:
+        """The renderer's ``prepare(material)``: what it needs in memory, computed by the runner before build."""
+        prepare = contracts.optional(ctx.plugin, "prepare", "renderer")
+        return dict(prepare(material_from(ctx, ctx.inputs["material"]))) if prepare is not None else {}
+
+    @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         art = ctx.inputs["material"]
-        material = material_from(ctx, art) if art.kind in (ParamMaps.kind, TextureSet.kind) else InputArtifact(art)
-        result: RenderResult = ctx.plugin.render(material)
+        material = material_from(ctx, art)
+        if contracts.optional(ctx.plugin, "prepare", "renderer") is not None:
+            result: RenderResult = ctx.plugin.render(material, prepared=ctx.prepared)
+        else:
+            result = ctx.plugin.render(material)
 
         def finalize(art):
             t0 = time.perf_counter()

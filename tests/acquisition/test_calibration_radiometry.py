@@ -7,12 +7,26 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from sbrdf_capture.colour import (LINEAR_SRGB_TO_XYZ, XYZ_TO_LINEAR_SRGB, ColourError, apply_matrix, camera_to_working,
-                                  colour_checker_xyz, fit_camera_to_xyz)
-from sbrdf_capture.hdr import merge_exposures
-from sbrdf_capture.response import (ResponseCurve, codes, cubic_table, fit_cubic_loglog, gamma_table, relative_error,
-                                    srgb_table)
 from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+from sbrdf_capture.colour import (
+    LINEAR_SRGB_TO_XYZ,
+    XYZ_TO_LINEAR_SRGB,
+    ColourError,
+    apply_matrix,
+    camera_to_working,
+    colour_checker_xyz,
+    fit_camera_to_xyz,
+)
+from sbrdf_capture.hdr import merge_exposures
+from sbrdf_capture.response import (
+    ResponseCurve,
+    codes,
+    cubic_table,
+    fit_cubic_loglog,
+    gamma_table,
+    relative_error,
+    srgb_table,
+)
 
 CAM = {"width": 160, "height": 120, "focal_px": 210.0, "texels": [32, 32]}
 BRACKET = [0.25, 1.0, 4.0]
@@ -66,7 +80,7 @@ def test_hdr_merge_matches_simulator_radiance(registry, tmp_path):
 def test_dark_frame_subtraction(registry, tmp_path):
     cam, (light, R, t) = capture(registry, tmp_path / "s", poses=2, exposures=[2.0],
                                  effects=["dark_current", "falloff"], dark_current=0.02)
-    from sbrdf_capture.capture_folder import encode_image
+    from sbrdf_lib.capture_folder import encode_image
 
     (tmp_path / "s" / "images" / "dark.exr").write_bytes(encode_image(cam.dark_frame(10.0), ".exr"))
     plain = registry.create("capture", "folder", {"path": str(tmp_path / "s")})
@@ -169,7 +183,7 @@ def test_response_recovered_from_brackets_that_differ_per_pose(method, tolerance
 
 def test_response_recovery_failure_says_what_was_tried(registry, tmp_path):
     """No pose has two exposures: the error says the response is absent and why it cannot be recovered."""
-    from sbrdf_capture.capture_folder import CaptureFolderError
+    from sbrdf_lib.capture_folder import CaptureFolderError
 
     capture(registry, tmp_path / "s", poses=2, exposures=[1.0], effects=["response"], response_curve="srgb",
             bit_depth=8, record_response=False)

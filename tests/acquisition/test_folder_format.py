@@ -15,9 +15,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sbrdf_capture.capture_folder import (JOURNAL, MANIFEST, CaptureFolderError, CaptureFolderWriter, load_manifest,
-                                          read_journal, validate_folder)
 from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+from sbrdf_lib.capture_folder import (
+    JOURNAL,
+    MANIFEST,
+    CaptureFolderError,
+    CaptureFolderWriter,
+    load_manifest,
+    read_journal,
+    validate_folder,
+)
 
 SMALL = {"width": 96, "height": 72, "focal_px": 130.0, "texels": [16, 16]}
 
@@ -196,7 +203,7 @@ KILLER = textwrap.dedent("""\
     import os, signal, sys
     import numpy as np
     from sbrdf_core.registry import Registry
-    import sbrdf_capture.capture_folder as cf
+    import sbrdf_lib.capture_folder as cf
     from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
 
     kill_at = int(sys.argv[2])
@@ -256,7 +263,7 @@ def test_torn_journal_line_is_dropped(folder, tmp_path, registry):
 
 
 def test_manifest_json_round_trip_is_stable(folder):
-    from sbrdf_capture.capture_folder import parse_manifest
+    from sbrdf_lib.capture_folder import parse_manifest
 
     m = load_manifest(folder)
     again = parse_manifest(copy.deepcopy(m.to_json()))
@@ -367,3 +374,19 @@ def test_a_pose_whose_every_pixel_is_negative_is_an_error_naming_pose_and_file(r
                      f"  capture: {{kind: Capture, plugin: folder, params: {{path: {folder}}}}}\n")
     with pytest.raises(Exception, match=r"poses\[1\] \(id 1\): 192 of 192 pixels"):
         run_graph(str(graph))
+
+
+def test_old_module_paths_re_export_the_library_layer():
+    """The format moved to sbrdf_lib (writers in other packages share it); the old paths stay for one release."""
+    import sbrdf_lib.capture_folder as lib
+    import sbrdf_lib.mesostructure
+    import sbrdf_lib.patterns
+    import sbrdf_lib.response
+    from sbrdf_cameras import mesostructure
+    from sbrdf_capture import capture_folder, folder, response, synthetic
+
+    assert capture_folder.CaptureFolderWriter is lib.CaptureFolderWriter and set(capture_folder.__all__) == set(lib.__all__)
+    assert folder.manifest_sections is lib.manifest_sections and folder.read_image is lib.read_image
+    assert response.ResponseCurve is sbrdf_lib.response.ResponseCurve
+    assert synthetic.pattern is sbrdf_lib.patterns.pattern
+    assert mesostructure.Mesostructure is sbrdf_lib.mesostructure.Mesostructure

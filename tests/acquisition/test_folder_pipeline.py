@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import zarr
 
-from sbrdf_core.runner import run_graph
 from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+from sbrdf_core.runner import run_graph
 
 
 def test_capture_node_reads_a_virtual_capture(registry, tmp_path):

@@ -23,14 +23,14 @@ import numpy as np
 import pytest
 import zarr
 
-from sbrdf_capture.capture_folder import JOURNAL, MANIFEST, load_manifest, read_journal
 from sbrdf_core.errors import ArtifactError, ParameterError
 from sbrdf_core.graph import load_graph
 from sbrdf_core.runner import run_graph
 from sbrdf_core.store import open_artifact
-from sbrdf_rig.errors import LinkLost, PositionError, ReplyTimeout, SoftLimitError
+from sbrdf_lib.capture_folder import JOURNAL, MANIFEST, load_manifest, read_journal
+from sbrdf_lib.rig_geometry import RigGeometry, forward
+from sbrdf_lib.serial.errors import LinkLost, PositionError, ReplyTimeout, SoftLimitError
 from sbrdf_rig.gonio import GonioCaptureError
-from sbrdf_rig.kinematics import RigGeometry, forward
 from sbrdf_rig.sim import Fault, SimulatedIndexer, SimulatedPTU
 
 from ..conftest import assert_stores_equal
@@ -451,3 +451,21 @@ def test_debevec_recovery_reads_a_planned_scan_whose_brackets_differ_per_pose(tm
     assert reader.describe().camera["response"] == "table"
     truth = registry.create("device", "virtual-camera", p["camera"]["params"]).curve().table[:, 0]
     assert relative_error(reader.curve.table, truth, 0.1, 0.9, fit_scale=True) < 0.1
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda p: p["motors"]["light_arm"].pop("device"), "parameter motors.light_arm.device is required"),
+    (lambda p: p["motors"]["light_arm"].update(speed=3), "unknown key motors.light_arm.speed"),
+    (lambda p: p.update(camera={"params": {}}), "parameter camera.device is required"),
+    (lambda p: p.update(geometry={"pan_limit_deg": [0, 1]}), "unknown key geometry.pan_limit_deg"),
+    (lambda p: p.update(geometry={"tilt_limits_deg": [0, 1, 2]}), "'geometry.tilt_limits_deg' needs 2 items"),
+    (lambda p: p.update(plan={"theta_d_deg": 20.0, "source": "stars"}), "'plan.source' is 'stars'"),
+])
+def test_nested_parameters_are_checked_against_their_declared_schema(registry, tmp_path, change, message):
+    """motors, camera, geometry and plan declare their keys: a mistake is named by its path before anything runs."""
+    from sbrdf_core.errors import PluginError
+
+    params = {"path": str(tmp_path / "scan"), "motors": motors(), "plan": {"angles_deg": ANGLES}}
+    change(params)
+    with pytest.raises(PluginError, match=re.escape(message)):
+        registry.create("capture", "gonio", params)

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sbrdf_rig.kinematics import RigGeometry, forward, inverse
+from sbrdf_lib.rig_geometry import RigGeometry, forward, inverse
 
 angles = st.tuples(st.floats(-60, 60), st.floats(-60, 60), st.floats(-170, 170), st.floats(15, 170))
 offsets = st.builds(

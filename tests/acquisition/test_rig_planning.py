@@ -7,10 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from sbrdf_rig.kinematics import RigGeometry, forward
-from sbrdf_rig.planning import (angular_error_budget_deg, bi_angular_distance, camera_geometry, choose_poses,
-                                direction_candidates, exponent_for_falloff, mirror_angle_deg, phong_falloff,
-                                plan_exposures, plan_poses, sampling_density)
+from sbrdf_lib.rig_geometry import RigGeometry, forward
+from sbrdf_rig.planning import (
+    angular_error_budget_deg,
+    bi_angular_distance,
+    camera_geometry,
+    choose_poses,
+    direction_candidates,
+    exponent_for_falloff,
+    mirror_angle_deg,
+    phong_falloff,
+    plan_exposures,
+    plan_poses,
+    sampling_density,
+)
 
 RIG = RigGeometry(sample_standoff_mm=0.0)
 

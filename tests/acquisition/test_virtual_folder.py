@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import yaml
 
-from sbrdf_capture.capture_folder import CaptureFolderError
 from sbrdf_core.runner import run_graph
 from sbrdf_core.store import open_artifact
+from sbrdf_lib.capture_folder import CaptureFolderError
 
 CAMERA = {"width": 96, "height": 72, "focal_px": 160.0, "texels": [8, 8], "intensity": 1.5e5,
           "effects": ["falloff", "motor_error"], "carrier_supersample": 1, "seed": 3}

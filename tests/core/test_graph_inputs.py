@@ -19,7 +19,7 @@ import pytest
 from sbrdf_core.errors import GraphError
 from sbrdf_core.graph import load_graph
 from sbrdf_core.params import Param
-from sbrdf_core.scene import SceneError, load_scene
+from sbrdf_lib.scene import SceneError, load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 SKY = ROOT / "scenes" / "envmap_sky.exr"
@@ -262,7 +262,7 @@ def test_scene_checks_use_the_validating_registry(tmp_path):
     path = render_graph(tmp_path, SCENE + "environment: {file: sky.exr}\n")
     load_graph(path, Registry())
     err = invalid(path, Registry(disabled=["envmap"]))
-    only(err, 8, "environment lighting needs the environment scene effect, which is not installed")
+    only(err, 8, "unknown scene key 'environment'")  # the key comes with the envmap plugin (sbrdf_scene_keys)
 
 
 def test_a_good_scene_with_environment_and_mesh_validates(tmp_path, registry):

@@ -475,3 +475,33 @@ def test_virtual_scan_graph_runs(registry, tmp_path):
     # lobe taking a share of a flat BRDF keep it from being exact).
     assert np.median(np.abs(rho_d[ok] - truth[ok]) / truth[ok]) < 0.15
     assert np.corrcoef(rho_d[ok].ravel(), truth[ok].ravel())[0, 1] > 0.9
+
+
+def test_building_computes_nothing_marker_detection_is_prepared_by_the_runner(registry, tmp_path, monkeypatch):
+    """Build never computes: every node's ``build`` runs with dask's compute entry points made to raise, and
+    aruco's marker measurement is computed by the runner's prepare step, with the node's progress."""
+    import dask
+    import dask.base
+    import dask.threaded
+
+    from sbrdf_core.runner import Runner
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a node's build computed")
+
+    real_build = Runner._build
+
+    def build_refusing_compute(self, node, ctx):
+        assert node.kind.name != "Register" or ctx.prepared and ctx.prepared["blocks"], ctx.prepared
+        with monkeypatch.context() as m:
+            for mod, name in ((dask, "compute"), (dask.base, "compute"), (dask.threaded, "get"), (dask, "persist")):
+                m.setattr(mod, name, refuse)
+            return real_build(self, node, ctx)
+
+    monkeypatch.setattr(Runner, "_build", build_refusing_compute)
+    calls = []
+    g = small_virtual_scan(tmp_path, nodes=("capture", "register", "reflectance"), poses=8)
+    rep = run_graph(str(g), progress=lambda node, done, total: calls.append((node, done, total)))
+    assert [n.status for n in rep.nodes] == ["computed"] * 3
+    prepare = [c for c in calls if c[0] == "register prepare"]
+    assert prepare and prepare[-1][1] == prepare[-1][2] == 8  # one measured block per pose at 8 poses

@@ -19,7 +19,7 @@ from sbrdf_core.brdf_checks import energy_report, hemisphere_max
 from sbrdf_core.constraints import Limits, angular_resolution, enforce, mirror_peak
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, OVERFIT, FitOptions, fit_tile
-from sbrdf_fitters.lm import fit_model
+from sbrdf_lib.lm import fit_model
 
 MODELS = [
     ("lafortune", {"lobes": 1}),

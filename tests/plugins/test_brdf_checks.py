@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sbrdf_core.brdf_checks import (directional_albedo, energy_report, quadrature, reciprocity_error)
+from sbrdf_core.brdf_checks import directional_albedo, energy_report, quadrature, reciprocity_error
 from sbrdf_core.registry import Registry
 
 REGISTRY = Registry()

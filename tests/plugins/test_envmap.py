@@ -10,10 +10,10 @@ from hypothesis import strategies as st
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.io import write_exr
 from sbrdf_core.registry import default_registry
-from sbrdf_core.scene import load_scene
 from sbrdf_envmap import cubemap, prefilter, sampling
 from sbrdf_envmap.effect import EnvironmentEffect
 from sbrdf_envmap.procedural import sky
+from sbrdf_lib.scene import load_scene
 from sbrdf_render import materials as mat
 from sbrdf_render.cpu import render_scene
 

@@ -7,8 +7,8 @@ import pytest
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.registry import default_registry
-from sbrdf_core.scene import load_scene
 from sbrdf_envmap.mirror import MirrorEffect
+from sbrdf_lib.scene import load_scene
 from sbrdf_render import materials as mat
 from sbrdf_render.cpu import render_scene
 

@@ -13,7 +13,7 @@ from sbrdf_core.brdf import luminance_weights
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.least_squares import LeastSquaresProblem
 from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, NO_SAMPLES, NONFINITE_INPUT, UNDERDETERMINED, fit_tile
-from sbrdf_fitters.lm import fit_model, levenberg_marquardt
+from sbrdf_lib.lm import fit_model, levenberg_marquardt
 
 
 def directions(T, S, max_theta=80.0, seed=0):

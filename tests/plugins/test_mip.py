@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 
 from sbrdf_core.runner import run_graph
-from sbrdf_core.scene import SceneError, downsample, load_scene
 from sbrdf_core.store import open_artifact
+from sbrdf_lib.scene import SceneError, downsample, load_scene
 from sbrdf_quantizers.mip import build_levels, level_errors, max_levels
 from sbrdf_render import materials as mat
 from sbrdf_render.cpu import render_scene
-
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from render import MIP_SCENE as FAR  # noqa: E402  the distant view the benchmark measures

@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 
 from sbrdf_quantizers.float_exr import FloatEXRQuantizer
-from sbrdf_quantizers.mcallister8 import (McAllister8Quantizer, decode_exponent, encode_exponent, exponent_table,
-                                          hardware_shade, rescale_lobe)
+from sbrdf_quantizers.mcallister8 import (
+    McAllister8Quantizer,
+    decode_exponent,
+    encode_exponent,
+    exponent_table,
+    hardware_shade,
+    rescale_lobe,
+)
 
 
 def lafortune(registry, **cfg):
@@ -116,7 +122,7 @@ def test_no_grazing_brightening_when_x_is_clamped(registry):
     model = lafortune(registry)
     theta = np.array([0.0, 60.0, 75.0, 85.0, 89.0])
     wi, wo = mirror_pairs(theta)
-    tex32, s32, b32, dec32 = encode_decode(FloatEXRQuantizer("float32"), model, CHERRY)
+    tex32, s32, b32, dec32 = encode_decode(FloatEXRQuantizer(dtype="float32"), model, CHERRY)
     f_float = model.eval(dec32, wi, wo)[0, :, 0] - CHERRY["rho_d"][0, 0]
     assert f_float[0] < 1e-4 and f_float[-1] > 2.5 and (np.diff(f_float) > 0).all()
     tex, scale, bias, dec = encode_decode(McAllister8Quantizer(rescale="none", c_range=2.0), model, CHERRY)
@@ -145,7 +151,7 @@ def test_highlight_tails_band_in_8_bit_and_not_in_float(registry):
     params = {"rho_d": np.zeros((1, 3)), "rho_s_1": np.ones((1, 3)), "c_xy_1": np.array([[-1.0]]),
               "c_z_1": np.array([[1.0]]), "exponent_1": np.array([[64.0]])}
     wi, wo = tail_sweep()
-    _, _, _, dec32 = encode_decode(FloatEXRQuantizer("float32"), model, params)
+    _, _, _, dec32 = encode_decode(FloatEXRQuantizer(dtype="float32"), model, params)
     f = model.eval(dec32, wi, wo)[0, :, 0]
     tail = f > 1e-3
     assert (np.diff(f[tail]) < 0).all()  # float: strictly decreasing, every sample its own value

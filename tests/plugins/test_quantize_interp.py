@@ -7,7 +7,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from sbrdf_quantizers import edit, interpolate as ip
+from sbrdf_quantizers import edit
+from sbrdf_quantizers import interpolate as ip
 from sbrdf_quantizers.palette import build_palette, read_palette, resynthesize
 
 
@@ -148,6 +149,26 @@ def test_more_palette_entries_less_error(registry):
         build_palette(model, flat, k=300)
 
 
+def test_palette_clusters_what_prepare_computed(registry):
+    """Build never computes: ``prepare`` hands the global clustering its inputs as dask work, and ``encode``
+    with them gives exactly what ``encode`` computing them itself gives."""
+    import dask
+    import dask.array as da
+
+    from sbrdf_core.contracts import missing
+
+    model = lafortune(registry)
+    params = {k: da.from_array(v, chunks=(4, 4, -1)) for k, v in lobe_maps(8, 8, seed=3).items()}
+    quantizer = registry.create("quantizer", "palette", {"k": 4})
+    assert missing("quantizer", quantizer) == []
+    wanted = quantizer.prepare(params, model)
+    assert set(wanted) == {p.name for p in model.parameters} and all(dask.is_dask_collection(v) for v in wanted.values())
+    prepared = dict(zip(wanted, dask.compute(*wanted.values())))
+    a, b = quantizer.encode(params, model, prepared=prepared), quantizer.encode(params, model)
+    for name in a.textures:
+        np.testing.assert_array_equal(np.asarray(a.textures[name]), np.asarray(b.textures[name]))
+
+
 def test_paint_round_trip_replaces_only_changed_texels(tmp_path, registry):
     from sbrdf_core.io import write_png
     from sbrdf_core.runner import run_graph
@@ -174,7 +195,7 @@ def test_paint_round_trip_replaces_only_changed_texels(tmp_path, registry):
     from sbrdf_core.io import read_png
 
     new, changed = resynthesize(params, index, read_png(str(tmp_path / "edited.png")), palette)
-    assert (changed == ((edited != index))).all() and changed.any()
+    assert (changed == (edited != index)).all() and changed.any()
     for k in params:
         np.testing.assert_array_equal(new[k][~changed], params[k][~changed])  # untouched texels: full precision
         np.testing.assert_allclose(new[k][changed], np.broadcast_to(palette[k][3], new[k][changed].shape))

@@ -10,10 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sbrdf_core.errors import GraphError, SbrdfError
-from sbrdf_core.scene import SceneError, load_scene
+from sbrdf_lib.mesh import load_obj
+from sbrdf_lib.scene import SceneError, load_scene
+from sbrdf_lib.surface import tessellate, vertex_frames
 from sbrdf_render import materials as mat
 from sbrdf_render.cpu import cast, render_scene
-from sbrdf_render.shapes import load_obj, tessellate, vertex_frames
 
 from .test_models import CONFIGS, REGISTRY
 
@@ -381,7 +382,7 @@ def test_uniform_material_rejects_unknown_and_out_of_bounds_parameters():
 
 def test_tessellated_shapes_agree_with_the_ray_caster():
     """Vertex attributes of the GPU meshes equal the CPU's analytic surface attributes at the same points."""
-    from sbrdf_render.shapes import intersect
+    from sbrdf_lib.surface import intersect
 
     scene = load_scene("""
 objects:
@@ -505,7 +506,7 @@ def _preview_of_bright_bottom_half(texels=(8, 6)):
     rho[: V // 2] = 0.4  # array row = texel row v
     model = REGISTRY.create("brdf-model", "lambert", {})
     material = Material(model, {"rho_d": da.from_array(rho, chunks=(4, 4, 3))}, texels, (40.0, 30.0), "test")
-    return np.asarray(PreviewRenderer([300.0, 0.0, 520.0], [0.0, 0.0, 800.0], None, None).render(material).image.compute())
+    return np.asarray(PreviewRenderer(light_pos_mm=[300.0, 0.0, 520.0], camera_pos_mm=[0.0, 0.0, 800.0]).render(material).image.compute())
 
 
 def test_preview_draws_v0_at_the_bottom_like_the_camera_and_sbrdf_plot():
@@ -621,7 +622,7 @@ def test_gl_plugin_antialiases_the_geforce4_path_like_the_float_path(gl, registr
     scene = tmp_path / "s.yaml"
     scene.write_text(checker_scene(4).replace("materials: {m: {artifact: input}}",
                                               "materials: {m: {model: lafortune}}"))
-    r = GLRenderer(str(scene), pipeline="geforce4")
+    r = GLRenderer(scene=str(scene), pipeline="geforce4")
     r.bind(registry)
     out = r.render(None)
     assert out.image.shape[:2] == (36, 48) and out.attrs["antialias"] == 4
@@ -631,3 +632,59 @@ def test_gl_refuses_a_supersampled_framebuffer_beyond_the_driver_limit(gl):
     scene = load_scene(checker_scene(64).replace("resolution: [48, 36]", "resolution: [4096, 8]"))
     with pytest.raises(SbrdfError, match=r"framebuffer would be 32768×64 .* lower antialias"):
         gl.GLScene(scene, {"m": checker_material()})
+
+
+# -- plugins' scene keys and renderable kinds (issue 22) -----------------------------------------------------------
+
+PLUGIN_KEYS_SCENE = """
+camera: {resolution: [8, 6]}
+materials: {m: {model: lambert, params: {rho_d: 0.5}}}
+objects: [{shape: plane, material: m, reflector: false}]
+lights: [{type: directional, direction: [0, 0, 1]}]
+"""
+
+
+def test_scene_keys_come_from_the_plugins_that_read_them(registry):
+    """``reflector:`` (sbrdf_envmap) and ``shading_map:`` (sbrdf_shading) exist only with their plugin."""
+    from sbrdf_core.registry import Registry
+    from sbrdf_lib.scene import plugin_keys
+
+    keys = plugin_keys(registry)
+    assert "environment" in keys.sections and "reflector" in {p.name for p in keys.shapes["plane"]}
+    assert "shading_map" in {p.name for p in keys.material_params}
+    load_scene(PLUGIN_KEYS_SCENE, registry=registry)
+    with pytest.raises(SceneError, match="reflector"):
+        load_scene(PLUGIN_KEYS_SCENE, registry=Registry(disabled=["envmap"]))
+    text = PLUGIN_KEYS_SCENE.replace("params: {rho_d: 0.5}", "params: {rho_d: 0.5}, shading_map: input")
+    assert load_scene(text, registry=registry).materials["m"].surface["options"] == {
+        "variant": "r", "above_max": "clamp", "sigma": 1.0}
+    with pytest.raises(SceneError, match="shading_map"):
+        load_scene(text, registry=Registry(disabled=["shading"]))
+
+
+def test_the_render_port_accepts_the_kinds_plugins_declare_renderable(registry):
+    from sbrdf_core.artifacts import KINDS
+    from sbrdf_core.nodes.render import Render
+
+    port = Render.inputs[0]
+    assert {"ParamMaps", "TextureSet", "ShadingMap", "PowerShadingMap"} <= set(port.names)
+    assert all(KINDS[n].material for n in port.names if n not in ("ParamMaps", "TextureSet"))
+
+
+def test_a_renderers_prepare_step_gives_what_render_would_compute(registry):
+    """Build never computes: ``prepare(material)`` lists the maps, and ``render(prepared=)`` uses them as given."""
+    import dask
+    import dask.array as da
+
+    from sbrdf_core.nodes.render import Material
+    from sbrdf_render.cpu import CPURenderer
+
+    model = registry.create("brdf-model", "lambert", {})
+    rho = np.random.default_rng(0).uniform(0.1, 0.9, (6, 8, 3)).astype(np.float32)
+    material = Material(model, {"rho_d": da.from_array(rho, chunks=(3, 4, 3))}, (8, 6), (40.0, 30.0), "test")
+    r = CPURenderer(scene=checker_scene(1).replace("resolution: [48, 36]", "resolution: [12, 9]"))
+    r.bind(registry)
+    lazy = r.prepare(material)
+    assert sorted(lazy) == ["m/params/rho_d"] and all(dask.is_dask_collection(v) for v in lazy.values())
+    computed = dask.compute(lazy)[0]
+    assert np.array_equal(r.render(material, prepared=computed).image, r.render(material).image)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.registry import Registry
-from sbrdf_core.scene import load_scene
+from sbrdf_lib.scene import load_scene
 from sbrdf_quantizers.mcallister8 import McAllister8Quantizer, exponent_table, hardware_shade
 from sbrdf_render import materials as mat
 

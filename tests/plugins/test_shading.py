@@ -12,8 +12,7 @@ from sbrdf_core.registry import default_registry
 from sbrdf_shading.arc import render_arc_image
 from sbrdf_shading.compress import evaluate_power, fit_power
 from sbrdf_shading.linearize import interpolation_weights, linearize
-from sbrdf_shading.shade import (VARIANTS, ShadingData, angle_table, bilinear, lookup, r_value, shade,
-                                 shade_environment)
+from sbrdf_shading.shade import VARIANTS, ShadingData, angle_table, bilinear, lookup, r_value, shade, shade_environment
 
 THETA = (15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0, 85.0)
 

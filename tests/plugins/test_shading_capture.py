@@ -242,6 +242,8 @@ def test_11_black_captures_fail_cleanly_and_artifacts_open_in_a_fresh_process(tm
         open_artifact(f"{tmp_path}/store/shading")
     cap = cap.replace("albedo: 0.0", "albedo: 0.5")
     run_graph(small_graph(tmp_path, cap), progress=False)
-    code = f"from sbrdf_core.store import open_artifact; print(open_artifact({str(tmp_path / 'store/compress')!r}).kind)"
+    # Plugins' kinds are known once a registry has loaded them (sbrdf_artifact_kinds), not by importing a plugin.
+    code = ("from sbrdf_core.registry import default_registry; from sbrdf_core.store import open_artifact; "
+            f"default_registry(); print(open_artifact({str(tmp_path / 'store/compress')!r}).kind)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "PowerShadingMap"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.scene import load_scene
+from sbrdf_lib.scene import load_scene
 from sbrdf_render import materials as mat
 from sbrdf_render.cpu import render_scene
 from sbrdf_shading.shade import ShadingData
@@ -81,7 +81,7 @@ def shipped_scene_render(registry, exponent, text=None):
     text = text if text is not None else (root / "scenes" / "shading-map.yaml").read_text()
     scene = load_scene(text.replace("resolution: [480, 360]", "resolution: [160, 120]"))
     ref = scene.materials["suede"]
-    shading = dict(ref.shading)
+    shading = dict(ref.surface["options"])
     model = registry.create("brdf-model", ref.model, dict(ref.model_params))
     base = mat.uniform("suede", model, {**ref.params, "exponent": exponent})
     data = stack(np.random.default_rng(4), a_max=SHIPPED_A_MAX)

@@ -17,8 +17,7 @@ from sbrdf_core.store import open_artifact
 from sbrdf_tables.grid_search import diffuse_from_histogram, fit_table, l1_error, refine_lm, search_lobe
 from sbrdf_tables.kurt import KurtTransmissiveModel, beckmann, lobe_geometry, schlick
 from sbrdf_tables.node import table_arrays
-from sbrdf_tables.table import (MeasuredTable, TableError, direction, grid_table, read_table, table_from_model,
-                                write_table)
+from sbrdf_tables.table import MeasuredTable, TableError, direction, grid_table, read_table, table_from_model, write_table
 
 TABLE_3_1_ONE = {"k_d": 0.003, "k_s_1": 0.9, "m_x_1": 0.11, "m_y_1": 0.072, "r_0_1": 0.89, "alpha_1": 0.43}
 TABLE_3_1_TWO = {"k_d": 0.003, "k_s_1": 0.9, "m_x_1": 0.11, "m_y_1": 0.07, "r_0_1": 0.87, "alpha_1": 0.45,

@@ -11,7 +11,8 @@ a motor that misses its target) are injected per simulator with
             ptu.move_to(pan_deg=10.0)
 """
 
-from .base import Fault, PtySimulator, SimulatedAxis
+from sbrdf_lib.serial.sim import Fault, PtySimulator, SimulatedAxis
+
 from .indexer import SimulatedIndexer
 from .ptu import SimulatedPTU
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import re
 
-from .base import PtySimulator, SimulatedAxis
+from sbrdf_lib.serial.sim import PtySimulator, SimulatedAxis
 
 _COMMAND = re.compile(r"^(?P<axis>[1-4])?(?P<name>[A-Z]+)(?P<arg>.*)$")
 _NUMERIC = ("D", "V", "A", "AD", "LSPOS", "LSNEG", "LS", "LH")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import re
 
-from .base import PtySimulator, SimulatedAxis
+from sbrdf_lib.serial.sim import PtySimulator, SimulatedAxis
 
 _COMMAND = re.compile(r"^(?P<axis>[PT])(?P<code>[PSNXRO])(?P<arg>[-+]?\d+)?$")
 _NAMES = {"P": "Pan", "T": "Tilt"}

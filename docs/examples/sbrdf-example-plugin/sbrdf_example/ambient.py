@@ -7,7 +7,7 @@ the one-sample estimate L ≈ π A f_r(n, ω_o) (the BRDF at normal incidence,
 times the cosine-weighted solid angle π), which is exact for a Lambertian
 surface and a cheap fill light for the rest.  Good enough to lift shadows out
 of black, and small enough to show the whole scene-effect protocol
-(``sbrdf_core.hookspecs.sbrdf_scene_effects``): one term in numpy for the
+(``sbrdf_core.contracts.SceneEffect``; hits and frames from :mod:`sbrdf_lib.surface`): one term in numpy for the
 ``cpu`` renderer, the same term in GLSL for ``gl``, active only when the scene
 asks for it.
 """
@@ -18,6 +18,9 @@ import math
 
 import numpy as np
 
+from sbrdf_core.params import Param
+from sbrdf_lib.surface import local_frame
+
 NAME = "ambient"
 
 
@@ -26,7 +29,12 @@ class AmbientEffect:
 
     name = NAME
 
-    def __init__(self, radiance):
+    params = (
+        Param("radiance", "list", [0.1, 0.1, 0.1], "sky radiance (RGB) arriving from every direction above the surface",
+              length=3, item="float", bounds=(0.0, None)),
+    )
+
+    def __init__(self, *, radiance=[0.1, 0.1, 0.1]):  # noqa: B006 (read only)
         self.radiance = np.asarray(radiance, dtype=np.float64)
 
     # -- selection: only scenes that ask for it -----------------------------------------------------------------
@@ -46,8 +54,6 @@ class AmbientEffect:
 
     def cpu_radiance(self, material, hits, view_dirs: np.ndarray, pixels=None) -> np.ndarray:
         """``(R, 3)``: π A f_r(n, ω_o) at the hits, vectorised (zero where the surface faces away)."""
-        from sbrdf_render.shapes import local_frame
-
         t, b, n = local_frame(hits.normal, hits.tangent)
         wo_w = -view_dirs
         wo = np.stack([np.einsum("ij,ij->i", t, wo_w), np.einsum("ij,ij->i", b, wo_w),

@@ -18,21 +18,26 @@ reply repeats its command letter, so a late ``OK`` arriving for a ``Q`` is
 recognised as garbled instead of being read as a position.
 
 The serial plumbing (timeouts, retries, resynchronisation) is
-:class:`sbrdf_rig.link.SerialLink`; limits, verified moves and clean stops are
-:class:`sbrdf_rig.controller.MotorController`.  This module only implements
-the protocol hooks.  :mod:`sbrdf_example.turntable_sim` serves the same
-protocol on a pseudo-terminal, with injectable faults.
+:class:`sbrdf_lib.serial.SerialLink`; limits, verified moves and clean stops
+are :class:`sbrdf_lib.serial.MotorController`, both from sbrdf's public
+library layer.  This module only declares its parameters and implements the
+protocol hooks.  :mod:`sbrdf_example.turntable_sim` serves the same protocol
+on a pseudo-terminal, with injectable faults.
 """
 
 from __future__ import annotations
 
+import logging
 import re
 import time
 from collections.abc import Sequence
 
-from sbrdf_rig.controller import MotorController
-from sbrdf_rig.errors import DeviceRefused, GarbledReply, ReplyTimeout
-from sbrdf_rig.link import SerialLink
+from sbrdf_core.params import REQUIRED, Param
+from sbrdf_lib.serial import DeviceRefused, GarbledReply, MotorController, ReplyTimeout, SerialLink
+
+__all__ = ["Turntable"]
+
+logger = logging.getLogger(__name__)
 
 _QUERY = re.compile(r"^Q (?P<angle>[+-]\d+\.\d{3}) (?P<state>MOVING|IDLE)$")
 
@@ -48,7 +53,20 @@ class Turntable(MotorController):
     #: The simulator the ``gonio`` capture source starts for ``port: sim``.
     simulator = "sbrdf_example.turntable_sim:SimulatedTurntable"
 
-    def __init__(self, port: str, baudrate: int = 19200, timeout_s: float = 1.0, retries: int = 3,
+    params = (
+        Param("port", "str", REQUIRED, "serial device path (/dev/ttyUSB0, a simulator's pty); `sim` in a gonio graph"),
+        Param("baudrate", "int", 19200, "line speed", choices=(9600, 19200, 38400, 115200)),
+        Param("timeout_s", "float", 1.0, "how long to wait for a complete reply", bounds=(0.001, 60.0), unit="s"),
+        Param("retries", "int", 3, "extra attempts after a dropped/garbled reply or a missed position", bounds=(0, 20)),
+        Param("tolerance_deg", "float", 0.01, "largest accepted difference between target and read-back angle",
+              bounds=(0.0, 10.0), unit="deg"),
+        Param("limits_deg", "list", [-180.0, 180.0], "soft limits [low, high]; moves outside are refused unsent",
+              length=2, item="float", bounds=(-720.0, 720.0), unit="deg"),
+        Param("move_timeout_s", "float", 60.0, "longest a single move may take", bounds=(0.01, 3600.0), unit="s"),
+        Param("poll_s", "float", 0.005, "status polling interval while the stage moves", bounds=(0.0, 1.0), unit="s"),
+    )
+
+    def __init__(self, *, port: str, baudrate: int = 19200, timeout_s: float = 1.0, retries: int = 3,
                  tolerance_deg: float = 0.01, limits_deg: Sequence[float] = (-180.0, 180.0),
                  move_timeout_s: float = 60.0, poll_s: float = 0.005):
         lo, hi = (float(v) for v in limits_deg)
@@ -60,10 +78,11 @@ class Turntable(MotorController):
         self.move_timeout_s = float(move_timeout_s)
         self.poll_s = float(poll_s)
         try:
-            self._query()
+            angle, moving, _ = self._query()
         except Exception:
             self.close()
             raise
+        logger.info("turntable on %s: connected at %.3f deg%s", port, angle, " (moving)" if moving else "")
 
     # -- protocol ---------------------------------------------------------------------
 

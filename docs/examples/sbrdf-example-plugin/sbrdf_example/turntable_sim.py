@@ -1,6 +1,6 @@
 """A simulated turntable on a pseudo-terminal (protocol: :mod:`sbrdf_example.turntable`).
 
-Built on :class:`sbrdf_rig.sim.base.PtySimulator`, which owns the pty, the
+Built on :class:`sbrdf_lib.serial.PtySimulator`, which owns the pty, the
 serving thread and the reply faults (``drop``, ``garble``, ``stall``); this
 class only answers commands, and applies ``miss`` faults to ``G`` moves.
 The driver under test opens ``sim.port`` with pyserial exactly as it would
@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import re
 
-from sbrdf_rig.sim.base import PtySimulator, SimulatedAxis
+from sbrdf_lib.serial import PtySimulator, SimulatedAxis
+
+__all__ = ["SimulatedTurntable"]
 
 _GO = re.compile(r"^G(?P<angle>[+-]?\d+(?:\.\d*)?)$")
 

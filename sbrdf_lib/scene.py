@@ -17,26 +17,40 @@ environment map and a camera (``docs/scenes.md``)::
     shadows: false
     antialias: 4          # samples per pixel, n² (2×2 here; 1 = off); the default
 
-Every key is declared once below as :class:`~sbrdf_core.params.Param` data,
-so an unknown key, a wrong type or a missing value is reported with the
-scene file's line, like graphs.  Renderers read :func:`Scene.features` to
-decide which effects (and which shader code) the scene needs.
+Every key is declared once as :class:`~sbrdf_core.params.Param` data, so an
+unknown key, a wrong type or a missing value is reported with the scene
+file's line, like graphs.  The keys below are the renderers' own; plugins add
+theirs through the ``sbrdf_scene_keys`` hook (:func:`plugin_keys`): a
+top-level section (``environment:``), material keys (``shading_map:``) or
+object keys (``reflector:``).  Renderers read :func:`Scene.features` to decide
+which effects (and which shader code) the scene needs.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import yaml
 
-from . import _yaml
-from .errors import Problem, SbrdfError
-from .params import Param, resolve
+from sbrdf_core import _yaml
+from sbrdf_core.contracts import optional
+from sbrdf_core.errors import Problem, SbrdfError
+from sbrdf_core.params import Param, resolve
+
+from .mesh import obj_vertex_radius
+
+__all__ = ["ANTIALIAS_DEFAULT", "ANTIALIAS_MAX", "CAMERA", "DISPLAY", "LIGHTS", "MATERIAL", "OBJECT", "SHAPES",
+           "TOP_KEYS", "TRANSFORM", "Camera", "Features", "Light", "MaterialRef", "PluginKeys", "Scene", "SceneError",
+           "SceneObject", "downsample", "load_scene", "plugin_keys", "reference", "rgb", "scene_fingerprint",
+           "transform_matrix"]
+
+logger = logging.getLogger(__name__)
 
 CAMERA = (
     Param("position", "list", [0.0, -3.0, 2.0], "eye position", length=3, item="float"),
@@ -52,7 +66,7 @@ TRANSFORM = (
     Param("scale", "float", 1.0, "uniform scale, applied first", bounds=(1e-9, None)),
 )
 
-_OBJECT_COMMON = (
+OBJECT = (
     Param("shape", "str", choices=("plane", "sphere", "cylinder", "mesh"), doc="geometry"),
     Param("material", "str", "sample", "name of an entry of materials:"),
     Param("transform", "dict", {}, "placement: translate, rotate_deg, scale"),
@@ -63,9 +77,7 @@ _OBJECT_COMMON = (
 #: Shape-specific keys.  Built-in shapes are centred at the origin with +z up.
 SHAPES = {
     "plane": (Param("size", "list", [1.0, 1.0], "extent in x and y (u runs along +x, v along +y)", length=2, item="float",
-                    bounds=(1e-9, None)),
-              Param("reflector", "bool", False, "a planar reflector: its specular lobes reflect the other objects "
-                    "(the mirror scene effect, docs/environment-lighting.md)")),
+                    bounds=(1e-9, None)),),
     "sphere": (Param("radius", "float", 0.5, "radius", bounds=(1e-9, None)),
                Param("segments", "list", [128, 64], "GL tessellation in longitude and latitude", length=2, item="int",
                      bounds=(3, 4096))),
@@ -84,14 +96,6 @@ MATERIAL = (
     Param("filter", "str", "bilinear", "parameter-map lookup; trilinear blends two MIP levels (a Mip node's "
           "levels) chosen by the pixel's texel footprint, and is bilinear on a material without levels",
           choices=("nearest", "bilinear", "trilinear")),
-    Param("shading_map", "str", None, "'input' (the Render node's input) or a ShadingMap or PowerShadingMap store "
-          "(relative to the scene file), looked up with model: and params: (Kautz et al. 2003, docs/shading-maps.md)",
-          nullable=True),
-    Param("variant", "str", "r", "shading-map lookup (Fig 6): by r, by outgoing radiance, by angle, or a slice as "
-          "texture", choices=("r", "radiance", "angle", "texture")),
-    Param("above_max", "str", "clamp", "shading-map lookups above a_max: clamp to, or scale, the brightest slice",
-          choices=("clamp", "scale")),
-    Param("sigma", "float", 1.0, "σ of Eq 2: the shading-mapped material's shade", bounds=(0.0, None)),
 )
 
 LIGHTS = {
@@ -102,21 +106,14 @@ LIGHTS = {
                     Param("irradiance", "any", 1.0, "irradiance at normal incidence (a number or an RGB triple)")),
 }
 
-ENVIRONMENT = (
-    Param("file", "str", doc="EXR environment map, relative to the scene file"),
-    Param("layout", "str", "latlong", "map layout", choices=("latlong", "cube")),
-    Param("intensity", "float", 1.0, "radiance scale", bounds=(0.0, None)),
-    Param("options", "dict", {}, "options of the environment scene effect (docs/environment-lighting.md)"),
-)
-
 DISPLAY = (
     Param("exposure", "float", None, "linear scale before display; default maps the 99th percentile to 0.8",
           nullable=True, bounds=(0.0, None)),
     Param("gamma", "str", "srgb", "display transfer of the PNG", choices=("srgb", "2.2")),
 )
 
-TOP_KEYS = ("camera", "materials", "objects", "lights", "environment", "shadows", "display", "background", "effects",
-            "antialias")
+#: The renderers' own top-level keys; plugins' sections (``environment``) come after them.
+TOP_KEYS = ("camera", "materials", "objects", "lights", "shadows", "display", "background", "effects", "antialias")
 
 #: Samples per pixel when a scene does not say (``antialias:``): a 2×2 stratified pattern.
 ANTIALIAS_DEFAULT = 4
@@ -217,15 +214,9 @@ class MaterialRef:
     model_params: dict
     params: dict
     filter: str
-    shading: dict | None = None  # {store, variant, above_max, sigma} for a shading-mapped material
-
-
-@dataclass(frozen=True)
-class Environment:
-    file: str
-    layout: str
-    intensity: float
-    options: dict = field(default_factory=dict)  # for the environment scene effect, validated by it
+    #: A material looked up in a store of a renderable artifact kind (a shading map), from a plugin's material
+    #: keys: ``{"key": its store key, "store": "input" or a path, "options": the plugin's other keys}``.
+    surface: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -239,7 +230,7 @@ class Features:
     directional_lights: int
     falloff: str  # of the point lights: "all", "none" or "mixed"
     shadows: bool
-    environment: bool
+    sections: tuple[str, ...]  # the plugin sections the scene gives (environment)
     anisotropic: dict[str, bool] = field(default_factory=dict)
     alpha: dict[str, bool] = field(default_factory=dict)
     two_sided: dict[str, bool] = field(default_factory=dict)  # transmissive models lit from either side
@@ -256,13 +247,18 @@ class Scene:
     objects: tuple[SceneObject, ...]
     materials: dict[str, MaterialRef]
     lights: tuple[Light, ...]
-    environment: Environment | None = None
+    #: Plugins' top-level sections (``sbrdf_scene_keys``): name -> its resolved keys as attributes, or None.
+    sections: dict[str, Any] = field(default_factory=dict)
     shadows: bool = False
     exposure: float | None = None
     gamma: str = "srgb"
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     effects: dict[str, dict] = field(default_factory=dict)  # scene-effect name -> options, for plugins' effects
     antialias: int = ANTIALIAS_DEFAULT  # samples per pixel, a square n²: an n×n stratified sub-pixel grid
+
+    def section(self, name: str) -> Any:
+        """A plugin section's values (attributes named as its keys), or None when the scene does not give it."""
+        return self.sections.get(name)
 
     @property
     def subpixels(self) -> int:
@@ -294,10 +290,10 @@ class Scene:
             directional_lights=sum(lt.type == "directional" for lt in self.lights),
             falloff="mixed" if len(falloff) == 2 else ("none" if falloff == {False} else "all"),
             shadows=self.shadows,
-            environment=self.environment is not None,
-            anisotropic={m: bool(getattr(materials[m].model, "anisotropic", False)) for m in used if m in materials},
+            sections=tuple(k for k, v in self.sections.items() if v is not None),
+            anisotropic={m: bool(optional(materials[m].model, "anisotropic", "brdf-model")) for m in used if m in materials},
             alpha={m: materials[m].alpha is not None for m in used if m in materials},
-            two_sided={m: bool(getattr(materials[m].model, "two_sided", False)) for m in used if m in materials},
+            two_sided={m: bool(optional(materials[m].model, "two_sided", "brdf-model")) for m in used if m in materials},
         )
 
     def bounds(self) -> tuple[np.ndarray, float]:
@@ -318,23 +314,6 @@ class Scene:
         return centre, float(max(np.linalg.norm(c - centre) + r for c, r in pts))
 
 
-@functools.lru_cache(maxsize=64)
-def obj_vertex_radius(path: str) -> float:
-    """Largest distance of an OBJ file's ``v`` vertices from its origin: a mesh's bounding sphere.
-
-    Only the vertex lines are read (renderers parse the whole file with their own
-    loader); an unreadable or vertex-less file gives 1, and the renderer that
-    loads it reports the error with its line.
-    """
-    try:
-        with open(path) as f:
-            rows = [line.split()[1:4] for line in f if line.startswith("v ")]
-        v = np.asarray(rows, dtype=float)
-    except (OSError, ValueError):
-        return 1.0
-    return float(np.sqrt((v**2).sum(axis=1)).max()) if v.ndim == 2 and len(v) else 1.0
-
-
 def transform_matrix(translate, rotate_deg, scale) -> np.ndarray:
     """4x4 object-to-world matrix: scale, then rotate about x, y, z, then translate."""
     ax, ay, az = np.radians(rotate_deg)
@@ -348,10 +327,62 @@ def transform_matrix(translate, rotate_deg, scale) -> np.ndarray:
     return m
 
 
-def load_scene(source: str | Path, material_names: tuple[str, ...] = ()) -> Scene:
+@dataclass(frozen=True)
+class PluginKeys:
+    """The scene keys installed plugins add (``sbrdf_scene_keys``), merged."""
+
+    #: Top-level sections: name -> a ``dict`` Param whose ``schema`` declares the section's keys.
+    sections: dict[str, Param] = field(default_factory=dict)
+    #: Groups of material keys; a group's ``extra={"store": True}`` key names the store, the rest are its options.
+    material: tuple[tuple[Param, ...], ...] = ()
+    #: Keys of every object, and of one shape's objects.
+    objects: tuple[Param, ...] = ()
+    shapes: dict[str, tuple[Param, ...]] = field(default_factory=dict)
+
+    @property
+    def material_params(self) -> tuple[Param, ...]:
+        return tuple(p for group in self.material for p in group)
+
+
+def plugin_keys(registry=None) -> PluginKeys:
+    """The scene keys every installed plugin declares through ``sbrdf_scene_keys``.
+
+    Each implementation returns ``{scope: (Param, ...)}`` with scopes ``scene`` (sections),
+    ``material``, ``object`` and ``object.<shape>``.
+    """
+    from sbrdf_core.registry import default_registry
+
+    registry = registry if registry is not None else default_registry()
+    hook = getattr(registry.pm.hook, "sbrdf_scene_keys", None)
+    sections: dict[str, Param] = {}
+    material: list[tuple[Param, ...]] = []
+    objects: list[Param] = []
+    shapes: dict[str, tuple[Param, ...]] = {}
+    for declared in (hook() if hook is not None else []):
+        for scope, params in (declared or {}).items():
+            params = tuple(params)
+            if scope == "scene":
+                for p in params:
+                    if p.name in TOP_KEYS or p.name in sections:
+                        raise SbrdfError(f"scene key {p.name!r} is declared twice (sbrdf_scene_keys)")
+                    sections[p.name] = p
+            elif scope == "material":
+                material.append(params)
+            elif scope == "object":
+                objects.extend(params)
+            elif scope.startswith("object."):
+                shapes[scope[len("object."):]] = shapes.get(scope[len("object."):], ()) + params
+            else:
+                raise SbrdfError(f"sbrdf_scene_keys: unknown scope {scope!r}; use scene, material, object or "
+                                 "object.<shape>")
+    return PluginKeys(sections, tuple(material), tuple(objects), shapes)
+
+
+def load_scene(source: str | Path, material_names: tuple[str, ...] = (), registry=None) -> Scene:
     """Read and validate a scene file; raises :class:`SceneError` listing every problem with its line.
 
     ``source`` is a path, or YAML text (containing a newline) whose relative paths resolve from the cwd.
+    The keys plugins add come from ``registry`` (default: the installed plugins).
     """
     src = str(source)
     if "\n" in src:
@@ -364,12 +395,12 @@ def load_scene(source: str | Path, material_names: tuple[str, ...] = ()) -> Scen
         except yaml.YAMLError as e:
             raise SceneError([_yaml.syntax_problem(e, src)]) from None
         file, base = src, Path(src).resolve().parent
-    return _SceneValidator(text, file, base).run()
+    return _SceneValidator(text, file, base, plugin_keys(registry)).run()
 
 
 class _SceneValidator:
-    def __init__(self, text: str, file: str, base: Path):
-        self.text, self.file, self.base = text, file, base
+    def __init__(self, text: str, file: str, base: Path, keys: PluginKeys):
+        self.text, self.file, self.base, self.keys = text, file, base, keys
         self.problems: list[Problem] = []
 
     def problem(self, message: str, path: tuple = ()) -> None:
@@ -396,9 +427,10 @@ class _SceneValidator:
             raise SceneError([Problem("a scene must be a mapping with 'camera', 'objects' and 'lights'", self.file, 1)])
         for path, line in self.loc.duplicates:
             self.problems.append(Problem(f"duplicate key {path[-1]!r}", self.file, line))
+        allowed = TOP_KEYS + tuple(self.keys.sections)
         for key in doc:
-            if key not in TOP_KEYS:
-                self.problem(f"unknown scene key {key!r}; allowed: {', '.join(TOP_KEYS)}", (key,))
+            if key not in allowed:
+                self.problem(f"unknown scene key {key!r}; allowed: {', '.join(allowed)}", (key,))
         cam = self.params(CAMERA, doc.get("camera", {}), "camera", ("camera",))
         camera = None
         if len(cam) == len(CAMERA):
@@ -410,13 +442,7 @@ class _SceneValidator:
         materials = self.materials(doc.get("materials", {"sample": {"artifact": "input"}}))
         objects = self.objects(doc.get("objects"), materials)
         lights = self.lights(doc.get("lights", []))
-        env = None
-        if doc.get("environment") is not None:
-            e = self.params(ENVIRONMENT, doc["environment"], "environment", ("environment",))
-            if len(e) == len(ENVIRONMENT):  # every key valid (a bad one is reported; no KeyError)
-                env = Environment(self.path(e["file"]), e["layout"], e["intensity"], e["options"])
-                if "://" not in env.file and not Path(env.file).is_file():
-                    self.problem(f"environment: file {env.file} does not exist", ("environment", "file"))
+        sections = {name: self.section(name, p, doc.get(name)) for name, p in self.keys.sections.items()}
         shadows = doc.get("shadows", False)
         if not isinstance(shadows, bool):
             self.problem(f"shadows must be true or false, got {shadows!r}", ("shadows",))
@@ -440,13 +466,29 @@ class _SceneValidator:
             self.problem(f"effects must map scene-effect names to their options, e.g. {{ambient: {{radiance: 0.1}}}}, "
                          f"got {doc.get('effects')!r}", ("effects",))
             effects = {}
-        if not lights and env is None:
-            self.problem("the scene has no light: add lights: or environment:", ())
+        lit = [n for n, p in self.keys.sections.items() if (p.extra or {}).get("light")]
+        if not lights and not any(sections[n] is not None for n in lit):
+            self.problem(f"the scene has no light: add {' or '.join(['lights:'] + [n + ':' for n in lit])}", ())
         if self.problems:
             raise SceneError(sorted(self.problems, key=lambda p: (p.line or 0, p.message)))
-        return Scene(self.file, camera, tuple(objects), materials, tuple(lights), env, shadows,
+        return Scene(self.file, camera, tuple(objects), materials, tuple(lights), sections, shadows,
                      display["exposure"], display["gamma"], background, {str(k): dict(v or {}) for k, v in effects.items()},
                      antialias)
+
+    def section(self, name: str, declared: Param, raw) -> Any:
+        """A plugin section's values (paths resolved from the scene file and checked), or None when absent."""
+        if raw is None:
+            return None
+        schema = declared.schema or ()
+        values = self.params(schema, raw, name, (name,))
+        if len(values) < len(schema):  # a bad key is reported; the section is not built
+            return None
+        for p in schema:
+            if (p.extra or {}).get("path") and isinstance(values[p.name], str):
+                values[p.name] = self.path(values[p.name])
+                if "://" not in values[p.name] and not Path(values[p.name]).is_file():
+                    self.problem(f"{name}: {p.name} {values[p.name]} does not exist", (name, p.name))
+        return SimpleNamespace(**values)
 
     def materials(self, raw) -> dict[str, MaterialRef]:
         out = {}
@@ -455,7 +497,7 @@ class _SceneValidator:
             return out
         for name, decl in raw.items():
             path = ("materials", name)
-            m = self.params(MATERIAL, decl, f"material {name!r}", path)
+            m = self.params(MATERIAL + self.keys.material_params, decl, f"material {name!r}", path)
             if not m:
                 continue
             art, model = m["artifact"], m["model"]
@@ -464,12 +506,15 @@ class _SceneValidator:
                 continue
             if art is not None and art != "input":
                 art = self.path(art)
-            shading = None
-            if m["shading_map"] is not None:
-                store = m["shading_map"] if m["shading_map"] == "input" else self.path(m["shading_map"])
-                shading = {"store": store, "variant": m["variant"], "above_max": m["above_max"],
-                           "sigma": m["sigma"]}
-            out[str(name)] = MaterialRef(str(name), art, model, m["model_params"], m["params"], m.get("filter", "bilinear"), shading)
+            surface = None
+            for group in self.keys.material:
+                for p in group:
+                    if (p.extra or {}).get("store") and m.get(p.name) is not None:
+                        store = m[p.name] if m[p.name] == "input" else self.path(m[p.name])
+                        surface = {"key": p.name, "store": store,
+                                   "options": {q.name: m[q.name] for q in group if q is not p and q.name in m}}
+            out[str(name)] = MaterialRef(str(name), art, model, m["model_params"], m["params"], m.get("filter", "bilinear"),
+                                         surface)
         return out
 
     def objects(self, raw, materials) -> list[SceneObject]:
@@ -483,7 +528,8 @@ class _SceneValidator:
             if shape not in SHAPES:
                 self.problem(f"object {i}: shape {shape!r} is not one of {list(SHAPES)}", path + ("shape",))
                 continue
-            o = self.params(_OBJECT_COMMON + SHAPES[shape], decl, f"object {i} ({shape})", path)
+            o = self.params(OBJECT + SHAPES[shape] + self.keys.shapes.get(shape, ()) + self.keys.objects, decl,
+                            f"object {i} ({shape})", path)
             if "material" not in o:
                 continue
             if o["material"] not in materials:
@@ -492,7 +538,7 @@ class _SceneValidator:
             t = self.params(TRANSFORM, o["transform"], f"object {i} transform", path + ("transform",))
             if len(t) < len(TRANSFORM):
                 continue
-            params = {k: o[k] for k in o if k not in {p.name for p in _OBJECT_COMMON}}
+            params = {k: o[k] for k in o if k not in {p.name for p in OBJECT}}
             if shape == "mesh" and "file" in params:
                 params["file"] = self.path(params["file"])
                 if "://" not in params["file"] and not Path(params["file"]).exists():
@@ -532,60 +578,7 @@ class _SceneValidator:
         return out
 
 
-def check_scene_param(params, registry=None) -> list[tuple[str, str]]:
-    """``check_params`` for renderers taking a ``scene`` file: its problems, reported at graph load.
-
-    Beyond the file itself (:func:`load_scene`): the scene effects it wants,
-    constructed from their options and asked to ``check`` their files
-    (:func:`effect_problems`), so a bad option or a missing environment map
-    is an error before anything runs, not after the upstream nodes computed.
-    """
-    try:
-        scene = load_scene(params["scene"])
-    except SceneError as e:
-        return [("scene", "; ".join(str(p) for p in e.problems))]
-    return [("scene", msg) for msg in effect_problems(scene, registry)]
-
-
-def effect_problems(scene: Scene, registry=None) -> list[str]:
-    """What would stop a renderer constructing the scene's effects, found without rendering.
-
-    Every installed scene effect the scene wants is constructed from its
-    options (a constructor only stores and checks them); one that defines
-    ``check(scene) -> [message]`` then checks what it will read (an
-    environment map's file).  Effects named in ``effects:`` that no plugin
-    provides, and ``environment:`` or ``reflector: true`` without their
-    effect, are reported too.
-    """
-    from .registry import default_registry
-
-    registry = registry if registry is not None else default_registry()
-    out: list[str] = []
-    provided: set[str] = set()
-    for name in registry.names("scene-effect"):
-        try:
-            cls = registry.load(registry.get("scene-effect", name))
-            if not cls.wanted(scene):
-                continue
-            provided.add(name)
-            effect = registry.create("scene-effect", name, cls.options(scene))
-            check = getattr(effect, "check", None)
-            out += [f"{scene.file}: scene effect {name!r}: {m}" for m in (check(scene) if callable(check) else [])]
-        except SbrdfError as e:
-            msg = str(e)
-            out.append(f"{scene.file}: " + (msg if msg.startswith("scene-effect ") else f"scene effect {name!r}: {msg}"))
-    if scene.environment is not None and "environment" not in provided:
-        out.append(f"{scene.file}: environment lighting needs the environment scene effect, which is not installed")
-    if any(o.params.get("reflector") for o in scene.objects) and "mirror" not in provided:
-        out.append(f"{scene.file}: reflector: true needs the mirror scene effect, which is not installed")
-    missing = sorted(set(scene.effects) - provided)
-    if missing:
-        out.append(f"{scene.file}: effects: no installed scene effect provides {missing} "
-                   "(see `sbrdf plugins --category scene-effect`)")
-    return out
-
-
-def scene_fingerprint(path: str) -> str:
+def scene_fingerprint(path: str, registry=None) -> str:
     """Cache-key material for renderers: the scene's text and the size and time of every file it names.
 
     A changed scene, mesh, environment map or referenced material store re-renders; an unchanged one is cached.
@@ -596,14 +589,17 @@ def scene_fingerprint(path: str) -> str:
     h = hashlib.sha256()
     try:
         h.update(Path(path).read_bytes())
-        scene = load_scene(path)
+        keys = plugin_keys(registry)
+        scene = load_scene(path, registry=registry)
     except (OSError, SceneError):
         return h.hexdigest()  # validation reports the problem
     files = [o.params["file"] for o in scene.objects if o.shape == "mesh"]
-    files += [scene.environment.file] if scene.environment else []
+    for name, p in keys.sections.items():
+        value = scene.section(name)
+        files += [getattr(value, q.name) for q in (p.schema or ()) if value is not None and (q.extra or {}).get("path")]
     files += [str(Path(m.artifact) / "zarr.json") for m in scene.materials.values() if m.artifact not in (None, "input")]
-    files += [str(Path(m.shading["store"]) / "zarr.json") for m in scene.materials.values()
-              if m.shading and m.shading["store"] != "input"]
+    files += [str(Path(m.surface["store"]) / "zarr.json") for m in scene.materials.values()
+              if m.surface and m.surface["store"] != "input"]
     for f in files:
         try:
             st = os.stat(f)
@@ -611,3 +607,33 @@ def scene_fingerprint(path: str) -> str:
         except OSError:
             h.update(f"{f}:missing".encode())
     return h.hexdigest()
+
+
+def param_table(params) -> str:
+    """A Markdown table of declarations (the reference pages' format)."""
+    from sbrdf_core.docgen import param_table as table
+
+    return table(params)
+
+
+def reference(registry=None) -> str:
+    """The scene-file reference page (Markdown): every key, the renderers' and the installed plugins'."""
+    keys = plugin_keys(registry)
+    out = ["# Scene-file reference", "",
+           "Generated from `sbrdf_lib/scene.py` and the plugins' `sbrdf_scene_keys`; see "
+           "[scenes and renderers](../scenes.md) for conventions.", "",
+           "## `camera`", "", param_table(CAMERA),
+           "## `materials: {name: ...}`", "", param_table(MATERIAL + keys.material_params),
+           "## `objects: [...]`", "", "Every object:", "", param_table(OBJECT + keys.objects)]
+    for shape, params in SHAPES.items():
+        out += [f"`shape: {shape}`:", "", param_table(params + keys.shapes.get(shape, ()))]
+    out += ["### `transform`", "", param_table(TRANSFORM), "## `lights: [...]`", ""]
+    for kind, params in LIGHTS.items():
+        out += [f"`type: {kind}`:", "", param_table(params)]
+    for name, p in keys.sections.items():
+        out += [f"## `{name}`", "", p.doc, "", param_table(p.schema or ())]
+    out += ["## `display`", "", param_table(DISPLAY),
+            "## Other keys", "", "`shadows` (bool, default false), `background` (a number or an RGB triple), "
+            "`effects` (scene-effect name -> its options, for effects that plugins add, e.g. "
+            "`{ambient: {radiance: 0.1}}`).", ""]
+    return "\n".join(out) + "\n"

@@ -1,0 +1,436 @@
+"""Conformance suites a plugin author runs in their own tests.
+
+Subclass the suite for what you contribute, say which contribution it checks,
+and pytest collects the inherited tests (the built-in plugins are checked by
+exactly these classes, in ``tests/plugins/test_conformance.py``)::
+
+    from sbrdf_core.testing import BRDFModelTests
+
+    class TestMinnaert(BRDFModelTests):
+        name = "minnaert"
+        configs = [{}]
+
+Each suite finds the contribution through a :class:`~sbrdf_core.registry.Registry`
+(installed entry points plus ``plugins``, module paths for a plugin not yet
+installed), so it checks what sbrdf will actually load: the protocol of
+:mod:`sbrdf_core.contracts`, declared parameters agreeing with ``__init__``,
+then behaviour on hard cases (grazing and below-horizon directions, parameter
+bounds, all-invalid samples).  Needs ``pytest`` (and ``moderngl`` with an EGL
+driver for the GLSL checks, which skip otherwise).
+"""
+
+from __future__ import annotations
+
+import warnings
+from functools import cached_property
+from typing import Any, ClassVar
+
+import numpy as np
+
+__all__ = ["BRDFModelTests", "CaptureSourceTests", "DeviceTests", "FitterTests", "PluginTests", "QuantizerTests",
+           "RendererTests", "strict"]
+
+
+class strict:
+    """No floating-point warning of any kind except underflow (exp(-large) -> 0 is intended)."""
+
+    def __enter__(self):
+        self._err = np.errstate(divide="raise", over="raise", invalid="raise", under="ignore")
+        self._err.__enter__()
+        self._warn = warnings.catch_warnings()
+        self._warn.__enter__()
+        warnings.simplefilter("error")
+
+    def __exit__(self, *exc):
+        self._warn.__exit__(*exc)
+        return self._err.__exit__(*exc)
+
+
+def sph(theta_deg, phi_deg) -> np.ndarray:
+    t, p = np.radians(theta_deg), np.radians(phi_deg)
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+class PluginTests:
+    """What every contribution must satisfy: found, importable, protocol, parameters agree.
+
+    Set ``category`` (a :data:`sbrdf_core.plugin.CATEGORIES` key) and
+    ``name``; ``plugins`` adds module paths to register (a plugin under
+    development that is not installed).
+    """
+
+    category: ClassVar[str] = ""
+    name: ClassVar[str] = ""
+    plugins: ClassVar[tuple[str, ...]] = ()
+
+    @cached_property
+    def registry(self):
+        from .registry import Registry
+
+        return Registry(extra=self.plugins)
+
+    @cached_property
+    def spec(self):
+        return self.registry.get(self.category, self.name)
+
+    def create(self, params: dict | None = None) -> Any:
+        return self.registry.create(self.category, self.name, params or {})
+
+    def test_implements_its_protocol(self):
+        from .contracts import missing
+
+        impl = self.registry.load(self.spec)
+        assert missing(self.category, impl) == [], f"{self.spec.impl} lacks members of its protocol"
+
+    def test_declared_parameters_match_the_constructor(self):
+        from .registry import signature_problems
+
+        impl = self.registry.load(self.spec)
+        problems = signature_problems(impl, self.spec.params)
+        assert problems == [], problems
+
+    def test_every_declared_parameter_is_documented(self):
+        undocumented = [p.name for p in self.spec.params if not p.doc]
+        assert not undocumented, f"parameters without a doc string: {undocumented}"
+
+
+class BRDFModelTests(PluginTests):
+    """The BRDF-model contract: Jacobian, finiteness at the bounds and at grazing, reciprocity, fit form, GLSL.
+
+    ``configs`` are the model configurations to check (each one a
+    ``model_params`` mapping).
+    """
+
+    category = "brdf-model"
+    configs: ClassVar[list[dict]] = [{}]
+
+    def models(self):
+        return [self.create(cfg) for cfg in self.configs]
+
+    def test_analytic_jacobian_matches_central_differences(self):
+        from .brdf import BRDFModel
+        from .brdf_checks import hemisphere_directions
+
+        for model in self.models():
+            for m in (model, model.fit_form()):
+                rng = np.random.default_rng(7)
+                T, S = 5, 40
+                params = m.random_guess(rng, T)
+                wi, wo = hemisphere_directions(rng, (T, S)), hemisphere_directions(rng, (T, S))
+                wi[:, :4, 2] *= -1  # a few pairs below the horizon
+                with strict():
+                    J = m.jacobian(params, wi, wo)
+                assert J.shape == (T, S, 3, m.size)
+                J_fd = BRDFModel.jacobian(m, params, wi, wo)
+                scale = np.abs(J_fd).max(axis=(0, 1, 2), keepdims=True)
+                bad = np.abs(J - J_fd) > 1e-4 * np.abs(J_fd) + 1e-6 * scale + 1e-12
+                assert not bad.any(), f"{m.name}: Jacobian columns {np.flatnonzero(bad.any(axis=(0, 1, 2)))} disagree"
+                assert np.all(J[:, :4] == 0.0)
+
+    def test_finite_at_parameter_bounds_and_zero_below_horizon(self):
+        theta = np.array([0.0, 45.0, 85.0, 89.0, 89.99, 90.0, 95.0, 180.0])
+        ti, to = np.meshgrid(theta, theta, indexing="ij")
+        wi, wo = sph(ti.ravel(), 30.0)[None], sph(to.ravel(), 210.0)[None]
+        below = (wi[..., 2] <= 0) | (wo[..., 2] <= 0)
+        for model in self.models():
+            for m in (model, model.fit_form()):
+                for pick in ("lo", "hi", "default", "typical_lo", "typical_hi"):
+                    params = {}
+                    for p in m.parameters:
+                        v = {"lo": p.bounds[0], "hi": p.bounds[1], "default": p.default,
+                             "typical_lo": p.typical[0], "typical_hi": p.typical[1]}[pick]
+                        params[p.name] = np.full((1, p.channels), float(np.clip(v, -1e6, 1e6)))
+                    with strict():
+                        f, J = m.eval(params, wi, wo), m.jacobian(params, wi, wo)
+                    assert np.isfinite(f).all() and np.isfinite(J).all(), f"{m.name} at {pick} bounds"
+                    assert np.all(f >= 0.0)
+                    assert np.all(f[below] == 0.0) and np.all(J[below] == 0.0)
+
+    def test_reciprocal(self):
+        from .brdf_checks import reciprocity_error
+
+        for model in self.models():
+            params = model.random_guess(np.random.default_rng(5), 16)
+            assert reciprocity_error(model, params, n_pairs=128).max() < 1e-12
+
+    def test_fit_form_round_trip_is_the_same_brdf(self):
+        from .brdf_checks import hemisphere_directions
+
+        for model in self.models():
+            fit = model.fit_form()
+            rng = np.random.default_rng(3)
+            params = model.random_guess(rng, 8)
+            wi, wo = hemisphere_directions(rng, (8, 64)), hemisphere_directions(rng, (8, 64))
+            f = model.eval(params, wi, wo)
+            np.testing.assert_allclose(fit.eval(fit.from_model(params), wi, wo), f, rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(model.eval(fit.to_model(fit.from_model(params)), wi, wo), f,
+                                       rtol=1e-9, atol=1e-12)
+
+    def test_constrain_is_a_projection(self):
+        """Constrained parameters stay inside the declared bounds and constraining twice changes nothing."""
+        from .constraints import Limits
+
+        for model in self.models():
+            form = model.fit_form()
+            T = 8
+            params = form.random_guess(np.random.default_rng(9), T)
+            limits = Limits(peak=np.full(T, 5.0), resolution=np.full(T, np.radians(5.0)), growth=1.0,
+                            peak_cosine=np.full(T, 5.0))
+            once, _ = form.constrain(params, limits)
+            lo, hi = form.bounds()
+            x = form.pack(once)
+            assert np.all(np.isfinite(x)) and np.all(x >= lo - 1e-9) and np.all(x <= hi + 1e-9)
+            twice, _ = form.constrain(once, limits)
+            for k in once:
+                np.testing.assert_allclose(twice[k], once[k], rtol=1e-6, atol=1e-9)
+
+    def test_glsl_compiles_and_matches_numpy(self):
+        """The model's GLSL, called through ``glsl_call`` with each parameter a uniform, against ``eval``."""
+        import pytest
+
+        moderngl = pytest.importorskip("moderngl")
+        try:
+            ctx = moderngl.create_context(standalone=True, backend="egl")
+        except Exception as e:  # no EGL driver: nothing to compile against
+            pytest.skip(f"no EGL context: {e}")
+        from .brdf_checks import hemisphere_directions
+
+        fbo = ctx.simple_framebuffer((1, 1))
+        fbo.use()
+        try:
+            for model in self.models():
+                rng = np.random.default_rng(11)
+                S = 256
+                wi, wo = hemisphere_directions(rng, (1, S))[0], hemisphere_directions(rng, (1, S))[0]
+                wi[:8, 2] *= -1
+                params = model.random_guess(rng, 1)
+                expect = model.eval(params, wi[None], wo[None])[0]
+                got = _glsl_eval(ctx, model, params, wi, wo)
+                np.testing.assert_allclose(got, expect, rtol=2e-3, atol=1e-5 * max(np.abs(expect).max(), 1e-30))
+                assert np.all(got[:8] == 0.0)
+        finally:
+            fbo.release()
+            ctx.release()
+
+
+def _glsl_eval(ctx, model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """Evaluate ``model.glsl()`` on ``(S, 3)`` pairs by transform feedback, one texel's parameters as uniforms."""
+    import moderngl
+
+    def gtype(p):
+        return "vec3" if p.channels == 3 else "float"
+
+    decl = " ".join(f"uniform {gtype(p)} u_{p.name};" for p in model.parameters)
+    call = model.glsl_call("in_wi", "in_wo", {p.name: f"u_{p.name}" for p in model.parameters})
+    vs = f"#version 330\nin vec3 in_wi;\nin vec3 in_wo;\nout vec3 f;\n{decl}\n{model.glsl()}\nvoid main() {{ f = {call}; }}\n"
+    prog = ctx.program(vertex_shader=vs, varyings=["f"])
+    for p in model.parameters:
+        if f"u_{p.name}" in prog:
+            prog[f"u_{p.name}"].write(np.asarray(params[p.name][0], dtype="f4").tobytes())
+    vbo = ctx.buffer(np.concatenate([wi, wo], axis=1).astype("f4").tobytes())
+    out = ctx.buffer(reserve=wi.shape[0] * 12)
+    vao = ctx.vertex_array(prog, [(vbo, "3f 3f", "in_wi", "in_wo")])
+    vao.transform(out, mode=moderngl.POINTS, vertices=wi.shape[0])
+    res = np.frombuffer(out.read(), dtype="f4").reshape(-1, 3).astype(np.float64)
+    for obj in (vao, vbo, out, prog):
+        obj.release()
+    return res
+
+
+class FitterTests(PluginTests):
+    """The fitter contract: recovers its own model from clean data; empty and NaN data give defaults, not NaN.
+
+    ``params`` are the fitter's parameters for the checks (a model and its
+    configuration, usually).
+    """
+
+    category = "fitter"
+    params: ClassVar[dict] = {}
+    #: Relative RMS a fit of noise-free data from the same model must reach.
+    tolerance: ClassVar[float] = 0.05
+
+    def _problem(self, T=6, S=96, seed=1):
+        from .brdf_checks import hemisphere_directions
+
+        fitter = self.create(self.params)
+        fitter_bind(fitter, self.registry)
+        model = self.registry.create("brdf-model", fitter.model_name, dict(fitter.model_config))
+        rng = np.random.default_rng(seed)
+        truth = model.defaults(T) if not hasattr(model, "random_guess") else model.random_guess(rng, T)
+        wi, wo = hemisphere_directions(rng, (T, S)), hemisphere_directions(rng, (T, S))
+        wi[..., 2] = np.maximum(wi[..., 2], 0.05)
+        wo[..., 2] = np.maximum(wo[..., 2], 0.05)
+        wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+        wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+        f = model.eval(truth, wi, wo)
+        return fitter, model, f, np.ones((T, S), bool), wi, wo
+
+    def test_result_has_one_row_per_texel(self):
+        fitter, model, f, valid, wi, wo = self._problem()
+        res = fitter.fit(model, f, valid, wi, wo)
+        T = f.shape[0]
+        assert res.rms.shape == (T,) and res.samples.shape == (T,)
+        for p in model.parameters:
+            assert res.params[p.name].shape == (T, p.channels)
+            assert np.isfinite(res.params[p.name]).all()
+
+    def test_fits_clean_data_of_its_own_model(self):
+        fitter, model, f, valid, wi, wo = self._problem()
+        res = fitter.fit(model, f, valid, wi, wo)
+        scale = np.sqrt(np.mean(f ** 2, axis=(1, 2)))
+        assert np.median(res.rms / np.maximum(scale, 1e-12)) < self.tolerance
+
+    def test_no_valid_sample_gives_finite_defaults(self):
+        fitter, model, f, valid, wi, wo = self._problem(T=3)
+        f = np.full_like(f, np.nan)
+        res = fitter.fit(model, f, np.zeros_like(valid), wi, wo)
+        for p in model.parameters:
+            assert np.isfinite(res.params[p.name]).all(), f"{p.name} not finite with no valid samples"
+        assert np.all(res.samples == 0)
+
+
+def fitter_bind(obj, registry) -> None:
+    from .contracts import optional
+
+    bind = optional(obj, "bind", "fitter")
+    if bind is not None:
+        bind(registry)
+
+
+class QuantizerTests(PluginTests):
+    """The quantizer contract: encode then decode returns finite maps of every parameter, close to the input."""
+
+    category = "quantizer"
+    params: ClassVar[dict] = {}
+    model: ClassVar[tuple[str, dict]] = ("lambert", {})
+    #: Largest relative error of a decoded parameter map.
+    tolerance: ClassVar[float] = 0.05
+
+    def test_round_trip(self):
+        import dask.array as da
+
+        q = self.create(self.params)
+        fitter_bind(q, self.registry)
+        model = self.registry.create("brdf-model", *self.model)
+        rng = np.random.default_rng(2)
+        V = U = 8
+        params = {k: v.reshape(V, U, -1) for k, v in model.random_guess(rng, V * U).items()}
+        lazy = {k: da.from_array(v, chunks=(4, 4, v.shape[-1])) for k, v in params.items()}
+        enc = q.encode(lazy, model)
+        textures = {k: np.asarray(da.asarray(t).compute()) for k, t in enc.textures.items()}
+        scale = {k: np.asarray(da.asarray(s).compute()) for k, s in enc.scale.items()}
+        bias = {k: np.asarray(da.asarray(b).compute()) for k, b in enc.bias.items()}
+        decoded = self.registry.create(self.category, self.name, {}).decode(textures, scale, bias, model)
+        for p in model.parameters:
+            got = np.asarray(decoded[p.name], dtype=np.float64).reshape(V, U, -1)
+            assert np.isfinite(got).all()
+            span = np.ptp(params[p.name]) or 1.0
+            assert np.abs(got - params[p.name]).max() <= self.tolerance * span, p.name
+
+
+class CaptureSourceTests(PluginTests):
+    """The capture-source contract: ``describe`` matches what ``read_pose`` returns."""
+
+    category = "capture"
+    params: ClassVar[dict] = {}
+
+    def test_poses_match_the_description(self):
+        src = self.create(self.params)
+        fitter_bind(src, self.registry)
+        desc = src.describe()
+        image, valid = src.read_pose(0)
+        assert image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.float32
+        assert valid.shape == image.shape[:2] and valid.dtype == bool
+        assert np.isfinite(image[valid]).all()
+        assert len(desc.light_pos) >= 1 and (desc.height, desc.width) == image.shape[:2]
+
+
+class DeviceTests(PluginTests):
+    """The motor-controller contract over a real serial link to the driver's own pty simulator.
+
+    The simulator is the driver's ``simulator`` attribute (``"module:Class"``,
+    the one the ``gonio`` capture starts for ``port: sim``); its port is
+    passed as ``port``.  ``targets`` are reachable positions per axis.
+    """
+
+    category = "device"
+    params: ClassVar[dict] = {}
+    targets: ClassVar[dict[str, float]] = {}
+    tolerance: ClassVar[float] = 0.05
+
+    def _simulator(self):
+        from .registry import import_path
+
+        impl = self.registry.load(self.spec)
+        path = getattr(impl, "simulator", None)
+        assert path, f"{self.spec.impl} names no simulator (class attribute 'simulator'); test it against hardware"
+        return import_path(path)()
+
+    def test_moves_report_where_they_arrived(self):
+        with self._simulator() as sim:
+            dev = self.create({**self.params, "port": sim.port})
+            try:
+                reached = dev.move_to(**self.targets)
+                where = dev.position()
+                for axis, target in self.targets.items():
+                    assert abs(reached[axis] - target) <= self.tolerance
+                    assert abs(where[axis] - target) <= self.tolerance
+                dev.stop()  # safe at rest
+            finally:
+                dev.close()
+
+    def test_a_silent_port_is_a_clear_error(self):
+        """Nothing answers: construction or the first exchange fails naming the port, never hangs or half-works."""
+        import pytest
+
+        from .errors import SbrdfError
+
+        with self._simulator() as sim:
+            port = sim.port
+            sim.close() if hasattr(sim, "close") else None
+        with pytest.raises((SbrdfError, OSError)) as err:
+            dev = self.create({**self.params, "port": port, **({"timeout_s": 0.2} if any(
+                p.name == "timeout_s" for p in self.spec.params) else {})})
+            dev.position()
+        assert port in str(err.value) or "port" in str(err.value).lower()
+
+
+class RendererTests(PluginTests):
+    """The renderer contract: a small random material renders to a finite, non-negative image.
+
+    ``params`` are the renderer's (a ``scene`` path for scene renderers);
+    ``model`` the BRDF model of the material.
+    """
+
+    category = "renderer"
+    params: ClassVar[dict] = {}
+    model: ClassVar[tuple[str, dict]] = ("lambert", {})
+
+    def test_renders_a_finite_image(self):
+        import dask
+        import dask.array as da
+
+        from .contracts import optional
+        from .nodes.render import Material
+
+        r = self.create(self.params)
+        bind = optional(r, "bind", "renderer")
+        if bind is not None:
+            bind(self.registry)
+        model = self.registry.create("brdf-model", *self.model)
+        V = U = 16
+        params = {k: da.from_array(v.reshape(V, U, -1), chunks=(8, 8, v.shape[-1]))
+                  for k, v in model.random_guess(np.random.default_rng(4), V * U).items()}
+        material = Material(model, params, (V, U), (50.0, 50.0), "memory://conformance", None, None, [])
+        prepare = optional(r, "prepare", "renderer")
+        if prepare is not None:
+            lazy = prepare(material)
+            prepared = dict(zip(lazy, dask.compute(*lazy.values(), scheduler="sync")))
+            result = r.render(material, prepared=prepared)
+        else:
+            result = r.render(material)
+        image = np.asarray(da.asarray(result.image).compute(scheduler="sync") if hasattr(result.image, "dask")
+                           else result.image)
+        assert image.ndim == 3 and image.shape[2] == 3
+        assert np.isfinite(image).all() and (image >= 0).all()
+        assert image.max() > 0, "the material is lit and in view: the image should not be black"

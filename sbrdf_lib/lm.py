@@ -1,0 +1,270 @@
+"""Batched Levenberg–Marquardt for any BRDF model: the solver the ``lm`` fitter, McAllister's lobe fit,
+the measured-table refinement and the mip re-fit share.
+
+All texels of a tile are solved together: residuals ``(T, M)``, Jacobians
+``(T, M, K)`` from the model (analytic where it has one), normal equations
+``(T, K, K)`` solved in one batched call, and a per-texel damping λ that
+shrinks on success and grows on failure (Marquardt's diagonal scaling).  Each
+iteration works only on the texels still improving, so a tile costs what its
+hardest texels need.
+
+The fit runs in the model's *fit form* (:meth:`BRDFModel.fit_form`): for
+Lafortune lobes C_z = 1 and log n, which removes the ρ_s ↔ |C|^n degeneracy
+of the raw form.  Every trial point is clipped to the fit form's bounds and
+projected by the model's :meth:`~sbrdf_core.brdf.BRDFModel.constrain` onto the
+texel's :class:`~sbrdf_core.constraints.Limits` (bounded peak, resolvable
+sharpness), so the fit is the best one *inside* them, not a clipped
+unbounded one.  Parameters named in ``fixed`` keep their initial value.
+
+Starting points do not depend on luck: the model's own initial guess and a
+Sobol set over the parameters' typical ranges, each with its magnitudes
+solved linearly (:meth:`~sbrdf_core.brdf.BRDFModel.refine_linear`), are
+scored per texel, and LM runs from the ``starts`` best of them; the texel keeps
+its best result.  ``loss: huber`` or ``soft-l1`` reweights samples by their
+residual (iteratively reweighted least squares) so a few outliers (dust,
+specular spikes) do not pull the lobes.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from sbrdf_core.nodes.fit import usable
+
+__all__ = [
+    "EXACT",
+    "IRLS_ROUNDS",
+    "LOSSES",
+    "MAX_DAMPING",
+    "candidate_starts",
+    "diffuse_percentile",
+    "fit_model",
+    "levenberg_marquardt",
+    "projector",
+    "robust_weights",
+]
+
+logger = logging.getLogger(__name__)
+
+#: A texel stops when λ exceeds this: no step along the gradient helps any more.
+MAX_DAMPING = 1e10
+#: Cost below this fraction of the data's energy counts as an exact fit.
+EXACT = 1e-24
+
+
+def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *, iterations: int = 50,
+                        tolerance: float = 1e-4, damping: float = 1e-3, free: np.ndarray | None = None, project=None):
+    """Minimise each texel's cost in ``problem`` (a :class:`~sbrdf_core.least_squares.LeastSquaresProblem`).
+
+    Each trial point is evaluated with its normal equations in one call: an
+    accepted step (most of them) then needs no second evaluation, which saves
+    about a third of the work over evaluating the cost first.  ``project(x,
+    idx)``, if given, maps each clipped trial point into the feasible set
+    (:func:`projector`).  Returns ``(x, cost, converged)``; texels whose
+    weights are all zero stay at ``x0``.
+    """
+    T, K = x0.shape
+    lo, hi = bounds
+    free = np.ones(K, bool) if free is None else np.asarray(free, bool)
+    outer_free = np.outer(free, free)
+    everyone = np.arange(T)
+    x = np.clip(x0, lo, hi)
+    if project is not None:
+        x = project(x, everyone)
+    A, g, cost = problem.normal_equations(x, everyone)
+    A, g = A * outer_free, g * free
+    lam = np.full(T, damping)
+    active = (problem.weight.reshape(T, -1) > 0).any(axis=1) & (cost > 0) & np.isfinite(cost)
+    # A fit this close to the data is exact to round-off (noiseless data): further
+    # steps keep halving the cost without changing the parameters.
+    exact = EXACT * problem.data_energy()
+    eye = np.eye(K)
+    for _ in range(iterations):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        xa, Aa, ga = x[idx], A[idx], g[idx]
+        diag = np.where(free, np.maximum(np.einsum("tkk->tk", Aa), 1e-12), 1.0)
+        with np.errstate(all="ignore"):
+            step = -np.linalg.solve(Aa + (lam[idx, None] * diag)[:, :, None] * eye, ga[..., None])[..., 0]
+        step = np.where(np.isfinite(step), step, 0.0)
+        x_new = np.clip(xa + step, lo, hi)
+        if project is not None:
+            x_new = project(x_new, idx)
+            step = x_new - xa
+        A_new, g_new, cost_new = problem.normal_equations(x_new, idx)
+        better = np.isfinite(cost_new) & (cost_new < cost[idx])
+        gain = np.where(better, (cost[idx] - cost_new) / np.maximum(cost[idx], 1e-300), 0.0)
+        x[idx] = np.where(better[:, None], x_new, xa)
+        A[idx] = np.where(better[:, None, None], A_new * outer_free, Aa)
+        g[idx] = np.where(better[:, None], g_new * free, ga)
+        cost[idx] = np.where(better, cost_new, cost[idx])
+        lam[idx] = np.where(better, np.maximum(lam[idx] / 3.0, 1e-12), lam[idx] * 4.0)
+        # Converged: an accepted step gained almost nothing, or a rejected one was
+        # already negligible (round-off, not a bad direction: no need to grow λ).
+        negligible = np.abs(step).max(axis=1) <= 1e-9 * np.maximum(np.abs(xa).max(axis=1), 1e-12)
+        done = (better & (gain < tolerance)) | (~better & negligible) | (lam[idx] > MAX_DAMPING) | (cost[idx] <= exact[idx])
+        active[idx[done]] = False
+    return x, cost, ~active
+
+
+def projector(form, limits):
+    """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows through ``form.constrain``."""
+    if limits is None:
+        return None
+
+    def project(x, idx):
+        params, _ = form.constrain(form.unpack(x), limits.take(idx))
+        return form.pack(params)
+
+    return project
+
+
+def candidate_starts(form, f_r, valid, wi, wo, count: int, seed: int = 0, first=None) -> list[dict[str, np.ndarray]]:
+    """``first`` (default: the form's initial guess) and ``count − 1`` Sobol points over the typical ranges,
+    magnitudes solved.
+
+    The same points for every texel, so a fit is reproducible and covers
+    the shape space evenly rather than by a random draw per texel.
+    """
+    from scipy.stats import qmc
+
+    T = f_r.shape[0]
+    out = [form.initial_guess(f_r, valid, wi, wo) if first is None else first]
+    shape = [p for p in form.parameters if not p.magnitude]
+    dims = sum(p.channels for p in shape)
+    if count > 1 and dims:
+        points = qmc.Sobol(dims, scramble=True, seed=seed).random(1 << int(np.ceil(np.log2(count - 1))))[:count - 1]
+        for point in points:
+            guess = form.defaults(T)
+            k = 0
+            for p in shape:
+                lo, hi = p.typical
+                guess[p.name] = np.broadcast_to(lo + (hi - lo) * point[k:k + p.channels], (T, p.channels)).copy()
+                k += p.channels
+            out.append(form.refine_linear(guess, f_r, valid, wi, wo))
+    return out
+
+
+def robust_weights(form, x, f_r, valid, wi, wo, loss: str, scale: float) -> np.ndarray:
+    """IRLS weights √ρ'(z), z = (r/δ)², for Huber or soft-L1 on each sample's RGB residual norm.
+
+    δ = ``scale`` (sr⁻¹) or, when 0, 1.4826 × the texel's median absolute
+    residual (the noise level a Gaussian would have), floored so an exact
+    fit does not divide by zero.
+    """
+    with np.errstate(all="ignore"):
+        r = np.linalg.norm(form.eval(form.unpack(x), wi, wo) - f_r, axis=-1)
+    r = np.where(valid & np.isfinite(r), r, 0.0)
+    if scale > 0:
+        delta = np.full((r.shape[0], 1), float(scale))
+    else:
+        med = np.nanmedian(np.where(valid, r, np.nan), axis=1, keepdims=True)
+        floor = 1e-3 * np.abs(f_r).max(axis=(1, 2))[:, None] + 1e-9
+        delta = np.maximum(1.4826 * np.nan_to_num(med), floor)
+    z = (r / delta) ** 2
+    rho_prime = np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0))) if loss == "huber" else 1.0 / np.sqrt(1.0 + z)
+    return valid * np.sqrt(rho_prime)
+
+
+LOSSES = ("linear", "huber", "soft-l1")
+#: Reweighting rounds of a robust loss (each an LM run from the last result).
+IRLS_ROUNDS = 4
+
+
+def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
+              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None):
+    """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
+
+    ``cost`` is each texel's final sum of squared residuals over its valid
+    samples (all channels, unweighted even for a robust loss), so
+    RMS = sqrt(cost / (channels · samples)).
+
+    ``initial``: fit-form parameters to start from (default: the form's
+    initial guess).  ``starts``: LM runs per texel (0: ``model.suggested_starts``);
+    more than one scores ``8 · starts`` candidates (:func:`candidate_starts`)
+    and runs from each texel's best.  ``limits``: per-texel
+    :class:`~sbrdf_core.constraints.Limits` every iterate is projected onto.
+    ``fixed``: fit-form parameter names held constant.  ``stats``, a dict, gets
+    ``restarted`` (``(T,)`` mask of texels whose best result came from a start
+    other than their best-scored one).
+    """
+    if loss not in LOSSES:
+        raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
+    starts = starts or model.suggested_starts
+    form = model.fit_form()
+    T = f_r.shape[0]
+    f_r, valid = usable(f_r, valid)
+    plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
+    lo, hi = form.bounds()
+    free = np.ones(form.size, bool)
+    slices = form.slices()
+    for name in fixed:
+        if name not in slices:
+            raise ValueError(f"fixed parameter {name!r} is not a parameter of {form.name}; known: {', '.join(slices)}")
+        free[slices[name]] = False
+    project = projector(form, limits)
+    everyone = np.arange(T)
+    count = 8 * starts if starts > 1 else 1
+    cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, seed, initial)]
+    for c in cands[1:]:  # fixed parameters keep the initial guess's value in every start
+        c[:, ~free] = cands[0][:, ~free]
+    if project is not None:
+        cands = [project(c, everyone) for c in cands]
+    if len(cands) > 1:
+        costs = np.stack([_cost(plain, c) for c in cands])  # (C, T)
+        order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
+        stack = np.stack(cands)  # (C, T, K)
+        x_starts = [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
+    else:
+        x_starts = cands
+    logger.debug("LM fit of %s: %d texels, %d start(s), loss %s", form.name, T, len(x_starts), loss)
+    opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free, project=project)
+    best = None
+    for x in x_starts:
+        weight = valid.astype(np.float64)
+        for _ in range(1 if loss == "linear" else IRLS_ROUNDS):
+            problem = plain if loss == "linear" else form.least_squares(f_r, weight, wi, wo)
+            x, cost, converged = levenberg_marquardt(problem, x, (lo, hi), **opts)
+            if loss != "linear":
+                weight = robust_weights(form, x, f_r, valid, wi, wo, loss, loss_scale)
+        if loss != "linear":
+            cost = _cost(plain, x)
+        if best is None:
+            best = [x, cost, converged, np.zeros(T, bool)]
+            continue
+        better = cost < best[1] * (1 - 1e-9)
+        best[0][better], best[1][better], best[2][better] = x[better], cost[better], converged[better]
+        best[3] |= better
+    x, cost, converged, restarted = best
+    if stats is not None:
+        stats["restarted"] = restarted
+    return form.to_model(form.unpack(x)), converged, cost
+
+
+def _cost(problem, x):
+    return problem.normal_equations(x, np.arange(x.shape[0]))[2]
+
+
+def diffuse_percentile(f_r: np.ndarray, valid: np.ndarray, percentile: float) -> np.ndarray:
+    """Per-channel percentile of each texel's valid samples, ``(T, 3)``; 0 for a texel with none.
+
+    McAllister's ρ_d estimate (§4.3): the minimum is biased low by noise and
+    registration error, so a low percentile (10th by default) is used.
+    Vectorised (``np.nanpercentile`` loops over texels in Python): invalid
+    samples sort to the end, and each texel interpolates linearly between
+    its own order statistics, as numpy's default method does.
+    """
+    data = np.sort(np.where(valid[..., None], f_r, np.inf), axis=1)  # (T, S, C)
+    n = valid.sum(axis=1)  # (T,)
+    pos = np.clip(percentile / 100.0 * (n - 1), 0, None)
+    lo = np.floor(pos).astype(int)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    frac = (pos - lo)[:, None]
+    take = lambda i: np.take_along_axis(data, i[:, None, None].repeat(data.shape[2], axis=2), axis=1)[:, 0]  # noqa: E731
+    a, b = take(lo), take(hi)
+    with np.errstate(invalid="ignore"):  # inf − inf in texels without samples, masked below
+        out = np.where(frac > 0, a + frac * (b - a), a)
+    return np.clip(np.where((n > 0)[:, None] & np.isfinite(out), out, 0.0), 0.0, None)
