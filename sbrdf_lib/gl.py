@@ -29,8 +29,9 @@ def context():
     """The process's standalone EGL context (created once; EGL contexts are expensive)."""
     global _CONTEXT
     if _CONTEXT is None:
-        import moderngl
+        from sbrdf_core.extras import require
 
+        moderngl = require("moderngl", feature="OpenGL rendering (gl, geforce4, shading maps, environment maps)")
         try:
             _CONTEXT = moderngl.create_context(standalone=True, backend="egl", require=330)
         except Exception as e:  # no libEGL, no driver
