@@ -145,9 +145,21 @@ Images = ArtifactKind(
     (ArraySpec("image", "HWC", "float32", "linear RGB radiance"),),
 )
 
+Exported = ArtifactKind(
+    "Exported",
+    1,
+    "A material written in another tool's format: the files beside the arrays (attrs 'files'), the exported "
+    "parameter maps, and the conversion's error per texel. Attributes: exporter, files, error_mean/p95/max.",
+    (
+        ArraySpec("maps/*", "VUC", "float32", "exported parameter maps (the format's own parameters)"),
+        ArraySpec("error", "VU1", "float32", "relative RMS of the exported BRDF against the input's, per texel, at "
+                  "directions the conversion did not fit", required=False),
+    ),
+)
+
 #: Every known kind by name: the core's six, then those plugins declare (see :func:`register_kind`).
 KINDS: dict[str, ArtifactKind] = {
-    k.kind: k for k in (CaptureSet, RegisteredStack, SampledReflectance, ParamMaps, TextureSet, Images)
+    k.kind: k for k in (CaptureSet, RegisteredStack, SampledReflectance, ParamMaps, TextureSet, Images, Exported)
 }
 
 

@@ -408,6 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log", default=None, help="the scripts' output (default runs/bench.log)")
     p.set_defaults(func=cmd_bench)
 
+    _plugin_commands(sub, argv)
     args = ap.parse_args(argv)
     configure_logging(args.verbose)
     tune_process()
@@ -423,6 +424,26 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print("sbrdf: interrupted; re-run to resume from the chunks already written", file=sys.stderr)
         return 130
+
+
+def _plugin_commands(sub, argv: list[str] | None) -> None:
+    """Subcommands plugins contribute (``sbrdf_commands``): declared from the registry the ``-p`` options select."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("-p", dest="plugin", action="append", default=[])
+    known, _ = pre.parse_known_args(argv)
+    try:
+        reg = _registry(known)
+    except SbrdfError as e:  # a broken plugin set: the core commands still work and report it
+        logger.warning("plugin commands unavailable: %s", e)
+        return
+    for name in reg.names("command"):
+        if name in sub.choices:
+            logger.warning("plugin command %r ignored: sbrdf already has a command of that name", name)
+            continue
+        spec = reg.get("command", name)
+        p = sub.add_parser(name, help=spec.summary)
+        reg.load(spec).add_arguments(p)
+        p.set_defaults(func=lambda args, _name=name, _reg=reg: _reg.create("command", _name, {}).run(args))
 
 
 def tune_process() -> None:

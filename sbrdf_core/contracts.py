@@ -231,6 +231,29 @@ class SceneEffect(Protocol):
         """``(declarations, statements)`` added to the fragment shader after the lights."""
 
 
+@runtime_checkable
+class Exporter(Protocol):
+    """The ``plugin:`` of an ``Export`` node: a material in another tool's format."""
+
+    def convert(self, material: Material) -> dict[str, Any]:
+        """Lazy ``(V, U, C)`` maps of the format's parameters, optionally ``error`` ``(V, U, 1)`` (relative, per texel)."""
+
+    def write(self, directory: str, maps: Mapping[str, np.ndarray], material: Material) -> dict:
+        """Write the files beside the stored maps; return attributes, at least ``{"files": [...]}``."""
+
+
+@runtime_checkable
+class Command(Protocol):
+    """A ``sbrdf <name>`` subcommand (the viewer's ``sbrdf view``)."""
+
+    @staticmethod
+    def add_arguments(parser: Any) -> None:
+        """Declare the subcommand's arguments on its ``argparse`` parser."""
+
+    def run(self, args: Any) -> int:
+        """Run with the parsed arguments; the exit status."""
+
+
 # ---------------------------------------------------------------------------
 # Optional members: declared once, with the framework's fallback
 # ---------------------------------------------------------------------------
@@ -280,6 +303,8 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
     },
     "fitter": {**_COMMON},
     "parameterization": {},
+    "exporter": {**_COMMON},
+    "command": {},
     "quantizer": {
         **_COMMON,
         "prepare": OptionalMember("`prepare(params, model) -> {name: dask collection}`: global statistics (a palette's "
@@ -316,6 +341,8 @@ PROTOCOLS: dict[str, type | tuple[type, ...]] = {
     "quantizer": Quantizer,
     "renderer": Renderer,
     "scene-effect": SceneEffect,
+    "exporter": Exporter,
+    "command": Command,
 }
 
 
@@ -396,7 +423,7 @@ def optional_table() -> str:
 
 
 __all__ = [
-    "BRDFModel", "Camera", "CaptureSource", "MotorController", "Fitter", "OPTIONAL", "OptionalMember", "PROTOCOLS", "Parameterization",
+    "BRDFModel", "Camera", "CaptureSource", "Command", "Exporter", "MotorController", "Fitter", "OPTIONAL", "OptionalMember", "PROTOCOLS", "Parameterization",
     "Quantizer", "Registration", "Renderer", "SceneEffect", "contract_table", "missing", "optional",
     "optional_table", "required_members",
 ]

@@ -332,3 +332,36 @@ def sbrdf_scene_effects() -> list[PluginSpec]:
 
     Call semantics: collected; called once when the registry loads.
     """
+
+
+# ---------------------------------------------------------------------------
+# Export and commands
+# ---------------------------------------------------------------------------
+
+
+@hookspec
+def sbrdf_exporters() -> list[PluginSpec]:
+    """Exporters: the ``plugin:`` of an ``Export`` node (glTF, MaterialX, USD, Mitsuba, EXR texture sets).
+
+    Contract: :class:`~sbrdf_core.contracts.Exporter`.
+
+    :returns: specs whose ``impl`` converts a material's parameter maps lazily
+        (``convert``) and writes the files beside the stored maps (``write``);
+        see :mod:`sbrdf_core.nodes.export`.
+
+    Call semantics: collected; called once when the registry loads.
+    """
+
+
+@hookspec
+def sbrdf_commands() -> list[PluginSpec]:
+    """Command-line subcommands: ``sbrdf <name> ...`` (the viewer's ``sbrdf view``).
+
+    Contract: :class:`~sbrdf_core.contracts.Command`.
+
+    :returns: specs whose ``impl`` declares its arguments (``add_arguments``)
+        and runs (``run(args) -> exit status``); the spec's ``summary`` is the
+        subcommand's help line.  A name the core already uses is refused.
+
+    Call semantics: collected; called once when the registry loads.
+    """

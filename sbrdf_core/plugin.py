@@ -29,6 +29,8 @@ CATEGORIES = {
     "brdf-model": "sbrdf_brdf_models",
     "scene-effect": "sbrdf_scene_effects",
     "parameterization": "sbrdf_parameterizations",
+    "exporter": "sbrdf_exporters",
+    "command": "sbrdf_commands",
 }
 
 

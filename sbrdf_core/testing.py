@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-__all__ = ["BRDFModelTests", "CaptureSourceTests", "DeviceTests", "FitterTests", "PluginTests", "QuantizerTests",
+__all__ = ["BRDFModelTests", "CaptureSourceTests", "DeviceTests", "FitterTests", "PluginTests", "QuantizerTests", "glsl_eval",
            "RendererTests", "strict"]
 
 
@@ -205,7 +205,7 @@ class BRDFModelTests(PluginTests):
                 wi[:8, 2] *= -1
                 params = model.random_guess(rng, 1)
                 expect = model.eval(params, wi[None], wo[None])[0]
-                got = _glsl_eval(ctx, model, params, wi, wo)
+                got = glsl_eval(ctx, model, params, wi, wo)
                 np.testing.assert_allclose(got, expect, rtol=2e-3, atol=1e-5 * max(np.abs(expect).max(), 1e-30))
                 assert np.all(got[:8] == 0.0)
         finally:
@@ -213,7 +213,7 @@ class BRDFModelTests(PluginTests):
             ctx.release()
 
 
-def _glsl_eval(ctx, model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+def glsl_eval(ctx, model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """Evaluate ``model.glsl()`` on ``(S, 3)`` pairs by transform feedback, one texel's parameters as uniforms."""
     import moderngl
 

@@ -417,7 +417,7 @@ def test_canonical_orders_lobes_narrowest_first():
 
 def test_glsl_with_transmission_matches_numpy_on_both_hemispheres():
     moderngl = pytest.importorskip("moderngl")
-    from tests.plugins.test_models import glsl_eval
+    from sbrdf_core.testing import glsl_eval
 
     try:
         ctx = moderngl.create_context(standalone=True, backend="egl")
@@ -432,7 +432,7 @@ def test_glsl_with_transmission_matches_numpy_on_both_hemispheres():
         wo = direction(rng.uniform(0, 180, 256), rng.uniform(0, 360, 256))
         params = model.random_guess(rng, 1)
         expect = model.eval(params, wi[None], wo[None])[0]
-        got = glsl_eval(ctx, model, model.name, params, wi, wo)
+        got = glsl_eval(ctx, model, params, wi, wo)
         np.testing.assert_allclose(got, expect, rtol=2e-3, atol=1e-5 * np.abs(expect).max())
         assert (expect[(wi[:, 2] > 0) & (wo[:, 2] < 0)] > 0).any()
     finally:

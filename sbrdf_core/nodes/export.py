@@ -1,0 +1,65 @@
+"""Export: a fitted or quantized material in a format other tools read (glTF, MaterialX, USD, Mitsuba, EXR sets).
+
+Exporter protocol (:class:`sbrdf_core.contracts.Exporter`):
+
+- ``convert(material) -> {name: lazy (V, U, C) array}``: the exported
+  parameter maps, computed per texel tile like any node's arrays (a
+  conversion fit to the GGX model glTF uses runs here), and optionally
+  ``error`` ``(V, U, 1)``: the conversion's relative error per texel.
+- ``write(directory, maps, material) -> attrs``: called once every chunk is
+  written, with the maps read back as NumPy; writes the files beside the
+  arrays and returns attributes, at least ``{"files": [...]}``.
+
+The arrays are stored (``maps/<name>``, ``error``) so that an export resumes
+like any node and its error can be inspected per texel (``sbrdf info``); the
+files are what a user hands on.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from ..artifacts import Exported, ParamMaps, TextureSet
+from .base import BuildContext, NodeKind, Output, Port
+from .render import load_material
+
+
+class Export(NodeKind):
+    name = "Export"
+    doc = "Write a material in another tool's format (files beside the arrays) with the conversion's error per texel."
+    inputs = (Port("material", (ParamMaps, TextureSet), "fitted or quantized material"),)
+    output = Exported
+    plugin_category = "exporter"
+
+    @classmethod
+    def build(cls, ctx: BuildContext) -> Output:
+        art = ctx.inputs["material"]
+        material = load_material(ctx.registry, art)
+        maps: dict[str, Any] = dict(ctx.plugin.convert(material))
+        error = maps.pop("error", None)
+        arrays = {f"maps/{k}": v.astype(np.float32) for k, v in maps.items()}
+        if error is not None:
+            arrays["error"] = error.astype(np.float32)
+
+        def finalize(out):
+            t0 = time.perf_counter()
+            values = {k: out.read(f"maps/{k}") for k in maps}
+            attrs = dict(ctx.plugin.write(out.url, values, material) or {})
+            attrs["write_s"] = time.perf_counter() - t0
+            if error is not None:
+                e = out.read("error")
+                finite = e[np.isfinite(e)]
+                attrs.update(error_mean=float(finite.mean()) if finite.size else None,
+                             error_p95=float(np.percentile(finite, 95)) if finite.size else None,
+                             error_max=float(finite.max()) if finite.size else None,
+                             error_nonfinite=int(e.size - finite.size))
+            return attrs
+
+        assert ctx.spec is not None  # an Export node always has its plugin
+        return Output(arrays=arrays, attrs={"exporter": ctx.spec.name, "material": material.source,
+                                            "model": material.model.name, "texels": list(material.texels),
+                                            "size_mm": list(material.size_mm)},
+                      finalize=finalize)
