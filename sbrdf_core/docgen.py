@@ -15,13 +15,16 @@ from .params import Param
 
 CATEGORY_TITLES = {
     "capture": "Capture sources (`Capture` nodes)",
-    "register": "Registration (`Register` nodes)",
+    "registration": "Registration (`Register` nodes)",
     "fitter": "Fitters (`Fit` nodes)",
     "quantizer": "Quantizers (`Quantize` nodes)",
     "renderer": "Renderers (`Render` nodes)",
     "brdf-model": "BRDF models (`model:` of fitters, captures and scenes)",
     "device": "Devices (drivers and simulators)",
     "scene-effect": "Scene effects",
+    "exporter": "Exporters (`Export` nodes)",
+    "command": "Commands (`sbrdf <name>`)",
+    "parameterization": "Parameterizations (separable BRDFs)",
 }
 
 

@@ -178,7 +178,7 @@ def replace_name(p: Param, name: str) -> Param:
 def _nonfinite(value: Any, where: str = "", depth: int = 0) -> tuple[str, float] | None:
     """The first NaN or infinity in ``value`` (a number, or inside lists and mappings) as ``(where, value)``."""
     if isinstance(value, numbers.Real) and not isinstance(value, (bool, numbers.Integral)):
-        return None if math.isfinite(value) else (where, value)
+        return None if math.isfinite(value) else (where, float(value))
     if depth > 64:
         return None
     if isinstance(value, Mapping):

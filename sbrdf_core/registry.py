@@ -115,7 +115,8 @@ class Registry:
     def _collect_node_kinds(self) -> dict[str, type]:
         kinds: dict[str, type] = {}
         for impl in self.pm.hook.sbrdf_node_kinds.get_hookimpls():
-            for kind in impl.function() or ():
+            kinds_of: Any = impl.function()  # pluggy types hook functions as object
+            for kind in kinds_of or ():
                 if kind.name in kinds:
                     raise PluginError(f"node kind {kind.name!r} is defined by two plugins ({impl.plugin_name} and another)")
                 kinds[kind.name] = kind
@@ -125,7 +126,8 @@ class Registry:
         """Record plugins' artifact kinds (``sbrdf_artifact_kinds``); returns kind -> plugin."""
         owners: dict[str, str] = {}
         for impl in self.pm.hook.sbrdf_artifact_kinds.get_hookimpls():
-            for kind in impl.function() or ():
+            declared: Any = impl.function()
+            for kind in declared or ():
                 if kind.kind in owners:
                     raise PluginError(f"artifact kind {kind.kind!r} is declared by plugins {owners[kind.kind]!r} "
                                       f"and {impl.plugin_name!r}")
@@ -199,7 +201,7 @@ class Registry:
     def create(self, category: str, name: str, params: dict | None = None) -> Any:
         """Validate ``params`` against the declaration and construct the implementation."""
         spec = self.get(category, name)
-        values, problems = resolve(spec.params, params, f"{category} {name!r}")
+        values, problems = resolve(spec.params or (), params, f"{category} {name!r}")
         if problems:
             raise PluginError("; ".join(msg for _, msg in problems))
         return self.load(spec)(**values)
