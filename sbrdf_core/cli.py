@@ -1,6 +1,7 @@
 """``sbrdf``: run, validate, list plugins, inspect artifacts.
 
     sbrdf run GRAPH [--scheduler tcp://host:8786] [--store URL] [--only NODE ...] [--wait] [--wait-timeout S]
+              [--var NAME=VALUE ...] [--set NODE.params.KEY=VALUE ...] [--batch scans.csv|DIR [--concurrent N]]
     sbrdf verify STORE [--repair] [--wait] [--wait-timeout S]
     sbrdf validate GRAPH
     sbrdf plugins [--category fitter]
@@ -52,13 +53,39 @@ def cmd_run(args) -> int:
     from .runner import Runner
 
     reg = _registry(args)
-    g = load_graph(args.graph, reg, store=_store_arg(args.store))
+    variables = _variables_arg(args.var)
+    if args.batch:
+        return _run_batch(args, reg, variables)
+    g = load_graph(args.graph, reg, store=_store_arg(args.store), variables=variables, overrides=args.set)
     runner = Runner(reg, scheduler=args.scheduler, num_workers=args.workers, progress=not args.quiet, wait=_wait(args))
     t0 = time.perf_counter()
     report = runner.run(g, only=args.only)
     print(report.table())
     print(f"graph {g.name!r} done in {time.perf_counter() - t0:.1f} s; artifacts in {g.store}")
     return 0
+
+
+def _variables_arg(items: list[str]) -> dict[str, str]:
+    """``--var NAME=VALUE`` options as a mapping (values as text: the graph's declarations type them)."""
+    out = {}
+    for item in items:
+        name, eq, value = item.partition("=")
+        if not eq or not name.strip():
+            raise SbrdfError(f"--var {item}: a variable is given as NAME=VALUE (e.g. --var scan=tile-07)")
+        out[name.strip()] = value
+    return out
+
+
+def _run_batch(args, reg, variables: dict[str, str]) -> int:
+    """``sbrdf run GRAPH --batch scans.csv|DIR``: one store per scan; exit status 1 if a scan failed."""
+    from .batch import SUMMARY, run_batch, scans_from
+
+    report = run_batch(args.graph, scans_from(args.batch), reg, scheduler=args.scheduler, num_workers=args.workers,
+                       progress=not args.quiet, variables=variables, overrides=args.set,
+                       store=_store_arg(args.store), only=args.only, concurrent=args.concurrent, wait=_wait(args))
+    print(report.table())
+    print(f"batch summary in {report.root}/{SUMMARY}")
+    return 1 if report.failed else 0
 
 
 def cmd_verify(args) -> int:
@@ -356,6 +383,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--store", default=None, help="override the graph's store (a path relative to the current directory)")
     p.add_argument("--only", nargs="+", help="run only these nodes (and what they need)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--var", action="append", default=[], metavar="NAME=VALUE",
+                   help="give a value to one of the graph's ${variables} (repeatable)")
+    p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
+                   help="override a value: node.params.key=VALUE (node.key for a parameter), node.plugin=..., "
+                   "store=...; VALUE is YAML (3, [1, 2], {a: 1}, text) (repeatable)")
+    p.add_argument("--batch", default=None, metavar="CSV_OR_DIR",
+                   help="run once per scan: a CSV (header: variable names, optional store column) or a folder of "
+                   "capture folders (variables scan and path); one store per scan under the graph's store")
+    p.add_argument("--concurrent", type=int, default=1, metavar="N",
+                   help="with --batch: scans run at once on a local scheduler (default 1; bars only when 1; a "
+                   "distributed scheduler runs them one at a time)")
     _wait_options(p, "if another run holds the store, wait for it instead of refusing")
     p.set_defaults(func=cmd_run)
 

@@ -29,6 +29,11 @@ EXTRAS = {
     "serial": ("rig", "pyserial"),
     "matplotlib": ("plot", "matplotlib"),
     "distributed": ("distributed", "distributed"),
+    "trimesh": ("mesh", "trimesh"),
+    "MaterialX": ("interchange", "materialx"),
+    "pxr": ("interchange", "usd-core"),
+    "mitsuba": ("interchange", "mitsuba"),
+    "selenium": ("interchange", "selenium"),
 }
 
 

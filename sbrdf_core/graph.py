@@ -14,12 +14,22 @@ that are not identifiers (:data:`sbrdf_core.store.NODE_NAME`), unknown node
 kinds or plugins (listing the known ones), unknown, missing or ill-typed
 parameters (listing the accepted ones with types and defaults), missing,
 unknown or mistyped inputs, cycles, and stores that cannot be opened.
+
+Variables and overrides (docs/graphs.md): ``${name}`` in any value is replaced
+by the variable ``name``, declared in a top-level ``variables:`` mapping with
+its default (``null``: required), and ``overrides`` (``sbrdf run --set
+fit.params.model_params.lobes=2``) replace values by dotted path before that;
+both happen on the parsed document, before validation, so the result is
+validated, and tokenized, exactly as if it had been written in the file.  A
+graph without ``variables:`` and overrides is read as before.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import re
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -36,7 +46,7 @@ from .store import NODE_NAME
 if TYPE_CHECKING:
     from .nodes.base import NodeKind
 
-TOP_KEYS = ("name", "store", "nodes", "description", "limits")
+TOP_KEYS = ("name", "store", "nodes", "description", "limits", "variables")
 NODE_KEYS = ("kind", "plugin", "in", "params", "doc")
 
 
@@ -63,40 +73,300 @@ class Graph:
     digest: str = ""
     description: str = ""
     text: str = field(default="", repr=False)
+    #: The variables' values this graph was validated with (defaults included), as substituted.
+    variables: dict[str, Any] = field(default_factory=dict)
+    #: The overrides applied (``"fit.params.model_params.lobes": 2``), in the order given.
+    overrides: dict[str, Any] = field(default_factory=dict)
 
     def url(self, node: str) -> str:
         """Where ``node``'s artifact lives."""
         return self.store.rstrip("/") + "/" + node
 
 
-def load_graph(source: str | os.PathLike, registry: Registry | None = None, store: str | None = None) -> Graph:
+#: ``${name}`` (``$${name}`` is the literal text ``${name}``).
+VARIABLE = re.compile(r"\$(\$?)\{([^}]*)\}")
+VARIABLE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+Overrides = Mapping[str, Any] | Iterable[str]
+
+
+def load_graph(source: str | os.PathLike, registry: Registry | None = None, store: str | None = None,
+               variables: Mapping[str, Any] | None = None, overrides: Overrides | None = None) -> Graph:
     """Load and validate a graph from a file path (or YAML text containing a newline).
+
+    ``variables`` gives values to the graph's declared ``variables:``; a string
+    is read as command-line text (:func:`variable_value`).  ``overrides`` are
+    ``"node.params.key=value"`` strings (the value read by :func:`parse_value`)
+    or a mapping of dotted path to value (used as it is).
 
     Raises :class:`~sbrdf_core.errors.GraphError` listing every problem.
     """
     registry = registry or default_registry()
+    text, file, base = _read(source)
+    return _Validator(text, file, base, registry, store, variables, overrides).run()
+
+
+def _read(source: str | os.PathLike) -> tuple[str, str, Path]:
     src = str(source)
     if "\n" in src:
-        text, file, base = src, "<graph>", Path.cwd()
-    else:
-        path = Path(src)
-        try:
-            text = _yaml.read_text(path)  # UTF-8 (or UTF-16/32 with a BOM); a binary or Latin-1 file is a file:line error
-        except OSError as e:
-            raise GraphError([Problem(f"cannot read graph file: {e.strerror}", str(path))]) from None
-        except yaml.YAMLError as e:
-            raise GraphError([_yaml.syntax_problem(e, str(path))]) from None
-        file, base = str(path), path.resolve().parent
-    return _Validator(text, file, base, registry, store).run()
+        return src, "<graph>", Path.cwd()
+    path = Path(src)
+    try:
+        text = _yaml.read_text(path)  # UTF-8 (or UTF-16/32 with a BOM); a binary or Latin-1 file is a file:line error
+    except OSError as e:
+        raise GraphError([Problem(f"cannot read graph file: {e.strerror}", str(path))]) from None
+    except yaml.YAMLError as e:
+        raise GraphError([_yaml.syntax_problem(e, str(path))]) from None
+    return text, str(path), path.resolve().parent
+
+
+def parse_value(text: str) -> Any:
+    """A value given on the command line, read as a YAML scalar or flow collection: ``3`` is a number,
+    ``[1, 2]`` a list, ``{a: 1}`` a mapping, ``true`` a boolean; text that is not such YAML (or is empty) stays text."""
+    if not text.strip():
+        return text
+    try:
+        value, _ = _yaml.load(text)
+    except yaml.YAMLError:
+        return text
+    return value
+
+
+def variable_value(text: Any, default: Any) -> Any:
+    """A variable's value from the command line or a batch CSV: kept as text where the declared default is
+    text, otherwise read by :func:`parse_value` (``seed=3`` is the number 3).  Non-strings pass through."""
+    if not isinstance(text, str) or isinstance(default, str):
+        return text
+    return parse_value(text)
+
+
+def _as_text(value: Any) -> str:
+    """A value as it would be written inside a YAML string."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bool) or value is None:
+        return {True: "true", False: "false", None: "null"}[value]
+    if isinstance(value, (int, float)):
+        return repr(value)
+    return yaml.safe_dump(value, default_flow_style=True, width=10**9).strip()
+
+
+def declared_variables(source: str | os.PathLike) -> dict[str, Any]:
+    """The ``variables:`` a graph declares, name -> default (``None``: required); ``{}`` when it declares none
+    or cannot be read (its validation reports that)."""
+    try:
+        doc, _ = _yaml.load(_read(source)[0])
+    except (GraphError, yaml.YAMLError):
+        return {}
+    decl = doc.get("variables") if isinstance(doc, dict) else None
+    return {str(k): v for k, v in decl.items()} if isinstance(decl, dict) else {}
+
+
+def graph_store(source: str | os.PathLike, variables: Mapping[str, Any] | None = None,
+                overrides: Overrides | None = None) -> str:
+    """The graph's ``store:`` with overrides applied, its variables substituted and a local path resolved from
+    the graph's folder (what :func:`load_graph` would use), without validating the rest.  Raises :class:`GraphError`."""
+    text, file, base = _read(source)
+    v = _Validator(text, file, base, default_registry(), None, variables, overrides)
+    try:
+        doc, v.loc = _yaml.load(text)
+    except yaml.YAMLError as e:
+        raise GraphError([_yaml.syntax_problem(e, file)]) from None
+    if not isinstance(doc, dict):
+        raise GraphError([Problem("a graph must be a mapping with 'name', 'store' and 'nodes'", file, 1)])
+    for dotted, value, given in v.overrides:
+        v._override(doc, dotted, value, given)
+    values = v._variables(doc)
+    v.problems = []  # only the store matters here: variables it does not use may have no value yet
+    store = v._substitute(doc.get("store"), ("store",), values)
+    if v.problems:
+        raise GraphError(v.problems)
+    if not isinstance(store, str) or not store:
+        raise GraphError([Problem("graph needs a 'store'", file, v.loc.line(("store",)))])
+    if (m := VARIABLE.search(store)) and not m.group(1):
+        raise GraphError([Problem(f"store {store!r}: variable ${{{m.group(2)}}} has no value here (a batch's root "
+                                  f"store is the graph's store, which may use only variables with defaults or "
+                                  f"given by --var)", file, v.loc.line(("store",)))])
+    if "://" in store:
+        return store
+    local = Path(store)
+    return str((local if local.is_absolute() else base / local).resolve())
 
 
 class _Validator:
-    def __init__(self, text: str, file: str, base: Path, registry: Registry, store: str | None):
+    def __init__(self, text: str, file: str, base: Path, registry: Registry, store: str | None,
+                 variables: Mapping[str, Any] | None = None, overrides: Overrides | None = None):
         self.text, self.file, self.base, self.reg, self.store_override = text, file, base, registry, store
+        self.given = dict(variables or {})
+        self.overrides: list[tuple[str, Any, str | None]]
+        if isinstance(overrides, Mapping):
+            self.overrides = [(str(k), v, f"{k}={_as_text(v)}") for k, v in overrides.items()]
+        else:
+            self.overrides = []
+            for item in overrides or ():
+                key, eq, raw = str(item).partition("=")
+                self.overrides.append((key.strip(), parse_value(raw) if eq else None, str(item) if eq else None))
         self.problems: list[Problem] = []
+        self.origins: dict[tuple, str] = {}  # a value's path -> where it came from (--set, ${variable})
+        self.variables: dict[str, Any] = {}
+        self.broken: set[tuple] = set()  # paths holding a ${variable} that has no value
+        self.applied: dict[str, Any] = {}  # overrides applied: dotted path -> value
 
     def problem(self, message: str, path: tuple = (), line: int | None = None) -> None:
+        if path and any(path[:len(b)] == b for b in self.broken):
+            return  # a ${variable} without a value there, reported already: no second problem about its text
+        origin = next((o for p, o in self.origins.items() if path[:len(p)] == p), None) if path else None
+        if origin:
+            message = f"{message} ({origin})"
         self.problems.append(Problem(message, self.file, line if line is not None else self.loc.line(path)))
+
+    # -- variables and overrides ------------------------------------------------------
+
+    def _variables(self, doc: dict) -> dict[str, tuple[Any, str]]:
+        """Each declared variable's (value, text), from what was given or its default; problems for the rest."""
+        decl = doc.get("variables")
+        if decl is None:
+            decl = {}
+        if not isinstance(decl, dict):
+            self.problem("'variables' must be a mapping of variable name -> default (null or nothing: required)",
+                         ("variables",))
+            decl = {}
+        values: dict[str, tuple[Any, str]] = {}
+        for name, default in decl.items():
+            if not isinstance(name, str) or not VARIABLE_NAME.fullmatch(name):
+                self.problem(f"variable name {name!r} is not an identifier (a letter or '_', then letters, digits "
+                             f"or '_')", ("variables", name))
+                continue
+            if name in self.given:
+                given = self.given[name]
+                value = variable_value(given, default)
+                values[name] = (value, given if isinstance(given, str) else _as_text(value))
+            elif default is not None:
+                values[name] = (default, _as_text(default))
+            else:
+                self.problem(f"variable {name!r} is required (declared without a default) and was given no value: "
+                             f"pass --var {name}=VALUE, or a {name!r} column in the --batch CSV", ("variables", name))
+        declared = ", ".join(map(str, decl)) or "none"
+        for name in self.given:
+            if name not in decl:
+                self.problem(f"a value was given for variable {name!r}, but the graph declares no such variable; "
+                             f"declared: {declared} (declare it under 'variables:')", ("variables",) if decl else (),
+                             line=None if decl else 1)
+        self.declared = set(map(str, decl))
+        return values
+
+    def _substitute(self, value: Any, path: tuple, values: dict[str, tuple[Any, str]]) -> Any:
+        if isinstance(value, dict):
+            return {k: self._substitute(v, path + (k,), values) for k, v in value.items()}
+        if isinstance(value, list):
+            return [self._substitute(v, path + (i,), values) for i, v in enumerate(value)]
+        if not isinstance(value, str) or "${" not in value:
+            return value
+        used: list[str] = []
+
+        def one(m: re.Match) -> str | None:
+            name = m.group(2).strip()
+            if m.group(1):  # $${x}: the text ${x}
+                return None
+            if not VARIABLE_NAME.fullmatch(name):
+                self.problem(f"${{{m.group(2)}}} is not a variable reference: a variable's name is an identifier "
+                             f"(write $${{...}} for the text ${{...}})", path)
+                return None
+            if name not in values:
+                if name not in getattr(self, "declared", ()):  # a declared one without a value is reported once
+                    known = ", ".join(sorted(getattr(self, "declared", values))) or "none"
+                    self.problem(f"undefined variable ${{{name}}}: declare it under 'variables:' (with a default, or "
+                                 f"null for a required one); declared: {known}", path)
+                return None
+            used.append(f"${{{name}}} = {values[name][1]!r}")
+            return name
+
+        whole = VARIABLE.fullmatch(value)
+        if whole and not whole.group(1):
+            name = one(whole)
+            if name is None:
+                self.broken.add(path)
+                return value
+            self.origins.setdefault(path, "from " + used[0])
+            return values[name][0]
+        out, pos = [], 0
+        for m in VARIABLE.finditer(value):
+            out.append(value[pos:m.start()])
+            name = one(m)
+            if name is None and not m.group(1):
+                self.broken.add(path)
+            out.append(values[name][1] if name is not None else (m.group(0)[1:] if m.group(1) else m.group(0)))
+            pos = m.end()
+        out.append(value[pos:])
+        if used:
+            self.origins.setdefault(path, "from " + ", ".join(used))
+        return "".join(out)
+
+    def _override(self, doc: dict, dotted: str, value: Any, given: str | None) -> None:
+        """``--set node.params.key=value`` (``node.key`` is short for ``node.params.key``) or ``--set store=...``."""
+        what = f"--set {given or dotted}"
+        parts = [p for p in dotted.split(".")]
+        if given is None:
+            self.problems.append(Problem(f"{what}: an override is PATH=VALUE (e.g. fit.params.iterations=50)", self.file))
+            return
+        if not dotted or not all(parts):
+            self.problems.append(Problem(f"{what}: {dotted!r} is not a dotted path (node.params.key)", self.file))
+            return
+        nodes: dict = doc["nodes"] if isinstance(doc.get("nodes"), dict) else {}
+        if parts[0] in nodes:
+            if len(parts) == 1:
+                self.problems.append(Problem(f"{what}: name a key of node {parts[0]!r}: {parts[0]}.params.NAME (or "
+                                             f"{parts[0]}.NAME for a parameter), {parts[0]}.plugin, {parts[0]}.in.PORT",
+                                             self.file))
+                return
+            if parts[1] not in NODE_KEYS:
+                parts.insert(1, "params")
+            path: tuple = ("nodes",) + tuple(parts)
+            container: Any = doc
+        elif parts[0] in TOP_KEYS and parts[0] not in ("nodes", "variables"):
+            path, container = tuple(parts), doc
+        else:
+            self.problems.append(Problem(f"{what}: the graph has no node {parts[0]!r}; nodes: "
+                                         f"{', '.join(map(str, nodes)) or 'none'} (or a top-level key: store, name, "
+                                         f"description, limits)", self.file))
+            return
+        for i, key in enumerate(path):
+            last = i == len(path) - 1
+            if isinstance(container, list):
+                try:
+                    index = int(key)
+                    container[index]
+                except (ValueError, IndexError):
+                    self.problems.append(Problem(f"{what}: {'.'.join(map(str, path[1:i + 1]))} is not an index of "
+                                                 f"the list at {'.'.join(map(str, path[1:i]))} ({len(container)} items)",
+                                                 self.file, self.loc.line(path[:i])))
+                    return
+                path = path[:i] + (index,) + path[i + 1:]
+                key = index
+            elif not isinstance(container, dict):
+                self.problems.append(Problem(f"{what}: {'.'.join(map(str, path[1:i]))} is "
+                                             f"{type(container).__name__} {container!r}, not a mapping with key {key!r}",
+                                             self.file, self.loc.line(path[:i])))
+                return
+            if last:
+                container[key] = value
+            else:
+                if isinstance(container, dict) and container.get(key) is None:
+                    container[key] = {}
+                container = container[key]
+        self.origins[path] = f"set by {what}"
+        self.applied[dotted] = value
+
+    def _expand(self, doc: dict) -> dict:
+        """Overrides, then ``${variables}``: the document as if both had been written in the file."""
+        self.applied = {}
+        for dotted, value, given in self.overrides:
+            self._override(doc, dotted, value, given)
+        if "variables" not in doc and not self.given and "${" not in self.text and not self.overrides:
+            return doc  # a graph without variables: exactly as before
+        values = self._variables(doc)
+        self.variables = {k: v for k, (v, _) in values.items()}
+        return {k: (v if k == "variables" else self._substitute(v, (k,), values)) for k, v in doc.items()}
 
     def run(self) -> Graph:
         try:
@@ -109,6 +379,7 @@ class _Validator:
         if not isinstance(doc, dict):
             self.problem("a graph must be a mapping with 'name', 'store' and 'nodes'", line=1)
             raise GraphError(self.problems)
+        doc = self._expand(doc)
         for key in doc:
             if key not in TOP_KEYS:
                 self.problem(f"unknown top-level key {key!r}; allowed: {', '.join(TOP_KEYS)}", (key,))
@@ -138,6 +409,8 @@ class _Validator:
             digest=hashlib.sha256(self.text.encode()).hexdigest(),
             description=str(doc.get("description", "")),
             text=self.text,
+            variables=self.variables,
+            overrides=dict(self.applied),
         )
 
     def _estimate(self, raw_limits: Any, nodes: dict[str, Node], order: list[str], store: str) -> None:

@@ -94,6 +94,8 @@ class Registry:
                 name, obj = obj, importlib.import_module(obj)
             else:
                 name = getattr(obj, "__name__", repr(obj))
+            if self.pm.is_registered(obj):  # asked for explicitly and also installed: one registration
+                continue
             self._register(obj, name, dist=("", getattr(obj, "__version__", "dev")))
         self.pm.check_pending()
         self.node_kinds = self._collect_node_kinds()

@@ -227,12 +227,23 @@ def glsl_eval(ctx, model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.nd
     for p in model.parameters:
         if f"u_{p.name}" in prog:
             prog[f"u_{p.name}"].write(np.asarray(params[p.name][0], dtype="f4").tobytes())
+    from .contracts import optional
+
+    textures = []  # material-wide tables a model samples (tabulated, separable), bound as the gl renderer binds them
+    for unit, (uniform, array) in enumerate(((optional(model, "gl_textures", "brdf-model") or dict)() or {}).items()):
+        a = np.ascontiguousarray(array, np.float32)
+        t = ctx.texture((a.shape[1], a.shape[0]), a.shape[2], a.tobytes(), dtype="f4")
+        t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        t.use(location=unit)
+        if uniform in prog:
+            prog[uniform].value = unit
+        textures.append(t)
     vbo = ctx.buffer(np.concatenate([wi, wo], axis=1).astype("f4").tobytes())
     out = ctx.buffer(reserve=wi.shape[0] * 12)
     vao = ctx.vertex_array(prog, [(vbo, "3f 3f", "in_wi", "in_wo")])
     vao.transform(out, mode=moderngl.POINTS, vertices=wi.shape[0])
     res = np.frombuffer(out.read(), dtype="f4").reshape(-1, 3).astype(np.float64)
-    for obj in (vao, vbo, out, prog):
+    for obj in (vao, vbo, out, prog, *textures):
         obj.release()
     return res
 

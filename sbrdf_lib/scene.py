@@ -43,7 +43,8 @@ from sbrdf_core.contracts import optional
 from sbrdf_core.errors import Problem, SbrdfError
 from sbrdf_core.params import Param, resolve
 
-from .mesh import obj_vertex_radius
+from .mesh import FORMATS as MESH_FORMATS
+from .mesh import load_mesh, mesh_files, mesh_vertex_radius
 
 __all__ = ["ANTIALIAS_DEFAULT", "ANTIALIAS_MAX", "CAMERA", "DISPLAY", "LIGHTS", "MATERIAL", "OBJECT", "SHAPES",
            "TOP_KEYS", "TRANSFORM", "Camera", "Features", "Light", "MaterialRef", "PluginKeys", "Scene", "SceneError",
@@ -84,7 +85,7 @@ SHAPES = {
     "cylinder": (Param("radius", "float", 0.5, "radius", bounds=(1e-9, None)),
                  Param("height", "float", 1.0, "extent along z (no caps)", bounds=(1e-9, None)),
                  Param("segments", "int", 128, "GL tessellation around the axis", bounds=(3, 4096))),
-    "mesh": (Param("file", "str", doc="triangle mesh (OBJ), relative to the scene file"),),
+    "mesh": (Param("file", "str", doc="triangle mesh (OBJ, PLY, glTF or GLB), relative to the scene file"),),
 }
 
 MATERIAL = (
@@ -306,7 +307,7 @@ class Scene:
             scale = np.cbrt(abs(np.linalg.det(o.matrix[:3, :3])))
             centre = o.matrix[:3, 3]
             if r is None:  # a mesh: the farthest of its vertices from its own origin
-                r = obj_vertex_radius(str(o.params["file"]))
+                r = mesh_vertex_radius(str(o.params["file"]))
             pts.append((centre, r * scale))
         if not pts:
             return np.zeros(3), 1.0
@@ -541,8 +542,17 @@ class _SceneValidator:
             params = {k: o[k] for k in o if k not in {p.name for p in OBJECT}}
             if shape == "mesh" and "file" in params:
                 params["file"] = self.path(params["file"])
-                if "://" not in params["file"] and not Path(params["file"]).exists():
+                suffix = Path(params["file"]).suffix.lower()
+                if suffix not in MESH_FORMATS:
+                    self.problem(f"object {i}: mesh file {params['file']}: unsupported format "
+                                 f"{suffix or '(no suffix)'!r}; supported: {', '.join(MESH_FORMATS)}", path + ("file",))
+                elif "://" not in params["file"] and not Path(params["file"]).exists():
                     self.problem(f"object {i}: mesh file {params['file']} does not exist", path + ("file",))
+                elif "://" not in params["file"] and suffix != ".obj":  # OBJ errors: the renderers' check_scene
+                    try:
+                        load_mesh(params["file"])
+                    except (SbrdfError, ImportError) as e:
+                        self.problem(f"object {i}: mesh: {e}", path + ("file",))
             out.append(SceneObject(shape, o["material"], transform_matrix(t["translate"], t["rotate_deg"], t["scale"]),
                                    tuple(o["uv_repeat"]), params, self.loc.line(path)))
         return out
@@ -593,7 +603,7 @@ def scene_fingerprint(path: str, registry=None) -> str:
         scene = load_scene(path, registry=registry)
     except (OSError, SceneError):
         return h.hexdigest()  # validation reports the problem
-    files = [o.params["file"] for o in scene.objects if o.shape == "mesh"]
+    files = [f for o in scene.objects if o.shape == "mesh" for f in mesh_files(o.params["file"])]
     for name, p in keys.sections.items():
         value = scene.section(name)
         files += [getattr(value, q.name) for q in (p.schema or ()) if value is not None and (q.extra or {}).get("path")]

@@ -11,7 +11,8 @@ Built-in shapes, in object space (+z up, centred at the origin):
 - ``plane``: z = 0, u along +x, v along +y.
 - ``sphere``: u = φ / 2π around +z from +x, v = 1 − θ/π (v = 1 at the north pole).
 - ``cylinder``: around +z, u = φ / 2π, v = z / height + ½, open ends.
-- ``mesh``: an OBJ file (``v``, ``vt``, ``vn``, ``f`` with polygons fanned into triangles).
+- ``mesh``: an OBJ, PLY, glTF or GLB file (:func:`sbrdf_lib.mesh.load_mesh`); its tangents (glTF ``TANGENT``)
+  where the file has them and normals too, else :func:`vertex_frames` from its uvs.
 
 The CPU renderer intersects the built-in shapes analytically and meshes with
 barycentric interpolation of the same vertex attributes the GPU interpolates
@@ -27,7 +28,7 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 
-from .mesh import load_obj
+from .mesh import load_mesh
 
 __all__ = ["EPS", "Hits", "Mesh", "cast", "intersect", "intersect_mesh", "local_frame", "tessellate", "unit",
            "vertex_frames"]
@@ -140,11 +141,16 @@ def tessellate(obj) -> Mesh:
         a = (np.arange(nv)[:, None] * (nu + 1) + np.arange(nu)[None, :]).ravel()
         idx = np.concatenate([np.stack([a, a + 1, a + nu + 2], 1), np.stack([a, a + nu + 2, a + nu + 1], 1)]).astype(np.uint32)
     elif obj.shape == "mesh":
-        pos, uv, nrm, idx = load_obj(p["file"])
+        pos, uv, nrm, tan, idx = load_mesh(p["file"])
         if uv is None:  # planar projection onto the mesh's xy bounding box
             lo, hi = pos[:, :2].min(0), pos[:, :2].max(0)
             uv = (pos[:, :2] - lo) / np.where(hi > lo, hi - lo, 1.0)
-        nrm, tan = vertex_frames(pos, uv, idx, nrm)
+        if tan is None or nrm is None:  # glTF: tangents are meaningful only with the normals they were made for
+            nrm, tan = vertex_frames(pos, uv, idx, nrm)
+        else:
+            nrm = unit(nrm, fallback=(0.0, 0.0, 1.0))
+            t = tan[:, :3] - nrm * np.einsum("ij,ij->i", tan[:, :3], nrm)[:, None]  # Gram–Schmidt, as the shaders do
+            tan = np.concatenate([unit(t, fallback=(1.0, 0.0, 0.0)), tan[:, 3:]], axis=1)
     else:  # pragma: no cover - the scene validator rejects unknown shapes
         raise SbrdfError(f"unknown shape {obj.shape!r}")
     return _to_world(obj, pos, nrm, tan, uv, idx)
@@ -155,7 +161,7 @@ def _to_world(obj, pos, nrm, tan, uv, idx) -> Mesh:
     lin = m[:3, :3]
     normal_m = np.linalg.inv(lin).T
     return Mesh(pos @ lin.T + m[:3, 3], unit(nrm @ normal_m.T), np.concatenate([unit(tan[:, :3] @ lin.T), tan[:, 3:]], 1),
-                uv * np.asarray(obj.uv_repeat), np.ascontiguousarray(idx, dtype=np.uint32))
+                uv * np.asarray(obj.uv_repeat), np.array(idx, dtype=np.uint32))
 
 
 # -- ray intersection (CPU reference) --------------------------------------------------------------------------------

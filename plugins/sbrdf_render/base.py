@@ -8,7 +8,7 @@ from sbrdf_core import contracts
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.render import RenderResult
 from sbrdf_core.params import Param
-from sbrdf_lib.mesh import load_obj
+from sbrdf_lib.mesh import load_mesh
 from sbrdf_lib.scene import SceneError, load_scene, scene_fingerprint
 
 from . import materials as mat
@@ -26,7 +26,7 @@ def check_scene(params, registry=None) -> list[tuple[str, str]]:
 
     The scene file and the scene effects it wants (:func:`effect_problems`),
     then what only a renderer knows how to read: every mesh is parsed with
-    the OBJ loader, and every uniform material (``model:`` with ``params:``)
+    the mesh loader (:func:`sbrdf_lib.mesh.load_mesh`), and every uniform material (``model:`` with ``params:``)
     is constructed.  Stores named by ``artifact:`` or a plugin's store key
     (``shading_map:``) are opened at render time (another node may write them).
     """
@@ -44,8 +44,8 @@ def check_scene(params, registry=None) -> list[tuple[str, str]]:
     for o in scene.objects:
         if o.shape == "mesh" and "://" not in o.params["file"]:
             try:
-                load_obj(o.params["file"])
-            except SbrdfError as e:
+                load_mesh(o.params["file"])
+            except (SbrdfError, ImportError) as e:
                 out.append(f"{scene.file}:{o.line}: mesh: {e}")
             except UnicodeDecodeError as e:
                 out.append(f"{scene.file}:{o.line}: mesh: {o.params['file']}: not a UTF-8 OBJ file (byte "

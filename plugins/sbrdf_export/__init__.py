@@ -1,0 +1,29 @@
+"""Exporters beside glTF: a fitted material for the tools people hand materials to.
+
+Why a package of its own: each exporter writes another tool's format (an EXR
+texture set with a JSON sidecar, a MaterialX document, a USD material, a
+Mitsuba 3 scene), and all but the EXR set need the GGX metallic-roughness
+conversion of :mod:`sbrdf_lib.convert` and heavy optional libraries (the
+``[interchange]`` extra), imported only when an exporter writes.  Each
+exporter is the ``plugin:`` of an ``Export`` node (docs/interchange.md).
+"""
+
+from sbrdf_core.plugin import PluginSpec, hookimpl
+
+
+@hookimpl
+def sbrdf_exporters():
+    return [
+        PluginSpec("exr-set", "sbrdf_export.exr_set:EXRSetExporter",
+                   summary="One float EXR per model parameter plus a JSON sidecar (units, channels, model, texel "
+                           "grid, GLSL): the model's own maps, no conversion"),
+        PluginSpec("materialx", "sbrdf_export.materialx:MaterialXExporter",
+                   summary="MaterialX document (standard_surface with image nodes) of the GGX metallic-roughness "
+                           "conversion"),
+        PluginSpec("usd", "sbrdf_export.usd:USDExporter",
+                   summary="USD stage with a UsdShade material (UsdPreviewSurface + UsdUVTexture) bound to a plane, "
+                           "from the GGX metallic-roughness conversion"),
+        PluginSpec("mitsuba", "sbrdf_export.mitsuba:MitsubaExporter",
+                   summary="Mitsuba 3 scene (XML + EXR bitmaps): diffuse + GGX rough conductor from the GGX "
+                           "conversion, camera and lights from a project scene file"),
+    ]

@@ -1,0 +1,104 @@
+"""sbrdf_lib.convert: any model refitted to GGX and read as glTF metallic-roughness, with held-out error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sbrdf_core.registry import Registry
+from sbrdf_lib import convert as cv
+
+
+@pytest.fixture(scope="module")
+def reg():
+    return Registry()
+
+
+@pytest.fixture(scope="module")
+def ggx(reg):
+    return cv.ggx_model(reg)
+
+
+def test_fitting_and_held_out_pairs_are_disjoint_and_within_85_degrees():
+    wi, wo = cv.direction_pairs()
+    hwi, hwo = cv.direction_pairs(held_out=True)
+    limit = np.cos(np.radians(cv.MAX_THETA_DEG)) - 1e-9
+    for a in (wi, wo, hwi, hwo):
+        assert (a[:, 2] >= limit).all() and np.allclose(np.linalg.norm(a, axis=1), 1.0)
+    fit = np.concatenate([wi, wo], axis=1)
+    held = np.concatenate([hwi, hwo], axis=1)
+    nearest = np.min(np.linalg.norm(fit[:, None] - held[None], axis=-1), axis=0)
+    assert nearest.min() > 1e-3
+    # the specular lobe is sampled: pairs at the mirror configuration exist
+    mirror = np.einsum("sk,sk->s", wi * [-1, -1, 1], wo)
+    assert (mirror > 0.999).sum() >= 20
+
+
+def test_ggx_source_converts_to_itself(ggx):
+    rng = np.random.default_rng(1)
+    p = ggx.random_guess(rng, 40)
+    fit = cv.to_ggx(ggx, p, ggx)
+    assert fit["valid"].all()
+    assert fit["error"].max() < 1e-6
+    np.testing.assert_allclose(fit["alpha"], p["alpha"], rtol=1e-5)
+    np.testing.assert_allclose(fit["f0"], p["f0"], atol=1e-6)
+
+
+def test_gltf_reading_of_metals_and_dielectrics(ggx):
+    alpha = np.array([[0.05], [0.2], [0.5], [0.9]])
+    metal = {"rho_d": np.zeros((4, 3)), "f0": np.tile([0.9, 0.6, 0.3], (4, 1)), "alpha": alpha}
+    g, e = cv.to_gltf_pbr(ggx, metal, ggx)
+    assert e.max() < 1e-6
+    np.testing.assert_array_equal(g["metallic"], 1.0)
+    np.testing.assert_allclose(g["base_color"], metal["f0"], atol=1e-6)
+    np.testing.assert_allclose(g["roughness"] ** 2, alpha, rtol=1e-5)  # glTF: alpha = roughness^2
+    plastic = {"rho_d": np.full((4, 3), 0.15), "f0": np.full((4, 3), 0.04), "alpha": alpha}
+    g, e = cv.to_gltf_pbr(ggx, plastic, ggx)
+    np.testing.assert_array_equal(g["metallic"], 0.0)
+    np.testing.assert_allclose(g["specular_color"], 1.0, atol=1e-5)  # the default dielectric: no extension needed
+    # glTF weights the diffuse by 1 - max(F): a few per cent toward grazing, no more
+    assert e.max() < 0.03
+    np.testing.assert_allclose(g["base_color"], 0.15 * np.pi, rtol=0.05)
+
+
+def test_lafortune_source_gets_a_finite_reported_error(reg, ggx):
+    laf = reg.create("brdf-model", "lafortune", {})
+    p = laf.random_guess(np.random.default_rng(2), 24)
+    g, e = cv.to_gltf_pbr(laf, p, ggx)
+    assert np.isfinite(e).all() and (e >= 0).all() and e.max() > 1e-4
+    for name, c in cv.GLTF_MAPS.items():
+        assert g[name].shape == (24, c) and np.isfinite(g[name]).all()
+    assert (g["roughness"] >= 0).all() and (g["roughness"] <= 1).all()
+    assert (g["base_color"] >= 0).all() and (g["base_color"] <= 1).all()
+
+
+def test_hard_cases_black_and_nan_texels(reg, ggx):
+    laf = reg.create("brdf-model", "lafortune", {})
+    p = laf.random_guess(np.random.default_rng(3), 4)
+    for k in p:
+        p[k][0] = 0.0  # black
+    p["rho_d"][1] = np.nan  # broken
+    p["exponent_1"][2] = np.inf
+    g, e = cv.to_gltf_pbr(laf, p, ggx)
+    assert e[0] == 0.0 and g["specular"][0, 0] == 0.0 and (g["base_color"][0] == 0).all()
+    assert e[1] == 1.0 and e[2] == 1.0  # flagged: everything lost
+    for v in g.values():
+        assert np.isfinite(v).all()
+    fit = cv.to_ggx(laf, p, ggx)
+    assert list(fit["valid"]) == [True, False, False, True]
+    assert np.isfinite(fit["error"]).all()
+
+
+def test_blocks_are_lazy_and_match_the_flat_conversion(reg, ggx):
+    da = pytest.importorskip("dask.array")
+    rng = np.random.default_rng(4)
+    p = ggx.random_guess(rng, 6 * 5)
+    maps = {k: da.from_array(v.reshape(6, 5, -1), chunks=(3, 5, -1)) for k, v in p.items()}
+    out = cv.to_gltf_pbr_blocks(ggx, maps, ggx)
+    assert set(out) == set(cv.GLTF_MAPS) | {"error"}
+    assert out["error"].shape == (6, 5, 1) and out["base_color"].shape == (6, 5, 3)
+    g, e = cv.to_gltf_pbr(ggx, p, ggx)
+    np.testing.assert_allclose(out["error"].compute()[..., 0], e.reshape(6, 5), atol=1e-5)
+    np.testing.assert_allclose(out["roughness"].compute().reshape(-1, 1), g["roughness"], atol=1e-5)
+    gg = cv.to_ggx_blocks(ggx, maps, ggx)
+    np.testing.assert_allclose(gg["alpha"].compute().reshape(-1, 1), p["alpha"], rtol=1e-4)
