@@ -16,7 +16,8 @@ for the next run: lost or unreadable chunks have their done markers dropped
 (the run rewrites exactly those), a lost side file makes the node finish
 again, and damaged metadata makes the node recompute the whole artifact.
 
-:class:`StoreLock` is the store's lock: one run (or verify) at a time.
+:class:`StoreLock` is the store's lock: one run (or verify) at a time (on S3,
+:class:`S3Lease`: a leased object written with conditional puts).
 """
 
 from __future__ import annotations
@@ -24,8 +25,10 @@ from __future__ import annotations
 import getpass
 import hashlib
 import json
+import logging
 import os
 import socket
+import threading
 import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -53,6 +56,8 @@ from .store import (
 
 LOCK_FILE = ".sbrdf.lock"
 HOLDER_FILE = ".sbrdf.lock.json"
+
+logger = logging.getLogger(__name__)
 
 
 def file_digest(fs, path: str) -> dict | None:
@@ -292,8 +297,9 @@ class StoreLock:
     on an open file: it works across threads (each lock object opens its own
     file) and processes, and a killed holder releases it.  On a dask cluster
     the runner process holds it while the workers write chunks on its behalf.
-    Stores that are not local paths (``s3://``, ``memory://``) are not
-    locked (their file systems offer no such lock).
+    On S3 (``s3://``) the lock is :class:`S3Lease`: an object created with a
+    conditional put.  Other stores that are not local paths (``memory://``,
+    ``gs://``...) are not locked: a warning says so.
 
     ``wait``: ``False`` refuses at once, ``True`` waits for ever, a number waits that many seconds.
     """
@@ -308,6 +314,12 @@ class StoreLock:
 
         fs, root = _fs(self.store)
         if not _is_local(fs):
+            if "s3" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)):
+                self.lock = S3Lease(fs, root, self.store, self.timeout, self.what)
+                self.lock.acquire()
+            else:
+                logger.warning("store %s is not locked: only local paths and s3:// stores can be; make sure no "
+                               "other run writes it at the same time", self.store)
             return self
         os.makedirs(root, exist_ok=True)
         self.holder = os.path.join(root, HOLDER_FILE)
@@ -341,6 +353,10 @@ class StoreLock:
     def __exit__(self, *exc) -> None:
         if self.lock is None:
             return
+        if isinstance(self.lock, S3Lease):
+            self.lock.release()
+            self.lock = None
+            return
         try:
             with open(self.holder) as f:
                 if json.load(f) == self.me:
@@ -349,6 +365,140 @@ class StoreLock:
             pass
         self.lock.release()
         self.lock = None
+
+
+class S3Lease:
+    """The store lock on S3: ``<store>/.sbrdf.lock.json``, created with a conditional put.
+
+    ``PutObject`` with ``If-None-Match: *`` creates the object only if it does
+    not exist, so of two runs exactly one gets it (S3 since 2024; moto too).  It
+    holds the holder's pid, host, user, graph, start time and ``expires``, a
+    lease of :attr:`LEASE_S` seconds that a thread renews every third of it with
+    ``If-Match`` on the object's ETag (so a holder that lost the lock notices).
+    A killed holder cannot release it: the lock is taken over, with ``If-Match``
+    on the stale object's ETag (one taker wins), once its lease has expired, or
+    at once when its holder was a process of this host that no longer exists.
+    Release deletes the object with ``If-Match`` (only our own lock).
+    """
+
+    #: Seconds a holder's lock lasts without renewal (``SBRDF_S3_LOCK_LEASE``).
+    LEASE_S = float(os.environ.get("SBRDF_S3_LOCK_LEASE", 120))
+    POLL_S = 1.0
+
+    def __init__(self, fs, root: str, store: str, timeout: float, what: str):
+        self.fs, self.store, self.timeout, self.what = fs, store, timeout, what
+        self.bucket, self.key, _ = fs.split_path(join(root, HOLDER_FILE))
+        self.etag: str | None = None
+        self.lost = False
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def _body(self) -> bytes:
+        now = time.time()
+        self.me = {"pid": os.getpid(), "host": socket.gethostname(), "user": _user(), "what": self.what,
+                   "started": getattr(self, "started", None) or datetime.now(UTC).isoformat(timespec="seconds"),
+                   "expires": now + self.LEASE_S, "lease_s": self.LEASE_S}
+        self.started = self.me["started"]
+        return json.dumps(self.me).encode()
+
+    def _put(self, **cond) -> bool:
+        try:
+            out = self.fs.call_s3("put_object", Bucket=self.bucket, Key=self.key, Body=self._body(), **cond)
+        except Exception as e:
+            if _precondition_failed(e):
+                return False
+            raise
+        self.etag = out["ETag"]
+        return True
+
+    def _current(self) -> tuple[dict | None, str | None]:
+        """The lock object's holder and ETag, read in one request (None when there is none)."""
+        from fsspec.asyn import sync
+
+        async def get():
+            out = await self.fs._call_s3("get_object", Bucket=self.bucket, Key=self.key)
+            async with out["Body"] as body:
+                return await body.read(), out["ETag"]
+
+        try:
+            data, etag = sync(self.fs.loop, get)
+        except FileNotFoundError:
+            return None, None
+        try:
+            return json.loads(data), etag
+        except ValueError:
+            return {}, etag
+
+    def _stale(self, h: dict) -> bool:
+        if time.time() > float(h.get("expires", 0)):
+            return True
+        if h.get("host") == socket.gethostname() and isinstance(h.get("pid"), int):
+            try:
+                os.kill(h["pid"], 0)
+            except ProcessLookupError:
+                return True
+            except OSError:
+                return False
+        return False
+
+    def acquire(self) -> None:
+        start = time.monotonic()
+        while True:
+            if self._put(IfNoneMatch="*"):
+                break
+            h, etag = self._current()
+            if h is not None and self._stale(h):
+                if self._put(IfMatch=etag):
+                    logger.warning("store %s: took over the lock of %s (expired or its process is gone)",
+                                   self.store, _holder_words(h))
+                    break
+                continue
+            if h is None:
+                continue  # released meanwhile: try again at once
+            waited = time.monotonic() - start
+            if self.timeout == 0 or (self.timeout > 0 and waited >= self.timeout):
+                w = f" (waited {self.timeout:g} s)" if self.timeout > 0 else ""
+                raise StoreBusy(f"store {self.store} is in use by {_holder_words(h)}{w}; wait for that run to "
+                                f"finish, or run with --wait (a killed run's lock expires "
+                                f"{datetime.fromtimestamp(float(h.get('expires', 0)), UTC).isoformat(timespec='seconds')})")
+            time.sleep(self.POLL_S)
+        self._thread = threading.Thread(target=self._renew, name="sbrdf-s3-lock", daemon=True)
+        self._thread.start()
+
+    def _renew(self) -> None:
+        while not self._stop.wait(self.LEASE_S / 3):
+            try:
+                if not self._put(IfMatch=self.etag):
+                    self.lost = True
+                    logger.error("store %s: this run's lock was taken over by another run; stop one of them",
+                                 self.store)
+                    return
+            except Exception as e:  # network: try again at the next renewal
+                logger.warning("store %s: could not renew the lock: %s", self.store, e)
+
+    def release(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self.lost or self.etag is None:
+            return
+        try:
+            self.fs.call_s3("delete_object", Bucket=self.bucket, Key=self.key, IfMatch=self.etag)
+        except Exception as e:
+            if not _precondition_failed(e):
+                logger.warning("store %s: could not remove the lock: %s", self.store, e)
+        self.fs.invalidate_cache()
+
+
+def _precondition_failed(e: Exception) -> bool:
+    text = str(e)
+    return isinstance(e, FileExistsError) or any(
+        w in text for w in ("PreconditionFailed", "pre-conditions", "412", "ConditionalRequestConflict"))
+
+
+def _holder_words(h: dict) -> str:
+    return (f"pid {h.get('pid')} on {h.get('host')} (user {h.get('user')}, {h.get('what') or 'a run'}) "
+            f"since {h.get('started')}")
 
 
 def _user() -> str:

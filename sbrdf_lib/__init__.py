@@ -14,6 +14,10 @@ Fitting:
 :mod:`sbrdf_lib.lm`
     The batched Levenberg–Marquardt every fitter shares (``fit_model``,
     ``levenberg_marquardt``), Sobol candidate starts, robust losses.
+:mod:`sbrdf_lib.convert`
+    Any model's per-texel BRDF refitted to GGX and read as glTF
+    metallic-roughness, with the conversion's error at held-out directions
+    (the exporters share it).
 
 Rendering:
 

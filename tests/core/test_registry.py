@@ -46,7 +46,7 @@ def test_discovery_from_hand_built_entry_points():
     module("fake_plugin_a", sbrdf_brdf_models=lambda: [PluginSpec("fake-model", "sbrdf_models.lambert:LambertModel")])
     reg = Registry(entry_points_=[ep("a", "fake_plugin_a")])
     assert reg.names("brdf-model") == ["fake-model"]  # only what the entry points gave
-    assert set(reg.node_kinds) == {"Capture", "Register", "Reflectance", "Fit", "Quantize", "Render"}
+    assert set(reg.node_kinds) == {"Capture", "Register", "Reflectance", "Fit", "Quantize", "Render", "Export"}
 
 
 def test_broken_plugin_warns_and_others_still_load():

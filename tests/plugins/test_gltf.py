@@ -46,7 +46,9 @@ def exported(reg, tmp_path_factory):
     ex.bind(reg)
     lazy = ex.convert(mat)
     assert all(hasattr(v, "dask") for v in lazy.values())  # lazy until stored
-    maps = {k: np.asarray(v.compute()) for k, v in lazy.items()}
+    import dask
+
+    maps = dict(zip(lazy, (np.asarray(v) for v in dask.compute(*lazy.values()))))
     out = {}
     for fmt in ("gltf", "glb"):
         d = tmp_path_factory.mktemp(fmt)
