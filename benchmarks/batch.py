@@ -53,6 +53,7 @@ def main() -> None:
     ap.add_argument("--texels", type=int, default=None, help="texels per side (default 32 quick, 64 full)")
     ap.add_argument("--poses", type=int, default=None, help="poses per scan (default 24 quick, 48 full)")
     ap.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
+    ap.add_argument("--docs", action="store_true", help="accepted for `sbrdf bench`; this stage has no docs section")
     args = ap.parse_args()
     scans = args.scans or (4 if args.quick else 10)
     n = args.texels or (32 if args.quick else 64)
