@@ -77,6 +77,7 @@ def round_trip(registry, material, directory, scene):
 
     lazy = ex.convert(material)
     maps = dict(zip(lazy, (np.asarray(v) for v in dask.compute(*lazy.values()))))  # one pass: the maps share blocks
+    Path(directory).mkdir(parents=True, exist_ok=True)  # what the Export node's artifact directory would be
     attrs = ex.write(str(directory), maps, material)
     export_s = time.perf_counter() - t0
     back = gltf_maps_to_ggx(read_gltf(str(Path(directory) / attrs["files"][0])))

@@ -17,6 +17,7 @@ log what runs (INFO / DEBUG of sbrdf's loggers).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import sys
@@ -30,10 +31,16 @@ logger = logging.getLogger(__name__)
 
 
 def _registry(args):
+    """The registry of the ``-p`` plugin set: built once per invocation (the plugin subcommands need it first)."""
+    return _registry_for(tuple(args.plugin))
+
+
+@functools.lru_cache(maxsize=4)
+def _registry_for(plugins: tuple[str, ...]):
     from .registry import Registry
 
-    disabled = [p[3:] for p in args.plugin if p.startswith("no:")]
-    extra = [p for p in args.plugin if not p.startswith("no:")]
+    disabled = [p[3:] for p in plugins if p.startswith("no:")]
+    extra = [p for p in plugins if not p.startswith("no:")]
     return Registry(disabled=disabled, extra=extra)
 
 
@@ -368,6 +375,7 @@ def configure_logging(verbose: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    _registry_for.cache_clear()  # one registry per invocation, not per process (tests call main repeatedly)
     ap = argparse.ArgumentParser(prog="sbrdf", description="Measured surface appearance pipelines.")
     ap.add_argument("-p", dest="plugin", action="append", default=[], metavar="MODULE",
                     help="register a plugin module, or 'no:NAME' to disable an installed one")
@@ -481,7 +489,18 @@ def _plugin_commands(sub, argv: list[str] | None) -> None:
         spec = reg.get("command", name)
         p = sub.add_parser(name, help=spec.summary)
         reg.load(spec).add_arguments(p)
-        p.set_defaults(func=lambda args, _name=name, _reg=reg: _reg.create("command", _name, {}).run(args))
+        p.set_defaults(func=lambda args, _name=name, _reg=reg: _run_command(_reg, _name, args))
+
+
+def _run_command(reg, name: str, args) -> int:
+    """A plugin subcommand, bound to the invocation's registry so it sees the same plugin set."""
+    from .contracts import optional
+
+    command = reg.create("command", name, {})
+    bind = optional(command, "bind", "command")
+    if bind is not None:
+        bind(reg)
+    return command.run(args)
 
 
 def tune_process() -> None:

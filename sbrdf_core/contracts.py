@@ -304,7 +304,7 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
     "fitter": {**_COMMON},
     "parameterization": {},
     "exporter": {**_COMMON},
-    "command": {},
+    "command": {"bind": _COMMON["bind"]},
     "quantizer": {
         **_COMMON,
         "prepare": OptionalMember("`prepare(params, model) -> {name: dask collection}`: global statistics (a palette's "

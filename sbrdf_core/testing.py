@@ -103,6 +103,13 @@ class BRDFModelTests(PluginTests):
 
     category = "brdf-model"
     configs: ClassVar[list[dict]] = [{}]
+    #: Direction pairs of the GLSL check.
+    glsl_pairs: ClassVar[int] = 256
+
+    def glsl_agreement(self, model) -> float:
+        """Fraction of the GLSL check's pairs that must agree with ``eval`` (all of them, unless a model's lookup
+        can land in a neighbouring table bin in float32, as a tabulated model's nearest lookup does)."""
+        return 1.0
 
     def models(self):
         return [self.create(cfg) for cfg in self.configs]
@@ -200,13 +207,19 @@ class BRDFModelTests(PluginTests):
         try:
             for model in self.models():
                 rng = np.random.default_rng(11)
-                S = 256
+                S = self.glsl_pairs
                 wi, wo = hemisphere_directions(rng, (1, S))[0], hemisphere_directions(rng, (1, S))[0]
                 wi[:8, 2] *= -1
                 params = model.random_guess(rng, 1)
                 expect = model.eval(params, wi[None], wo[None])[0]
                 got = glsl_eval(ctx, model, params, wi, wo)
-                np.testing.assert_allclose(got, expect, rtol=2e-3, atol=1e-5 * max(np.abs(expect).max(), 1e-30))
+                atol = 1e-5 * max(np.abs(expect).max(), 1e-30)
+                need = self.glsl_agreement(model)
+                if need >= 1.0:
+                    np.testing.assert_allclose(got, expect, rtol=2e-3, atol=atol)
+                else:
+                    close = np.isclose(got, expect, rtol=2e-3, atol=atol).all(axis=1)
+                    assert close.mean() >= need, (model.name, close.mean(), need)
                 assert np.all(got[:8] == 0.0)
         finally:
             fbo.release()

@@ -127,8 +127,16 @@ def direction_pairs(held_out: bool = False) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(wi_all[keep]), np.ascontiguousarray(wo)
 
 
-def ggx_model(registry):
-    """The installed ``cook-torrance`` model with GGX facets, the conversion target."""
+def ggx_model(registry=None):
+    """The installed ``cook-torrance`` model with GGX facets, the conversion target.
+
+    ``registry`` is the run's (an exporter's ``bind``); without one, the
+    installed plugins' (an exporter used directly, outside a graph).
+    """
+    if registry is None:
+        from sbrdf_core.registry import default_registry
+
+        registry = default_registry()
     return registry.create("brdf-model", "cook-torrance", {"distribution": "ggx"})
 
 

@@ -45,19 +45,6 @@ def write_json(directory: str, name: str, obj: dict) -> str:
     return name
 
 
-def local_dir(url: str) -> str:
-    """The artifact's local directory (exporters write ordinary files another tool opens)."""
-    import fsspec
-
-    fs, path = fsspec.core.url_to_fs(url)
-    from fsspec.implementations.local import LocalFileSystem
-
-    if not isinstance(fs, LocalFileSystem):
-        raise ValueError(f"exporters write files for other tools and need a local directory, not {url}")
-    os.makedirs(path, exist_ok=True)
-    return path
-
-
 def exr_channels(name: str, array: np.ndarray) -> dict[str, np.ndarray]:
     """EXR channel names for a ``(V, U, C)`` map: R, G, B for colour, Y for a scalar, ``<name>.<k>`` otherwise."""
     a = np.asarray(array, np.float32)

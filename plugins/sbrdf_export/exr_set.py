@@ -21,7 +21,7 @@ import numpy as np
 from sbrdf_core.io import write_exr_channels
 from sbrdf_core.params import Param
 
-from .common import exr_channels, local_dir, model_config, texel_grid, write_json
+from .common import exr_channels, model_config, texel_grid, write_json
 
 FORMAT = "sbrdf-exr-set/1"
 
@@ -74,7 +74,7 @@ class EXRSetExporter:
         return desc
 
     def write(self, directory, maps, material):
-        d = local_dir(directory)
+        d = directory
         desc = self.describe(material, maps)
         files = []
         for entry in desc["files"]:

@@ -28,10 +28,6 @@ class GGXConverting:
     def _ggx(self):
         from sbrdf_lib.convert import ggx_model
 
-        if self.registry is None:
-            from sbrdf_core.registry import default_registry
-
-            self.registry = default_registry()
         return ggx_model(self.registry)
 
     def ggx_maps(self, material) -> dict:

@@ -24,7 +24,7 @@ import numpy as np
 from sbrdf_core.io import write_exr
 from sbrdf_core.params import Param
 
-from .common import local_dir, model_config, texel_grid, write_json
+from .common import model_config, texel_grid, write_json
 from .ggx import ITERATIONS, STARTS, GGXConverting
 
 #: Standard Surface input <- (map, MaterialX type).
@@ -66,7 +66,7 @@ class MaterialXExporter(GGXConverting):
         from sbrdf_core.extras import require
 
         mx = require("MaterialX", extra="interchange", feature="the materialx exporter")
-        d = local_dir(directory)
+        d = directory
         files = []
         for m in {m for m, _ in INPUTS.values()}:
             a = np.asarray(maps[m], np.float32)[::-1]  # MaterialX: uv (0, 0) at the image's lower left

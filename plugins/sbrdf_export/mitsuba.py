@@ -38,7 +38,7 @@ import numpy as np
 from sbrdf_core.io import write_exr
 from sbrdf_core.params import Param
 
-from .common import local_dir, model_config, texel_grid, write_json
+from .common import model_config, texel_grid, write_json
 from .ggx import ITERATIONS, STARTS, GGXConverting
 
 FORMAT = "sbrdf-mitsuba/1"
@@ -97,7 +97,7 @@ class MitsubaExporter(GGXConverting):
     # -- files ---------------------------------------------------------------------------------------------
 
     def write(self, directory, maps, material):
-        d = local_dir(directory)
+        d = directory
         rho_d = np.asarray(maps["rho_d"], np.float64)
         f0 = np.asarray(maps["f0"], np.float64)
         alpha = np.asarray(maps["alpha"], np.float64)

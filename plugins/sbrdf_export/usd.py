@@ -25,7 +25,7 @@ import numpy as np
 
 from sbrdf_core.params import Param
 
-from .common import local_dir, model_config, texel_grid, write_json, write_png
+from .common import model_config, texel_grid, write_json, write_png
 from .ggx import ITERATIONS, STARTS, GGXConverting
 
 #: UsdPreviewSurface input <- (texture file, type, colour space, channels).
@@ -61,7 +61,7 @@ class USDExporter(GGXConverting):
         require("pxr", extra="interchange", feature="the usd exporter (usd-core)")
         from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
-        d = local_dir(directory)
+        d = directory
         files, clipped = [], {}
         for inp, a in self.textures(maps).items():
             file, _, space, _ = TEXTURES[inp]

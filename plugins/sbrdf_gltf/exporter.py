@@ -78,10 +78,6 @@ class GLTFExporter:
         self._registry = registry
 
     def _ggx(self):
-        if self._registry is None:
-            from sbrdf_core.registry import default_registry
-
-            self._registry = default_registry()
         return ggx_model(self._registry)
 
     def convert(self, material):
@@ -92,7 +88,7 @@ class GLTFExporter:
         return to_gltf_pbr_blocks(material.model, params, self._ggx(), starts=self.starts)
 
     def write(self, directory, maps, material):
-        d = _local_dir(directory)
+        d = directory
         alpha = None
         if getattr(material, "alpha", None) is not None:
             alpha = np.asarray(material.alpha, np.float64)
@@ -109,17 +105,6 @@ class GLTFExporter:
         files, info = write_gltf(d, self.name, {k: np.asarray(maps[k]) for k in GLTF_MAPS}, material.size_mm,
                                  binary=self.format == "glb", alpha=alpha, extras=extras)
         return {"files": files, "format": "glb" if self.format == "glb" else "gltf", **info}
-
-
-def _local_dir(url: str) -> str:
-    import fsspec
-    from fsspec.implementations.local import LocalFileSystem
-
-    fs, path = fsspec.core.url_to_fs(url)
-    if not isinstance(fs, LocalFileSystem):
-        raise ValueError(f"the gltf exporter writes files for other tools and needs a local directory, not {url}")
-    os.makedirs(path, exist_ok=True)
-    return path
 
 
 def _srgb8(x: np.ndarray) -> np.ndarray:

@@ -37,13 +37,11 @@ class ViewCommand:
                             help="larger maps are shown every k-th texel so that neither side exceeds this")
 
     def run(self, args) -> int:
-        from sbrdf_core.registry import Registry
+        from sbrdf_core.registry import default_registry
 
         from .page import check_url, write_page  # the page's imports (zarr, dask) only when the command runs
 
-        plugins = list(getattr(args, "plugin", None) or [])  # sbrdf's own -p options: the same plugin set
-        registry = self.registry or Registry(disabled=[p[3:] for p in plugins if p.startswith("no:")],
-                                             extra=[p for p in plugins if not p.startswith("no:")])
+        registry = self.registry or default_registry()  # sbrdf binds the registry of its -p plugin set
         url = str(args.artifact).rstrip("/")
         check_url(url)
         p = Path(url)

@@ -7,8 +7,9 @@ Exporter protocol (:class:`sbrdf_core.contracts.Exporter`):
   conversion fit to the GGX model glTF uses runs here), and optionally
   ``error`` ``(V, U, 1)``: the conversion's relative error per texel.
 - ``write(directory, maps, material) -> attrs``: called once every chunk is
-  written, with the maps read back as NumPy; writes the files beside the
-  arrays and returns attributes, at least ``{"files": [...]}``.
+  written, with the maps read back as NumPy and the artifact's directory on
+  local disk (the node refuses a remote store before computing); writes the
+  files beside the arrays and returns attributes, at least ``{"files": [...]}``.
 
 The arrays are stored (``maps/<name>``, ``error``) so that an export resumes
 like any node and its error can be inspected per texel (``sbrdf info``); the
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..artifacts import Exported, ParamMaps, TextureSet
+from ..errors import SbrdfError
 from .base import BuildContext, NodeKind, Output, Port
 from .render import load_material
 
@@ -36,6 +38,7 @@ class Export(NodeKind):
 
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
+        directory = _local_directory(ctx.url)  # refused before anything computes, not after the conversion
         art = ctx.inputs["material"]
         material = load_material(ctx.registry, art)
         maps: dict[str, Any] = dict(ctx.plugin.convert(material))
@@ -47,7 +50,7 @@ class Export(NodeKind):
         def finalize(out):
             t0 = time.perf_counter()
             values = {k: out.read(f"maps/{k}") for k in maps}
-            attrs = dict(ctx.plugin.write(out.url, values, material) or {})
+            attrs = dict(ctx.plugin.write(directory, values, material) or {})
             attrs["write_s"] = time.perf_counter() - t0
             if error is not None:
                 e = out.read("error")
@@ -63,3 +66,14 @@ class Export(NodeKind):
                                             "model": material.model.name, "texels": list(material.texels),
                                             "size_mm": list(material.size_mm)},
                       finalize=finalize)
+
+
+def _local_directory(url: str) -> str:
+    """The artifact's directory on local disk: exporters write ordinary files that other tools open."""
+    import fsspec
+    from fsspec.implementations.local import LocalFileSystem
+
+    fs, path = fsspec.core.url_to_fs(url)
+    if not isinstance(fs, LocalFileSystem):
+        raise SbrdfError(f"Export writes files for other tools and needs a store on local disk, not {url}")
+    return path

@@ -18,7 +18,7 @@ import pytest
 
 from sbrdf_core.brdf_checks import hemisphere_directions
 from sbrdf_core.registry import Registry
-from sbrdf_core.testing import BRDFModelTests, glsl_eval
+from sbrdf_core.testing import BRDFModelTests
 
 pytest.importorskip("sbrdf_measured", reason="plugins/sbrdf_measured not installed (pyproject packages.find include)")
 
@@ -230,31 +230,11 @@ class TestMerlModel(BRDFModelTests):
     def configs(self):
         return [{}, {"path": small_file()}, {"path": small_file(), "interpolation": "nearest"}]
 
-    def test_glsl_compiles_and_matches_numpy(self):
-        """The suite's comparison (``gl_textures`` bound), tolerating bin-boundary pairs of the nearest lookup."""
-        moderngl = pytest.importorskip("moderngl")
-        try:
-            ctx = moderngl.create_context(standalone=True, backend="egl")
-        except Exception as e:
-            pytest.skip(f"no EGL context: {e}")
-        fbo = ctx.simple_framebuffer((1, 1))
-        fbo.use()
-        try:
-            for model in self.models():
-                rng = np.random.default_rng(11)
-                wi, wo = hemisphere_directions(rng, (1, 512))[0], hemisphere_directions(rng, (1, 512))[0]
-                wi[:8, 2] *= -1
-                scale = np.array([0.7, 1.0, 1.3])
-                expect = model.eval({"scale": scale[None]}, wi[None], wo[None])[0]
-                got = glsl_eval(ctx, model, {"scale": scale[None]}, wi, wo)
-                assert np.all(got[:8] == 0.0)
-                close = np.isclose(got, expect, rtol=2e-3, atol=1e-5 * expect.max()).all(axis=1)
-                # nearest: float32 angles may fall in the neighbouring bin for a pair on a bin boundary
-                need = 0.98 if model.interpolation == "nearest" and model.table is not None else 1.0
-                assert close.mean() >= need, (model.path, model.interpolation, close.mean())
-        finally:
-            fbo.release()
-            ctx.release()
+    glsl_pairs = 512
+
+    def glsl_agreement(self, model) -> float:
+        """nearest: float32 angles may fall in the neighbouring bin for a pair on a bin boundary."""
+        return 0.98 if model.interpolation == "nearest" and model.table is not None else 1.0
 
 
 def test_the_atlas_holds_every_entry_where_the_shader_looks(full_file):
