@@ -80,9 +80,8 @@ JOINTS = ("pan", "tilt", "roll", "light")
 SIM_PORT = "sim"
 #: Joint -> driver axis when a motor's ``axes`` is omitted.
 DEFAULT_AXES = {"ptu": {"pan": "pan_deg", "tilt": "tilt_deg"}, "indexer": {"light": "angle_deg"}}
-#: Device plugin name -> simulator class (in :mod:`sbrdf_rig.sim`) for ``port: sim``.  Other drivers name
-#: theirs in a ``simulator = "package.module:Class"`` class attribute (constructed with no arguments).
-SIMULATORS = {"ptu": "SimulatedPTU", "indexer": "SimulatedIndexer"}
+#: ``port: sim`` starts the simulator a driver names in its ``simulator = "package.module:Class"`` class
+#: attribute (constructed with no arguments): the built-in drivers exactly as third-party ones.
 
 PLANNER_KEYS = {"theta_d_deg", "isotropic", "source", "step_deg", "max_theta_i_deg", "max_theta_r_deg"}
 EXPOSURE_PLANNER_KEYS = {"diffuse_time_s", "highlight_time_s", "highlight_halfwidth_deg", "field_halfwidth_deg",
@@ -333,10 +332,10 @@ class GonioCapture:
             if problems:
                 raise ParameterError("; ".join(msg for _, msg in problems))
             driver = registry.load(spec)
-            if values.get("port") == SIM_PORT and m.device not in SIMULATORS and not getattr(driver, "simulator", None):
+            if values.get("port") == SIM_PORT and not getattr(driver, "simulator", None):
                 raise ParameterError(f"gonio: motors.{m.name}: port: {SIM_PORT} needs a simulator, and device "
-                                     f"{m.device!r} has none (simulated devices: {sorted(SIMULATORS)}, or a driver "
-                                     "class with a simulator attribute)")
+                                     f"{m.device!r} has none (a driver class names its simulator in a 'simulator' "
+                                     "attribute)")
             axes = getattr(driver, "axes", ())
             bad = sorted(a for a in m.axes.values() if a not in axes)
             if bad:
@@ -530,15 +529,13 @@ class GonioCapture:
         """Start ``port: sim`` simulators and open every driver (no motion: drivers only configure and query)."""
         from sbrdf_core.registry import import_path
 
-        from . import sim as sims
 
         try:
             for m in self.motors:
                 values = dict(m.values)
                 spec = self.registry.get("device", m.device)
                 if values.get("port") == SIM_PORT:
-                    cls = (getattr(sims, SIMULATORS[m.device]) if m.device in SIMULATORS
-                           else import_path(self.registry.load(spec).simulator))
+                    cls = import_path(self.registry.load(spec).simulator)
                     m.simulator = self._simulator(cls, m.device, values).start()
                     values["port"] = m.simulator.port
                 try:

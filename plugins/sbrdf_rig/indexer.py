@@ -78,6 +78,8 @@ class Indexer(MotorController):
     """
 
     axes = ("angle_deg",)
+    #: The simulator the ``gonio`` capture source starts for ``port: sim``.
+    simulator = "sbrdf_rig.sim.indexer:SimulatedIndexer"
 
     params = (
         *LINK_PARAMS,

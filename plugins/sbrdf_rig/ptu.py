@@ -85,6 +85,8 @@ class PanTiltUnit(MotorController):
     """
 
     axes = ("pan_deg", "tilt_deg")
+    #: The simulator the ``gonio`` capture source starts for ``port: sim``.
+    simulator = "sbrdf_rig.sim.ptu:SimulatedPTU"
 
     params = (
         *LINK_PARAMS,

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from sbrdf_core.registry import Registry, signature_problems
-from sbrdf_core.testing import BRDFModelTests, FitterTests, QuantizerTests, RendererTests
+from sbrdf_core.testing import BRDFModelTests, DeviceTests, FitterTests, QuantizerTests, RendererTests
 
 REGISTRY = Registry()
 
@@ -57,6 +57,18 @@ class TestLinear(QuantizerTests):
 class TestFixed16(QuantizerTests):
     name = "fixed16"
     model = ("lafortune", {"lobes": 1})
+
+
+class TestPanTiltUnit(DeviceTests):
+    name = "ptu"
+    params = {"timeout_s": 0.5}
+    targets = {"pan_deg": 12.5, "tilt_deg": -7.0}
+
+
+class TestIndexer(DeviceTests):
+    name = "indexer"
+    params = {"timeout_s": 0.5}
+    targets = {"angle_deg": 40.0}
 
 
 SPECS = [(c, n) for c in REGISTRY.specs for n in REGISTRY.names(c)]
