@@ -50,8 +50,16 @@ Method (vectorised over texels, in batches of :data:`BATCH`):
    *invalid*: its outputs are the defaults (black, roughness 1) and its error
    is 1 (everything lost), so maps stay finite.
 
-Anisotropic sources are fitted with the isotropic GGX lobe (their error
-shows it); ``KHR_materials_anisotropy`` is not produced.
+5. **Anisotropy** (glTF only, when the caller passes the installed
+   ``ggx-anisotropic`` model, :func:`anisotropic_model`).  The source is also
+   refitted to the anisotropic GGX lobe of ``KHR_materials_anisotropy``
+   (α_t, α_b and a per-texel direction φ; starting points: the roughness
+   grid × aspect ratios 1, 3, 1/3 × φ ∈ {0, ±π/4} and, for a Lafortune source
+   with ``beta``, ±β).  Its canonical form (α_t ≥ α_b) reads as roughness =
+   √α_b, anisotropy strength = √((α_t − α_b)/(1 − α_b)) and direction
+   (cos φ, sin φ) in the tangent frame.  A texel keeps the anisotropic reading
+   only where it lowers the error on the fitting pairs by more than
+   :data:`ANISOTROPY_GAIN`, so an isotropic source converts exactly as without it.
 """
 
 from __future__ import annotations
@@ -59,12 +67,14 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "ANISOTROPY_GAIN",
     "BATCH",
     "DIELECTRIC_F0",
     "GLTF_MAPS",
     "MAX_THETA_DEG",
     "START_ALPHAS",
     "METAL_PREFERENCE",
+    "anisotropic_model",
     "direction_pairs",
     "ggx_model",
     "gltf_brdf",
@@ -84,7 +94,11 @@ METAL_PREFERENCE = 0.01
 #: F0 of glTF's default dielectric (IOR 1.5).
 DIELECTRIC_F0 = 0.04
 #: The per-texel maps :func:`to_gltf_pbr` returns and their channels (linear values; ``specular_color`` may exceed 1).
-GLTF_MAPS = {"base_color": 3, "metallic": 1, "roughness": 1, "specular": 1, "specular_color": 3}
+GLTF_MAPS = {"base_color": 3, "metallic": 1, "roughness": 1, "specular": 1, "specular_color": 3, "anisotropy": 3}
+#: ``anisotropy`` map of an isotropic texel: direction (1, 0) (the tangent), strength 0.
+ISOTROPIC = (1.0, 0.0, 0.0)
+#: A texel reads as anisotropic when that lowers its relative error on the fitting pairs by more than this.
+ANISOTROPY_GAIN = 0.005
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
 
 
@@ -140,6 +154,15 @@ def ggx_model(registry=None):
     return registry.create("brdf-model", "cook-torrance", {"distribution": "ggx"})
 
 
+def anisotropic_model(registry=None):
+    """The installed ``ggx-anisotropic`` model (``KHR_materials_anisotropy``'s lobe), the anisotropic target."""
+    if registry is None:
+        from sbrdf_core.registry import default_registry
+
+        registry = default_registry()
+    return registry.create("brdf-model", "ggx-anisotropic", {})
+
+
 def _eval(model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     T = next(iter(params.values())).shape[0]
     with np.errstate(all="ignore"):
@@ -185,7 +208,8 @@ def to_ggx(model, params: dict, ggx, *, starts: int = 1, iterations: int = 50) -
     """Refit ``model`` with per-texel ``params`` (``{name: (T, C)}``) to ``ggx`` (cook-torrance, GGX).
 
     Returns ``{"rho_d": (T, 3), "f0": (T, 3), "alpha": (T, 1), "error": (T,), "valid": (T,) bool}``:
-    the GGX parameters, the held-out relative error of the GGX fit itself, and
+    the GGX parameters (``ggx``'s: ``alpha_t``, ``alpha_b``, ``phi`` for the
+    ``ggx-anisotropic`` target), the held-out relative error of the GGX fit itself, and
     which texels had finite source parameters (others: GGX defaults, error 1).
     For exporters to formats that carry ρ_d, F0 and α directly (MaterialX, USD,
     Mitsuba) this is the conversion; glTF adds its own reading (:func:`to_gltf_pbr`).
@@ -195,7 +219,7 @@ def to_ggx(model, params: dict, ggx, *, starts: int = 1, iterations: int = 50) -
     wi, wo = direction_pairs()
     hi_wi, hi_wo = direction_pairs(held_out=True)
     T = np.asarray(params[model.parameters[0].name]).shape[0]
-    out = {"rho_d": np.zeros((T, 3)), "f0": np.zeros((T, 3)), "alpha": np.ones((T, 1)), "error": np.ones(T),
+    out = {**{p.name: np.zeros((T, p.channels)) for p in ggx.parameters}, "error": np.ones(T),
            "valid": np.zeros(T, bool)}
     for s in range(0, T, BATCH):
         sl = slice(s, min(s + BATCH, T))
@@ -214,12 +238,12 @@ def _to_ggx_batch(model, params, ggx, wi, wo, hi_wi, hi_wo, starts, iterations, 
     else:
         valid = np.broadcast_to(ok[:, None], (T, S)).copy()
         bwi, bwo = np.broadcast_to(wi, (T, S, 3)), np.broadcast_to(wo, (T, S, 3))
-        initial = ggx.fit_form().from_model(_initial_guess(ggx, f_src, valid, bwi, bwo))
+        initial = ggx.fit_form().from_model(_initial_guess(ggx, f_src, valid, bwi, bwo, params))
         fitted, _, _ = fit_model(ggx, f_src, valid, bwi, bwo, initial=initial, starts=starts, iterations=iterations)
     defaults = ggx.defaults(T)
     black = ok & (np.abs(f_src).max(axis=(1, 2)) == 0.0)  # a black texel converts to exactly black
     res = {k: np.where(ok[:, None], np.nan_to_num(np.asarray(fitted[k], np.float64)), defaults[k])
-           for k in ("rho_d", "f0", "alpha")}
+           for k in (p.name for p in ggx.parameters)}
     res["rho_d"] = np.where(black[:, None], 0.0, res["rho_d"])
     res["f0"] = np.where(black[:, None], 0.0, res["f0"])
     hi_src, hi_ok = _prepare(model, params, hi_wi, hi_wo)
@@ -234,12 +258,30 @@ def _to_ggx_batch(model, params, ggx, wi, wo, hi_wi, hi_wo, starts, iterations, 
 START_ALPHAS = (0.03, 0.08, 0.2, 0.45, 1.0)
 
 
-def _initial_guess(ggx, f_src, valid, wi, wo) -> dict[str, np.ndarray]:
-    """Per texel, the best of :data:`START_ALPHAS` with ρ_d and F0 solved linearly for it."""
+def _shapes(ggx, T: int, source: dict):
+    """The starting shapes: :data:`START_ALPHAS` (× aspect ratios and directions for the anisotropic target)."""
+    if "alpha" in {p.name for p in ggx.parameters}:
+        for a in START_ALPHAS:
+            yield {"alpha": np.full((T, 1), a)}
+        return
+    phis = [np.zeros((T, 1)), np.full((T, 1), np.pi / 4), np.full((T, 1), -np.pi / 4)]
+    if "beta" in source:  # Lafortune's anisotropy angle: its axes, either sign convention
+        beta = np.nan_to_num(np.asarray(source["beta"], np.float64)[:, :1])
+        phis += [beta, -beta]
+    for a in START_ALPHAS:
+        yield {"alpha_t": np.full((T, 1), a), "alpha_b": np.full((T, 1), a), "phi": phis[0]}
+        for ratio in (3.0, 1.0 / 3.0):
+            for phi in phis:
+                yield {"alpha_t": np.full((T, 1), min(a * np.sqrt(ratio), 1.0)),
+                       "alpha_b": np.full((T, 1), min(a / np.sqrt(ratio), 1.0)), "phi": phi}
+
+
+def _initial_guess(ggx, f_src, valid, wi, wo, source=None) -> dict[str, np.ndarray]:
+    """Per texel, the best of the starting shapes (:func:`_shapes`) with ρ_d and F0 solved linearly for each."""
     T = f_src.shape[0]
     best, best_cost = None, np.full(T, np.inf)
-    for a in START_ALPHAS:
-        guess = ggx.refine_linear({**ggx.defaults(T), "alpha": np.full((T, 1), a)}, f_src, valid, wi, wo)
+    for shape in _shapes(ggx, T, source or {}):
+        guess = ggx.refine_linear({**ggx.defaults(T), **shape}, f_src, valid, wi, wo)
         with np.errstate(all="ignore"):
             cost = np.sum(valid[..., None] * (ggx.eval(guess, wi, wo) - f_src) ** 2, axis=(1, 2))
         cost = np.where(np.isfinite(cost), cost, np.inf)
@@ -257,12 +299,15 @@ def _same_model(model, ggx) -> bool:
             and [p.name for p in model.parameters] == [p.name for p in ggx.parameters])
 
 
-def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray, anisotropic=None) -> np.ndarray:
     """glTF 2.0's metallic-roughness BRDF (Appendix B) with ``KHR_materials_specular``, ``(T, S, 3)``.
 
     ``gltf``: the :data:`GLTF_MAPS` per texel (linear; ``specular_color`` is the
     factor × texture product, ``specular`` the specularFactor).  ``wi``, ``wo``:
-    shared ``(S, 3)`` pairs.  D·V comes from ``ggx`` (cook-torrance GGX with F0 = 1, ρ_d = 0).
+    shared ``(S, 3)`` pairs.  D·V comes from ``ggx`` (cook-torrance GGX with F0 = 1, ρ_d = 0),
+    or, where ``anisotropic`` (the ``ggx-anisotropic`` model) is given and some texel's
+    ``anisotropy`` strength is not 0, from it with ``KHR_materials_anisotropy``'s
+    α_b = roughness², α_t = mix(roughness², 1, strength²) and the map's direction.
     """
     bc = np.asarray(gltf["base_color"], np.float64)
     m = np.asarray(gltf["metallic"], np.float64)[:, None, :1]
@@ -271,7 +316,15 @@ def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     spec_col = np.asarray(gltf["specular_color"], np.float64)
     T = bc.shape[0]
     alpha = np.maximum(rough**2, 1e-3)
-    dv = _eval(ggx, {"rho_d": np.zeros((T, 3)), "f0": np.ones((T, 3)), "alpha": alpha}, wi, wo)[..., :1]  # (T, S, 1)
+    aniso = np.asarray(gltf.get("anisotropy", np.broadcast_to(ISOTROPIC, (T, 3))), np.float64)
+    lobe = {"rho_d": np.zeros((T, 3)), "f0": np.ones((T, 3))}
+    if anisotropic is not None and (aniso[:, 2] > 0).any():
+        strength = np.clip(aniso[:, 2:3], 0.0, 1.0)
+        lobe.update(alpha_b=alpha, alpha_t=np.maximum(rough**2 + (1.0 - rough**2) * strength**2, 1e-3),
+                    phi=np.arctan2(aniso[:, 1:2], aniso[:, 0:1]))
+        dv = _eval(anisotropic, lobe, wi, wo)[..., :1]
+    else:
+        dv = _eval(ggx, {**lobe, "alpha": alpha}, wi, wo)[..., :1]  # (T, S, 1)
     h = wi + wo
     h = h / np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
     s5 = ((1.0 - np.clip(np.einsum("sk,sk->s", wi, h), 0.0, 1.0)) ** 5)[None, :, None]
@@ -283,17 +336,22 @@ def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     return np.where(up, (1.0 - m) * dielectric + m * metal, 0.0)
 
 
-def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 50):
+def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 50, anisotropic=None):
     """Refit to GGX and read the fit as glTF metallic-roughness (+ KHR_materials_specular) per texel.
 
-    ``params``: ``{name: (T, C)}`` of ``model``; ``ggx``: :func:`ggx_model`.
+    ``params``: ``{name: (T, C)}`` of ``model``; ``ggx``: :func:`ggx_model`;
+    ``anisotropic``: :func:`anisotropic_model` to also try ``KHR_materials_anisotropy``
+    (only for a model that may be anisotropic: its ``anisotropic`` is not False).
     Returns ``(gltf, error)``: ``gltf`` holds the :data:`GLTF_MAPS` as ``(T, C)``
     linear values (``specular_color`` = F0/0.04, may exceed 1: the writer folds
-    it into ``specularColorFactor`` × texture), ``error`` ``(T,)`` the held-out
+    it into ``specularColorFactor`` × texture; ``anisotropy`` = direction x, y and
+    strength), ``error`` ``(T,)`` the held-out
     cosine-weighted relative RMS of glTF's BRDF against the source (1 for invalid texels).
     """
-    fit = to_ggx(model, params, ggx, starts=starts, iterations=iterations)
-    T = fit["error"].shape[0]
+    fits = [(to_ggx(model, params, ggx, starts=starts, iterations=iterations), None)]
+    if anisotropic is not None and getattr(model, "anisotropic", True):
+        fits.append((to_ggx(model, params, anisotropic, starts=starts, iterations=iterations), anisotropic))
+    T = fits[0][0]["error"].shape[0]
     gltf = {k: np.zeros((T, c)) for k, c in GLTF_MAPS.items()}
     error = np.ones(T)
     wi, wo = direction_pairs()
@@ -301,46 +359,74 @@ def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 
     for s in range(0, T, BATCH):
         sl = slice(s, min(s + BATCH, T))
         sub = {p.name: np.asarray(params[p.name], np.float64)[sl] for p in model.parameters}
-        g, e = _gltf_batch(model, sub, ggx, {k: v[sl] for k, v in fit.items()}, wi, wo, hi_wi, hi_wo)
+        g, e = _gltf_batch(model, sub, ggx, [({k: v[sl] for k, v in f.items()}, a) for f, a in fits],
+                           wi, wo, hi_wi, hi_wo)
         for k in GLTF_MAPS:
             gltf[k][sl] = g[k]
         error[sl] = e
     return gltf, error
 
 
-def _gltf_batch(model, params, ggx, fit, wi, wo, hi_wi, hi_wo):
+def _readings(ggx, fit, anisotropic, f_src, wi, wo) -> tuple[dict, np.ndarray]:
+    """The better of a GGX fit's two glTF readings per texel, dielectric or metal, and its error on ``wi, wo``."""
     T = fit["f0"].shape[0]
-    f_src, ok = _prepare(model, params, wi, wo)
-    ok &= fit["valid"]
-    f0, alpha = fit["f0"], fit["alpha"]
-    rough = np.clip(np.sqrt(np.maximum(alpha, 0.0)), 0.0, 1.0)
+    f0 = fit["f0"]
+    if anisotropic is None:
+        rough, aniso = np.clip(np.sqrt(np.maximum(fit["alpha"], 0.0)), 0.0, 1.0), np.broadcast_to(ISOTROPIC, (T, 3))
+    else:  # KHR_materials_anisotropy: α_b = roughness², α_t = mix(α_b, 1, strength²), direction (cos φ, sin φ)
+        c = anisotropic.canonical(fit)
+        ab, at = np.clip(c["alpha_b"], 0.0, 1.0), np.clip(c["alpha_t"], 0.0, 1.0)
+        rough = np.sqrt(ab)
+        with np.errstate(all="ignore"):
+            strength = np.sqrt(np.clip(np.nan_to_num((at - ab) / (1.0 - ab)), 0.0, 1.0))
+        aniso = np.concatenate([np.cos(c["phi"]), np.sin(c["phi"]), strength], axis=1)
     ones, zeros = np.ones((T, 1)), np.zeros((T, 1))
     # dielectric reading: F0 in specularColor, base colour solved linearly (f is affine in it)
     spec_col = np.clip(f0 / DIELECTRIC_F0, 0.0, 1.0 / DIELECTRIC_F0)
     diel = {"base_color": np.zeros((T, 3)), "metallic": zeros, "roughness": rough, "specular": ones,
-            "specular_color": spec_col}
-    offset = gltf_brdf(ggx, diel, wi, wo)
-    basis = gltf_brdf(ggx, {**diel, "base_color": np.ones((T, 3))}, wi, wo) - offset
+            "specular_color": spec_col, "anisotropy": aniso}
+    offset = gltf_brdf(ggx, diel, wi, wo, anisotropic)
+    basis = gltf_brdf(ggx, {**diel, "base_color": np.ones((T, 3))}, wi, wo, anisotropic) - offset
     w = _cos_weight(wi, wo)[None, :, None]
     with np.errstate(all="ignore"):
         bc = np.sum(w * basis * (f_src - offset), axis=1) / np.sum(w * basis * basis, axis=1)
     diel["base_color"] = np.clip(np.nan_to_num(bc), 0.0, 1.0)
     metal = {"base_color": np.clip(f0, 0.0, 1.0), "metallic": ones, "roughness": rough, "specular": ones,
-             "specular_color": np.ones((T, 3))}
-    e_diel = relative_error(gltf_brdf(ggx, diel, wi, wo), f_src, wi, wo)
-    e_metal = relative_error(gltf_brdf(ggx, metal, wi, wo), f_src, wi, wo)
+             "specular_color": np.ones((T, 3)), "anisotropy": aniso}
+    e_diel = relative_error(gltf_brdf(ggx, diel, wi, wo, anisotropic), f_src, wi, wo)
+    e_metal = relative_error(gltf_brdf(ggx, metal, wi, wo, anisotropic), f_src, wi, wo)
     # the metal reading is what core glTF (no extension) shows right: preferred unless it costs more than 1 %
-    use_metal = (e_metal <= e_diel + METAL_PREFERENCE)[:, None]
-    gltf = {k: np.where(use_metal, metal[k], diel[k]) for k in GLTF_MAPS}
-    default = {"base_color": np.zeros((T, 3)), "metallic": zeros, "roughness": ones, "specular": ones,
-               "specular_color": np.ones((T, 3))}
+    use_metal = e_metal <= e_diel + METAL_PREFERENCE
+    reading = {k: np.where(use_metal[:, None], metal[k], diel[k]) for k in GLTF_MAPS}
+    return reading, np.where(use_metal, e_metal, e_diel)
+
+
+def _gltf_batch(model, params, ggx, fits, wi, wo, hi_wi, hi_wo):
+    T = fits[0][0]["f0"].shape[0]
+    f_src, ok = _prepare(model, params, wi, wo)
+    anisotropic = None
+    gltf, err = None, None
+    for fit, target in fits:  # the isotropic reading, then (if given) the anisotropic one where it gains enough
+        ok &= fit["valid"]
+        reading, e = _readings(ggx, fit, target, f_src, wi, wo)
+        if gltf is None:
+            gltf, err = reading, e
+            continue
+        anisotropic = target
+        better = e < err - ANISOTROPY_GAIN
+        gltf = {k: np.where(better[:, None], reading[k], gltf[k]) for k in GLTF_MAPS}
+        err = np.where(better, e, err)
+    assert gltf is not None
+    zeros = np.zeros((T, 1))
+    default = {"base_color": np.zeros((T, 3)), "metallic": zeros, "roughness": np.ones((T, 1)), "specular": np.ones((T, 1)),
+               "specular_color": np.ones((T, 3)), "anisotropy": np.broadcast_to(ISOTROPIC, (T, 3))}
     gltf = {k: np.where(ok[:, None], gltf[k], default[k]) for k in GLTF_MAPS}
     black = ok & (np.abs(f_src).max(axis=(1, 2)) == 0.0)  # glTF can be exactly black: no diffuse, specularFactor 0
     gltf["base_color"] = np.where(black[:, None], 0.0, gltf["base_color"])
     gltf["metallic"] = np.where(black[:, None], 0.0, gltf["metallic"])
     gltf["specular"] = np.where(black[:, None], 0.0, gltf["specular"])
     hi_src, hi_ok = _prepare(model, params, hi_wi, hi_wo)
-    err = relative_error(gltf_brdf(ggx, gltf, hi_wi, hi_wo), hi_src, hi_wi, hi_wo)
+    err = relative_error(gltf_brdf(ggx, gltf, hi_wi, hi_wo, anisotropic), hi_src, hi_wi, hi_wo)
     return gltf, np.where(ok & hi_ok, err, 1.0)
 
 

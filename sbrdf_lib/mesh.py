@@ -7,11 +7,14 @@ the scene loader checks files and sizes a mesh's bounding sphere with it
 - OBJ keeps the project's own reader (:func:`read_obj`, :func:`load_obj`):
   it needs no dependency, names the line of a malformed statement, and splits
   corners with distinct ``v/vt/vn`` in first-use order, which renders of
-  existing scenes depend on bit for bit.  ``trimesh`` (5.2, ``process=False,
-  maintain_order=True``) reads the same triangles from simple files, but
-  merged the split corners of a mirrored UV seam (tests/plugins/test_render.py's
-  two quads: 6 vertices instead of 8) and dropped the file's UVs there, so it
-  does not replace this reader.
+  existing scenes depend on bit for bit.  ``trimesh`` (5.2) was measured on
+  tests/plugins/test_render.py's two quads meeting at a mirrored UV seam: with
+  ``process=False, maintain_order=True`` it merged the seam's split corners
+  (6 vertices instead of 8) and dropped the UVs; with ``process=False`` alone
+  it keeps the 8 corners but reorders the triangles of polygons (every
+  polygon's first triangle, then every second one), which changes which hit
+  wins a depth tie; and its errors do not name a line.  So it does not
+  replace this reader.
 - PLY and glTF go through ``trimesh`` (the ``mesh`` extra: pure Python on
   numpy).  glTF ``NORMAL``, ``TEXCOORD_0`` and ``TANGENT`` are read raw
   (trimesh reads UVs only for primitives with a material and does not keep

@@ -17,22 +17,26 @@ PNG textures; ``format: glb``: one ``<name>.glb`` with everything embedded.
   dielectric 0.04, or it is black): ``<name>_specular.png``, RGB = specular
   colour (sRGB) / ``specularColorFactor`` (the material's largest F0/0.04,
   grey, may exceed 1 as the extension allows), A = specularFactor (linear).
-- ``KHR_materials_anisotropy`` is not written: the conversion target is the
-  isotropic GGX lobe (an anisotropic source's loss shows in ``error``).
+- ``KHR_materials_anisotropy`` (only when the source model may be anisotropic
+  and some texel reads better with it, :mod:`sbrdf_lib.convert` step 5):
+  ``<name>_anisotropy.png``, 8-bit linear, RG = the direction (cos φ, sin φ)
+  in the tangent frame mapped from [−1, 1] to [0, 1], B = strength;
+  ``anisotropyStrength`` 1, ``anisotropyRotation`` 0.  The quad then carries
+  TANGENT (+X, w = 1), so the direction's frame is the sample's x and y.
 
 Geometry and convention: the sample is a ``size_mm`` quad (metres in glTF)
 centred at the origin in the XZ plane, facing +Y (glTF is Y-up): the sample's
 +x (texel u) is glTF +X, its +y (texel v) is glTF −Z, its normal +Z is glTF
-+Y; NORMAL is (0, 1, 0) and no TANGENT is written (no normal map, no
-anisotropy: a viewer's MikkTSpace tangent from the uvs is +X, bitangent −Z,
-the sample's x and y).  TEXCOORD_0 = (u, v) in [0, 1]: texel row 0 (v = 0,
++Y; NORMAL is (0, 1, 0); TANGENT (+X) is written with anisotropy only (a
+viewer's MikkTSpace tangent from the uvs is the same +X, bitangent −Z, the
+sample's x and y).  TEXCOORD_0 = (u, v) in [0, 1]: texel row 0 (v = 0,
 the first row of every image written) is at glTF z = +height/2.  Samplers are
 linear, clamped to the edge.  Each material's ``extras.sbrdf`` records the
 source model, the texel grid and the conversion's error summary.
 
 :func:`read_gltf` reads a file written here back into the per-texel glTF maps
-and :func:`gltf_maps_to_ggx` turns them into cook-torrance GGX parameters, for
-round trips.
+and :func:`gltf_maps_to_ggx` turns them into cook-torrance GGX parameters (or
+``ggx-anisotropic`` ones where the file has anisotropy), for round trips.
 """
 
 from __future__ import annotations
@@ -45,10 +49,12 @@ import struct
 import numpy as np
 
 from sbrdf_core.params import Param
-from sbrdf_lib.convert import DIELECTRIC_F0, GLTF_MAPS, ggx_model, to_gltf_pbr_blocks
+from sbrdf_lib.convert import DIELECTRIC_F0, GLTF_MAPS, anisotropic_model, ggx_model, to_gltf_pbr_blocks
 
 #: Texels whose specular colour or factor differ from the default dielectric by more than this need the extension.
 SPECULAR_TOLERANCE = 0.02
+#: Some texel's anisotropy strength above this writes ``KHR_materials_anisotropy`` (one 8-bit step is 0.004).
+ANISOTROPY_TOLERANCE = 0.02
 _FLOAT, _USHORT = 5126, 5123
 _ARRAY, _ELEMENTS = 34962, 34963
 _LINEAR, _LINEAR_MIPMAP, _CLAMP = 9729, 9987, 33071
@@ -63,15 +69,19 @@ class GLTFExporter:
         Param("name", "str", "material", "base name of the files written"),
         Param("tile", "int", 64, "texels per side of a conversion tile (one dask block)", bounds=(1, None)),
         Param("starts", "int", 2, "LM starts per texel of the GGX conversion fit", bounds=(1, None)),
+        Param("anisotropy", "bool", True, "also fit KHR_materials_anisotropy's lobe to a source that may be anisotropic "
+              "(written only where some texel gains from it)"),
     )
 
-    def __init__(self, *, format: str = "gltf", name: str = "material", tile: int = 64, starts: int = 2):
+    def __init__(self, *, format: str = "gltf", name: str = "material", tile: int = 64, starts: int = 2,
+                 anisotropy: bool = True):
         if format not in ("gltf", "glb"):
             raise ValueError(f"gltf: format must be 'gltf' or 'glb', got {format!r}")
         self.format = format
         self.name = name
         self.tile = tile
         self.starts = starts
+        self.anisotropy = anisotropy
         self._registry = None
 
     def bind(self, registry) -> None:
@@ -85,7 +95,8 @@ class GLTFExporter:
 
         params = {p.name: da.asarray(material.params[p.name]).rechunk((self.tile, self.tile, -1))
                   for p in material.model.parameters}
-        return to_gltf_pbr_blocks(material.model, params, self._ggx(), starts=self.starts)
+        aniso = anisotropic_model(self._registry) if self.anisotropy else None
+        return to_gltf_pbr_blocks(material.model, params, self._ggx(), starts=self.starts, anisotropic=aniso)
 
     def write(self, directory, maps, material):
         d = directory
@@ -102,7 +113,7 @@ class GLTFExporter:
                            "error_p95": float(np.percentile(e, 95)), "error_max": float(e.max())}
         extras = {"model": material.model.name, "source": material.source, "texels": [int(x) for x in material.texels],
                   "size_mm": [float(x) for x in material.size_mm], **summary}
-        files, info = write_gltf(d, self.name, {k: np.asarray(maps[k]) for k in GLTF_MAPS}, material.size_mm,
+        files, info = write_gltf(d, self.name, {k: np.asarray(maps[k]) for k in GLTF_MAPS if k in maps}, material.size_mm,
                                  binary=self.format == "glb", alpha=alpha, extras=extras)
         return {"files": files, "format": "glb" if self.format == "glb" else "gltf", **info}
 
@@ -156,24 +167,33 @@ def textures(maps: dict, alpha: np.ndarray | None = None) -> tuple[dict[str, np.
         material["extensions"] = {"KHR_materials_specular": {
             "specularFactor": 1.0, "specularColorFactor": [scale, scale, scale],
             "specularTexture": "specular", "specularColorTexture": "specular"}}
+    aniso = maps.get("anisotropy")
+    if aniso is not None and (np.asarray(aniso)[..., 2] > ANISOTROPY_TOLERANCE).any():
+        a = np.asarray(aniso, np.float64)
+        images["anisotropy"] = np.concatenate([_linear8(a[..., :2] * 0.5 + 0.5), _linear8(a[..., 2:3])], axis=-1)
+        material.setdefault("extensions", {})["KHR_materials_anisotropy"] = {
+            "anisotropyStrength": 1.0, "anisotropyRotation": 0.0, "anisotropyTexture": "anisotropy"}
     return images, material
 
 
-def _quad(size_mm) -> dict[str, np.ndarray]:
+def _quad(size_mm, tangents: bool = False) -> dict[str, np.ndarray]:
     w, h = float(size_mm[0]) / 1000.0, float(size_mm[1]) / 1000.0
     x, z = w / 2, h / 2
-    return {
+    quad = {
         "POSITION": np.array([[-x, 0, z], [x, 0, z], [x, 0, -z], [-x, 0, -z]], np.float32),
         "NORMAL": np.tile(np.array([0, 1, 0], np.float32), (4, 1)),
         "TEXCOORD_0": np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32),
         "indices": np.array([0, 1, 2, 0, 2, 3], np.uint16),
     }
+    if tangents:  # the sample's x, right-handed with the normal and the bitangent (its y, glTF -Z)
+        quad["TANGENT"] = np.tile(np.array([1, 0, 0, 1], np.float32), (4, 1))
+    return quad
 
 
 def build_gltf(name: str, maps: dict, size_mm, *, binary: bool, alpha=None, extras=None):
     """The glTF JSON, the binary buffer and the PNG files (``{file name: bytes}``, empty for GLB)."""
     images, material = textures(maps, alpha)
-    quad = _quad(size_mm)
+    quad = _quad(size_mm, tangents="KHR_materials_anisotropy" in material.get("extensions", {}))
     blob = bytearray()
     views, accessors = [], []
 
@@ -189,7 +209,9 @@ def build_gltf(name: str, maps: dict, size_mm, *, binary: bool, alpha=None, extr
 
     types = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
     attributes = {}
-    for key in ("POSITION", "NORMAL", "TEXCOORD_0"):
+    for key in ("POSITION", "NORMAL", "TANGENT", "TEXCOORD_0"):
+        if key not in quad:
+            continue
         a = quad[key]
         acc = {"bufferView": add_view(a.tobytes(), _ARRAY), "componentType": _FLOAT, "count": len(a),
                "type": types[a.shape[1]]}
@@ -219,6 +241,10 @@ def build_gltf(name: str, maps: dict, size_mm, *, binary: bool, alpha=None, extr
         used.append("KHR_materials_specular")
         for key in ("specularTexture", "specularColorTexture"):
             spec[key] = {"index": texture_of[spec[key]]}
+    aniso = material.get("extensions", {}).get("KHR_materials_anisotropy")
+    if aniso is not None:
+        used.append("KHR_materials_anisotropy")
+        aniso["anisotropyTexture"] = {"index": texture_of[aniso["anisotropyTexture"]]}
     material["name"] = name
     if extras:
         material["extras"] = {"sbrdf": extras}
@@ -362,6 +388,17 @@ def read_gltf(path: str) -> dict[str, np.ndarray]:
     if "specularColorTexture" in spec:
         img = _image(doc, spec["specularColorTexture"]["index"], directory, blob)
         out["specular_color"] = out["specular_color"] * _srgb_to_linear(img[..., :3])
+    aniso = mat.get("extensions", {}).get("KHR_materials_anisotropy")
+    if aniso is not None:  # direction rotated by anisotropyRotation, strength × anisotropyStrength
+        rot = float(aniso.get("anisotropyRotation", 0.0))
+        direction = np.broadcast_to(np.array([1.0, 0.0]), shape + (2,))
+        strength = np.full(shape + (1,), float(aniso.get("anisotropyStrength", 0.0)))
+        if "anisotropyTexture" in aniso:
+            img = _image(doc, aniso["anisotropyTexture"]["index"], directory, blob)
+            direction = img[..., :2] * 2.0 - 1.0
+            strength = strength * img[..., 2:3]
+        phi = np.arctan2(direction[..., 1:2], direction[..., 0:1]) + rot
+        out["anisotropy"] = np.concatenate([np.cos(phi), np.sin(phi), strength], axis=-1)
     return out
 
 
@@ -370,10 +407,19 @@ def gltf_maps_to_ggx(maps: dict) -> dict[str, np.ndarray]:
 
     ρ_d = (1 − metallic)·baseColor/π (glTF's (1 − max F) diffuse weight has no
     counterpart in cook-torrance and is dropped), F0 = lerp(min(0.04·specularColor, 1)·specular,
-    baseColor, metallic), α = roughness² (floored at cook-torrance's 1e-3).
+    baseColor, metallic), α = roughness² (floored at cook-torrance's 1e-3).  With an
+    ``anisotropy`` map (``KHR_materials_anisotropy``): ``ggx-anisotropic``'s ``alpha_t`` =
+    mix(α, 1, strength²), ``alpha_b`` = α and ``phi`` = the direction's angle instead of ``alpha``.
     """
     bc, m = np.asarray(maps["base_color"], np.float64), np.asarray(maps["metallic"], np.float64)[..., :1]
     s = np.asarray(maps["specular"], np.float64)[..., :1]
     f0_d = np.minimum(DIELECTRIC_F0 * np.asarray(maps["specular_color"], np.float64), 1.0) * s
-    return {"rho_d": (1.0 - m) * bc / np.pi, "f0": (1.0 - m) * f0_d + m * bc,
-            "alpha": np.maximum(np.asarray(maps["roughness"], np.float64)[..., :1] ** 2, 1e-3)}
+    rough2 = np.asarray(maps["roughness"], np.float64)[..., :1] ** 2
+    out = {"rho_d": (1.0 - m) * bc / np.pi, "f0": (1.0 - m) * f0_d + m * bc, "alpha": np.maximum(rough2, 1e-3)}
+    if "anisotropy" in maps:
+        a = np.asarray(maps["anisotropy"], np.float64)
+        strength = np.clip(a[..., 2:3], 0.0, 1.0)
+        out["alpha_b"] = out.pop("alpha")
+        out["alpha_t"] = np.clip(rough2 + (1.0 - rough2) * strength**2, 1e-3, 1.0)
+        out["phi"] = np.arctan2(a[..., 1:2], a[..., 0:1])
+    return out

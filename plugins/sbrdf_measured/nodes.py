@@ -1,5 +1,5 @@
 """Node kinds: ``MerlFromModel`` (a MERL-format file from any installed model) and ``MeasuredBRDF``
-(a MERL or ASTM file -> a 1 × 1-texel SampledReflectance that ``Fit`` takes).
+(a MERL, ASTM or UTIA file -> a 1 × 1-texel SampledReflectance that ``Fit`` takes).
 
 Why ``MerlFromModel``: graphs and tests must run on data they make, and the
 MERL database itself cannot ship here; writing a file in the exact format from
@@ -21,7 +21,7 @@ Which directions (``directions``):
   (θh, θd, φd), at their node directions (φh = 0; the material is isotropic),
   each sample exactly one stored value; missing entries are invalid samples.
 
-ASTM files are always sampled at their own direction pairs.
+ASTM and UTIA files are always sampled at their own direction pairs.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from sbrdf_core.params import Param
 
 from .astm import AstmError, read_astm
 from .merl import MERL_DIMS, MerlError, read_merl, tabulate, write_merl
+from .utia import UtiaError, read_utia
 
 MERL_FILE = ArtifactKind(
     "MerlFile",
@@ -87,7 +88,7 @@ class MerlFromModel(NodeKind):
 
         index = da.zeros(dims[0], chunks=rows, dtype=np.int8)
         table = da.map_blocks(block, index, new_axis=[1, 2, 3], chunks=(index.chunks[0], (dims[1],), (dims[2],), (3,)),
-                              dtype=np.float64, name=f"merl-{ctx.node}")
+                              dtype=np.float64, name=ctx.key("merl"))
 
         def finalize(out):
             t = out.read("table")
@@ -102,15 +103,17 @@ class MerlFromModel(NodeKind):
 
 class MeasuredBRDF(NodeKind):
     name = "MeasuredBRDF"
-    doc = "Read a measured BRDF (MERL .binary or ASTM E1392 text) into a 1x1-texel SampledReflectance for Fit."
+    doc = ("Read a measured BRDF (MERL .binary, ASTM E1392 text or a UTIA anisotropic .bin) into a 1x1-texel "
+           "SampledReflectance for Fit.")
     inputs = (Port("table", (MERL_FILE,), "a MerlFile artifact (its material.binary is read) instead of path",
                    optional=True),)
     output = SampledReflectance
     params = (
-        Param("path", "str", None, "MERL .binary or ASTM .astm file, relative to the graph file (or give in: table)",
+        Param("path", "str", None, "MERL .binary, ASTM .astm or UTIA .bin file, relative to the graph file (or give "
+              "in: table)",
               nullable=True, extra={"path": True}),
-        Param("format", "str", "auto", "file format; auto: .astm is ASTM, anything else MERL",
-              choices=("auto", "merl", "astm")),
+        Param("format", "str", "auto", "file format; auto: .astm is ASTM, .bin UTIA, anything else MERL",
+              choices=("auto", "merl", "astm", "utia")),
         Param("directions", "str", "fibonacci", "MERL sampling: fibonacci incident x exitant pairs, or the table's "
               "own bins", choices=("fibonacci", "bins")),
         Param("incident", "int", 32, "fibonacci: incident directions", bounds=(1, 4096)),
@@ -134,7 +137,7 @@ class MeasuredBRDF(NodeKind):
             return []
         try:
             _read(path, params.get("format", "auto"))
-        except (MerlError, AstmError) as e:
+        except (MerlError, AstmError, UtiaError) as e:
             return [("path", str(e))]
         except UnicodeDecodeError as e:
             return [("path", f"{path}: not UTF-8 text (byte offset {e.start})")]
@@ -164,7 +167,7 @@ class MeasuredBRDF(NodeKind):
         table, fmt = _read(path, fmt)
         import_s = time.perf_counter() - t0
         info: dict = {"path": str(path), "format": fmt, "import_s": import_s}
-        if fmt == "astm":
+        if fmt in ("astm", "utia"):  # samples at the file's own direction pairs
             wi, wo, f, ok = table.wi, table.wo, table.f_r, np.ones(len(table), bool)
             ok &= (wi[:, 2] > 0) & (wo[:, 2] > 0) & np.isfinite(f).all(axis=1)
             info.update(channels=list(table.channels), entries=len(table))
@@ -191,7 +194,7 @@ class MeasuredBRDF(NodeKind):
 
 
 def _read(path, fmt: str):
-    """``(table, format)`` of a MERL or ASTM file."""
+    """``(table, format)`` of a MERL, ASTM or UTIA file."""
     if fmt == "auto":
-        fmt = "astm" if Path(path).suffix.lower() == ".astm" else "merl"
-    return (read_astm(path) if fmt == "astm" else read_merl(path)), fmt
+        fmt = {".astm": "astm", ".bin": "utia"}.get(Path(path).suffix.lower(), "merl")
+    return {"astm": read_astm, "utia": read_utia}.get(fmt, read_merl)(path), fmt

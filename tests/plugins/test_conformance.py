@@ -31,6 +31,10 @@ class TestCookTorrance(BRDFModelTests):
     configs = [{"distribution": "beckmann"}, {"distribution": "ggx"}]
 
 
+class TestGGXAnisotropic(BRDFModelTests):
+    name = "ggx-anisotropic"
+
+
 class TestLafortune(BRDFModelTests):
     name = "lafortune"
     configs = [{"lobes": 0}, {"lobes": 1}, {"lobes": 2}, {"lobes": 2, "anisotropic": True},
