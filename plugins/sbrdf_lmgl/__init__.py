@@ -1,0 +1,17 @@
+"""The ``lm-gl`` fitter: the batched Levenberg–Marquardt of ``lm`` in OpenGL 4.3 compute shaders.
+
+It runs wherever moderngl reaches an EGL driver with compute shaders (NVIDIA
+drivers, Mesa llvmpipe in CI), with nothing larger to install than the
+renderer already needs.  The model supplies its value and gradient in GLSL
+(the optional ``glsl_fit_gradient`` member); see :mod:`.fitter`.
+"""
+
+from sbrdf_core.plugin import PluginSpec, hookimpl
+
+
+@hookimpl
+def sbrdf_fitters():
+    return [
+        PluginSpec("lm-gl", "sbrdf_lmgl.fitter:GLLevenbergMarquardtFitter",
+                   summary="The lm fitter's batched Levenberg-Marquardt in OpenGL compute shaders (GL 4.3, EGL)"),
+    ]

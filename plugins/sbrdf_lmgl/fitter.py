@@ -1,0 +1,242 @@
+"""lm-gl: the ``lm`` fitter's batched Levenberg–Marquardt, each texel's iterations in a compute shader.
+
+What stays on the CPU is what ``lm`` does once per texel: the starting
+points (the model's initial guess, Sobol starts scored by cost, exactly as
+:func:`sbrdf_lib.lm.fit_model` chooses them), robust-loss weights between
+IRLS rounds, and the projection onto the plausibility limits.  A first pass
+fits every texel inside the fit form's box bounds in one dispatch; a texel
+whose result leaves its :class:`~sbrdf_core.constraints.Limits` is fitted
+again from ``lm``'s starts *stepwise* (:func:`.device.run_stepwise`: the GPU
+proposes each trial point, the CPU projects it, the GPU evaluates it), which
+is ``lm``'s constrained fit step for step.  With ``loss`` huber / soft-l1
+such texels are refitted by ``lm``'s own solver on the CPU.
+
+Float32: the fit form already fits log exponents / log roughness; residuals
+are divided by each texel's RMS sample value, so costs are O(1) whatever
+the material's brightness.  A texel float32 leaves unconverged after
+``iterations`` is finished in float64 on the CPU (``cpu_finish``) or, with
+``cpu_finish: false``, flagged ``NOT_CONVERGED`` as ``lm`` flags it;
+non-finite results fall back to the starting point, flagged, never NaN.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from sbrdf_core.contracts import optional
+from sbrdf_core.errors import SbrdfError
+from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable
+from sbrdf_core.params import Param
+from sbrdf_lib.lm import IRLS_ROUNDS, LOSSES, candidate_starts, fit_model, projector, robust_weights
+
+from . import device, shader
+
+logger = logging.getLogger(__name__)
+
+#: Exact fit, relative to the (scaled) data energy: what float32 cost sums can tell from zero.
+EXACT32 = 1e-12
+
+
+def gradient_glsl(model) -> str:
+    """The model's ``glsl_fit_gradient()``, or an error naming the model."""
+    member = optional(model, "glsl_fit_gradient", "brdf-model")
+    if member is None:
+        raise SbrdfError(f"lm-gl: model {getattr(model, 'name', type(model).__name__)!r} has no GLSL fit gradient "
+                         "(the optional glsl_fit_gradient member); fit it with the lm fitter")
+    return member()
+
+
+class GLLevenbergMarquardtFitter:
+    """The ``lm-gl`` fitter: ``lm``'s fit, with the per-texel iterations in OpenGL compute shaders."""
+
+    params = (
+        Param("model", "str", "lambert", "BRDF model to fit (it must provide glsl_fit_gradient)",
+              extra={"plugin_category": "brdf-model"}),
+        Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
+        Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000)),
+        Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
+              bounds=(0.0, 1.0)),
+        Param("damping", "float", 1e-3, "initial Marquardt damping λ", bounds=(0.0, None)),
+        Param("starts", "int", 0, "LM runs per texel from its best-scoring starting points, as for lm (0 = the "
+              "model's suggestion, 1 = its initial guess alone)", bounds=(0, 64)),
+        Param("fixed", "list", [], "fit-form parameter names held at their initial value", item="str"),
+        Param("seed", "int", 0, "seed of the Sobol starting points"),
+        Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1 (iteratively reweighted)",
+              choices=["linear", "huber", "soft-l1"]),
+        Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns linear; 0 = 1.4826 x the "
+              "texel's median absolute residual", bounds=(0.0, None)),
+        Param("tile", "int", 4096, "texels per compute dispatch (samples of two tiles are on the GPU at once)",
+              bounds=(64, None)),
+        Param("cpu_finish", "bool", True, "texels float32 leaves unconverged after `iterations` (ill-conditioned "
+              "lobes: damping slows the steps) are finished by the CPU solver in float64 from where the GPU stopped; "
+              "false: they are flagged not converged"),
+    )
+
+    def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
+                 tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
+                 seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, tile: int = 4096,
+                 cpu_finish: bool = True):
+        self.model_name = model
+        self.model_config = dict(model_params)
+        self.iterations, self.tolerance, self.damping = iterations, tolerance, damping
+        self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
+        self.loss, self.loss_scale, self.tile, self.cpu_finish = loss, loss_scale, tile, cpu_finish
+        #: Seconds per stage since construction (starts, upload, compute = dispatch and read-back, polish: the CPU
+        #: part) and texel counts (texels, cpu_texels: finished or refitted on the CPU).
+        self.timings: dict[str, float] = {}
+
+    def bind(self, registry) -> None:
+        """Refuse a model without a GLSL fit gradient when the graph is built, not at the first tile."""
+        gradient_glsl(registry.create("brdf-model", self.model_name, dict(self.model_config)))
+
+    def fit(self, model, f_r, valid, wi, wo, limits=None) -> FitResult:
+        if self.loss not in LOSSES:
+            raise ValueError(f"lm-gl: loss {self.loss!r} is not one of {', '.join(LOSSES)}")
+        glsl = gradient_glsl(model)
+        t0 = time.perf_counter()
+        f_r, valid = usable(f_r, valid)
+        form = model.fit_form()
+        T, K = f_r.shape[0], form.size
+        src = shader.source(glsl, K)
+        lo, hi = form.bounds()
+        free = np.ones(K, bool)
+        slices = form.slices()
+        for name in self.fixed:
+            if name not in slices:
+                raise ValueError(f"lm-gl: fixed parameter {name!r} is not a parameter of {form.name}; "
+                                 f"known: {', '.join(slices)}")
+            free[slices[name]] = False
+        project = projector(form, limits)
+        everyone = np.arange(T)
+        x_starts = self._starts(model, form, f_r, valid, wi, wo, free, project)
+        n = valid.sum(axis=1)
+        energy = np.einsum("tsc,tsc->t", f_r, f_r)
+        scale = np.maximum(np.sqrt(energy / np.maximum(3 * n, 1)), 1e-6)  # residuals in units of the texel's RMS
+        self._add("starts_s", time.perf_counter() - t0)
+
+        def gpu(x, weight, iterations, idx=everyone, project=None):
+            """LM on the GPU for texels ``idx`` (stepwise when every trial point is projected); the cost comes
+            back in sr⁻² (unscaled)."""
+            w = weight[idx] / scale[idx, None]
+            status = (~(w > 0).any(axis=1)).astype(np.float32)
+            fw = f_r[idx] * w[..., None]
+            exact = EXACT32 * np.einsum("tsc,tsc->t", fw, fw)
+            opts = dict(lo=lo, hi=hi, free=free, iterations=iterations, tolerance=self.tolerance, damping=self.damping,
+                        timings=self.timings)
+            if project is None:
+                x, cost, converged, _ = device.call(device.run_tiles, src, x, status, exact, f_r[idx], w, wi[idx],
+                                                    wo[idx], tile=self.tile, **opts)
+            else:
+                x, cost, converged, _ = device.call(device.run_stepwise, src, x, status, exact, f_r[idx], w,
+                                                    wi[idx], wo[idx], project=project, **opts)
+            return x, cost * scale[idx] ** 2, converged
+
+        best = None
+        plain_weight = valid.astype(np.float64)
+        for x0 in x_starts:
+            x, weight = x0, plain_weight
+            for _ in range(1 if self.loss == "linear" else IRLS_ROUNDS):
+                x, cost, converged = gpu(x, weight, self.iterations)
+                if self.loss != "linear":
+                    weight = robust_weights(form, x, f_r, valid, wi, wo, self.loss, self.loss_scale)
+            if self.loss != "linear":
+                cost = gpu(x, plain_weight, 0)[1]
+            broken = ~(np.isfinite(x).all(axis=1) & np.isfinite(cost))
+            if broken.any():  # float32 could not follow this texel: its start, flagged
+                b = np.flatnonzero(broken)
+                x[b], converged[b] = x0[b], False
+                sub = form.least_squares(f_r[b], plain_weight[b], wi[b], wo[b])
+                cost[b] = np.nan_to_num(sub.normal_equations(x0[b], np.arange(b.size))[2], nan=np.inf)
+            if best is None:
+                best = [x, cost, converged, np.zeros(T, bool)]
+                continue
+            better = cost < best[1] * (1 - 1e-6)
+            best[0][better], best[1][better], best[2][better] = x[better], cost[better], converged[better]
+            best[3] |= better
+        assert best is not None
+        x, cost, converged, restarted = best
+        if project is not None and self.loss == "linear":
+            # Texels whose fit left their limits: lm's constrained fit (every trial point projected) on the GPU,
+            # from the same starts.
+            t1 = time.perf_counter()
+            moved = np.flatnonzero((np.abs(project(x, everyone) - x) > 1e-6 * (1.0 + np.abs(x))).any(axis=1))
+            if moved.size:
+                sub_project = projector(form, limits.take(moved))
+                inside = None
+                for x0 in x_starts:
+                    xs, cs, conv = gpu(x0[moved], plain_weight, self.iterations, moved,
+                                       lambda v, i: sub_project(v, i))
+                    if inside is None:
+                        inside = [xs, cs, conv]
+                    else:
+                        b = cs < inside[1] * (1 - 1e-6)
+                        inside[0][b], inside[1][b], inside[2][b] = xs[b], cs[b], conv[b]
+                assert inside is not None
+                x[moved], cost[moved], converged[moved] = inside
+            self._add("constrained_texels", moved.size)
+            self._add("stepwise_s", time.perf_counter() - t1)
+        x, cost, converged = self._polish(model, form, x, cost, converged, f_r, valid, wi, wo, lo, hi, free, limits,
+                                          project, everyone)
+        if project is not None:  # float32 round-off can leave a bound by an ulp: project once more in float64
+            x = project(x, everyone)
+        flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
+        rms = np.sqrt(np.maximum(cost, 0.0) / np.maximum(f_r.shape[-1] * n, 1))
+        return FitResult(form.to_model(form.unpack(x)), rms, n, flags, restarted=restarted)
+
+    def _add(self, key: str, seconds: float) -> None:
+        self.timings[key] = self.timings.get(key, 0.0) + seconds
+
+    def _starts(self, model, form, f_r, valid, wi, wo, free, project):
+        """The starting points ``lm`` would run from (:func:`sbrdf_lib.lm.fit_model`'s choice)."""
+        starts = self.starts or model.suggested_starts
+        T = f_r.shape[0]
+        lo, hi = form.bounds()
+        everyone = np.arange(T)
+        count = 8 * starts if starts > 1 else 1
+        cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, self.seed)]
+        for c in cands[1:]:
+            c[:, ~free] = cands[0][:, ~free]
+        if project is not None:
+            cands = [project(c, everyone) for c in cands]
+        if len(cands) == 1:
+            return cands
+        plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
+        costs = np.stack([plain.normal_equations(c, everyone)[2] for c in cands])
+        order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
+        stack = np.stack(cands)
+        return [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
+
+    def _polish(self, model, form, x, cost, converged, f_r, valid, wi, wo, lo, hi, free, limits, project, everyone):
+        """The CPU's share: texels still outside their limits (a robust loss, which the stepwise GPU pass does not
+        reweight) are fitted again exactly as ``lm`` fits them; texels float32 left unconverged are finished in
+        float64 from where the GPU stopped (``cpu_finish``)."""
+        t0 = time.perf_counter()
+        x, cost, converged = x.copy(), cost.copy(), converged.copy()
+        moved = np.zeros(x.shape[0], bool)
+        if project is not None:
+            moved = (np.abs(project(x, everyone) - x) > 1e-6 * (1.0 + np.abs(x))).any(axis=1)
+            idx = np.flatnonzero(moved)
+            if idx.size:
+                params, conv, cs = fit_model(model, f_r[idx], valid[idx], wi[idx], wo[idx], iterations=self.iterations,
+                                             tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
+                                             starts=self.starts, seed=self.seed, limits=limits.take(idx),
+                                             loss=self.loss, loss_scale=self.loss_scale)
+                x[idx], cost[idx], converged[idx] = form.pack(form.from_model(params)), cs, conv
+        late = np.flatnonzero(~converged & ~moved) if self.cpu_finish else np.zeros(0, int)
+        if late.size:
+            params, conv, cs = fit_model(model, f_r[late], valid[late], wi[late], wo[late],
+                                         initial=form.unpack(x[late]), iterations=self.iterations,
+                                         tolerance=self.tolerance, damping=self.damping, fixed=self.fixed, starts=1,
+                                         limits=None if limits is None else limits.take(late), loss=self.loss,
+                                         loss_scale=self.loss_scale)
+            x[late], cost[late], converged[late] = form.pack(form.from_model(params)), cs, conv
+        cpu = int(moved.sum()) + late.size
+        if cpu:
+            logger.debug("lm-gl: %d of %d texels fitted or finished on the CPU", cpu, x.shape[0])
+        self._add("polish_s", time.perf_counter() - t0)
+        self._add("texels", x.shape[0])
+        self._add("cpu_texels", cpu)
+        return x, cost, converged

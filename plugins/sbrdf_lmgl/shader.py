@@ -1,0 +1,206 @@
+"""The compute shader: one invocation runs one texel's whole Levenberg–Marquardt fit.
+
+Each invocation reads its texel's samples from a shader storage buffer,
+accumulates the normal equations ``JᵀJ`` (packed lower triangle) and ``Jᵀr``
+from the model's ``brdf_fit_gradient`` (value and ∂f/∂x in the fit form), and
+solves the damped system by Cholesky in float32.  The system is solved with
+Jacobi scaling (Â = D^-½ A D^-½, unit diagonal): that is Marquardt's
+``A + λ diag(A)`` exactly, and it keeps float32 pivots near 1 where a raw
+``JᵀJ`` spans many decades (ρ vs log n columns).  A failed factorisation
+(a pivot at round-off) is a rejected step: λ grows, as for a worse cost.
+
+Acceptance, λ updates and the stopping tests are those of
+:func:`sbrdf_lib.lm.levenberg_marquardt`; only the "negligible step" test is
+relative to float32's resolution (1e-6) rather than float64's.
+
+Buffers (float32):
+
+- samples ``[S][T][10]``: ω_i, ω_o, f_r RGB, weight (0 = skip; weights
+  already carry the texel's residual scale);
+- state ``[T][K + 4]``: x (in: start, out: result), cost, status (in: 0 =
+  fit, 1 = leave alone; out: 0 = still running, 1 = converged, 2 = stopped at
+  the iteration cap in stepwise mode), exact-fit threshold, iterations;
+- work ``[T][NA + 2K + 2]`` (stepwise mode only): JᵀJ, Jᵀr, trial point, λ, ok.
+
+``u_mode`` 0 runs each texel's whole fit in one dispatch.  Where every
+trial point must be projected onto the texel's plausibility limits (on the
+CPU, by the model's ``constrain``), the fit is stepwise: mode 1 starts it,
+then per iteration mode 2 proposes a trial point, the CPU projects it, and
+mode 3 evaluates and accepts or rejects it: :func:`sbrdf_lib.lm.levenberg_marquardt`
+step for step.
+"""
+
+from __future__ import annotations
+
+#: Floats per sample: ω_i (3), ω_o (3), f_r (3), weight.
+SAMPLE = 10
+#: Invocations per workgroup.
+GROUP = 64
+
+
+def state_stride(K: int) -> int:
+    return K + 4
+
+
+def work_stride(K: int) -> int:
+    """Floats per texel a stepwise fit keeps between dispatches: JᵀJ (packed), Jᵀr, the trial point, λ, ok."""
+    return K * (K + 1) // 2 + 2 * K + 2
+
+
+def source(gradient_glsl: str, K: int) -> str:
+    """The compute shader for a model whose ``glsl_fit_gradient()`` is ``gradient_glsl``, ``K`` fit parameters."""
+    NA = K * (K + 1) // 2
+    stride, work = state_stride(K), work_stride(K)
+    return f"""#version 430
+layout(local_size_x = {GROUP}) in;
+layout(std430, binding = 0) readonly buffer Samples {{ float smp[]; }};
+layout(std430, binding = 1) buffer State {{ float st[]; }};
+layout(std430, binding = 2) buffer Work {{ float wk[]; }};
+uniform int u_mode;
+uniform int u_texels;
+uniform int u_samples;
+uniform int u_iterations;
+uniform float u_tolerance;
+uniform float u_damping;
+uniform float u_lo[{K}];
+uniform float u_hi[{K}];
+uniform float u_free[{K}];
+const int K = {K};
+const int NA = {NA};
+
+{gradient_glsl}
+
+float normal_equations(int t, float x[K], out float A[NA], out float g[K]) {{
+    for (int i = 0; i < NA; ++i) A[i] = 0.0;
+    for (int i = 0; i < K; ++i) g[i] = 0.0;
+    float cost = 0.0;
+    for (int s = 0; s < u_samples; ++s) {{
+        int o = (s * u_texels + t) * {SAMPLE};
+        float w = smp[o + 9];
+        if (w == 0.0) continue;
+        vec3 wi = vec3(smp[o], smp[o + 1], smp[o + 2]);
+        vec3 wo = vec3(smp[o + 3], smp[o + 4], smp[o + 5]);
+        vec3 J[K];
+        vec3 r = (brdf_fit_gradient(wi, wo, x, J) - vec3(smp[o + 6], smp[o + 7], smp[o + 8])) * w;
+        cost += dot(r, r);
+        for (int i = 0; i < K; ++i) {{
+            J[i] *= w * u_free[i];
+            g[i] += dot(J[i], r);
+            int row = i * (i + 1) / 2;
+            for (int j = 0; j <= i; ++j) A[row + j] += dot(J[i], J[j]);
+        }}
+    }}
+    return cost;
+}}
+
+bool finite(float v) {{ return !isnan(v) && !isinf(v); }}
+
+// The damped step from x: Cholesky of D^-1/2 A D^-1/2 + lam I; false when a pivot is at round-off.
+bool propose(float A[NA], float g[K], float x[K], float lam, out float xn[K]) {{
+    float M[NA], d[K], y[K];
+    for (int k = 0; k < K; ++k) {{
+        xn[k] = x[k];
+        d[k] = u_free[k] > 0.0 ? sqrt(max(A[k * (k + 1) / 2 + k], 1e-12)) : 1.0;
+    }}
+    for (int i = 0; i < K; ++i) {{
+        int ri = i * (i + 1) / 2;
+        for (int j = 0; j <= i; ++j) {{
+            int rj = j * (j + 1) / 2;
+            float v = A[ri + j] / (d[i] * d[j]) + (i == j ? lam : 0.0);
+            for (int k = 0; k < j; ++k) v -= M[ri + k] * M[rj + k];
+            if (i == j) {{
+                if (!(v > 1e-7 * (1.0 + lam))) return false;
+                M[ri + i] = sqrt(v);
+            }} else {{
+                M[ri + j] = v / M[rj + j];
+            }}
+        }}
+    }}
+    for (int i = 0; i < K; ++i) {{  // L z = -g/d
+        int ri = i * (i + 1) / 2;
+        float v = -g[i] / d[i];
+        for (int k = 0; k < i; ++k) v -= M[ri + k] * y[k];
+        y[i] = v / M[ri + i];
+    }}
+    for (int i = K - 1; i >= 0; --i) {{  // L^T y = z
+        float v = y[i];
+        for (int k = i + 1; k < K; ++k) v -= M[k * (k + 1) / 2 + i] * y[k];
+        y[i] = v / M[i * (i + 1) / 2 + i];
+    }}
+    for (int k = 0; k < K; ++k) {{
+        float step = u_free[k] > 0.0 ? y[k] / d[k] : 0.0;
+        xn[k] = finite(step) ? clamp(x[k] + step, u_lo[k], u_hi[k]) : x[k];
+    }}
+    return true;
+}}
+
+// Accept or reject the trial xn (cost cn, normal equations An, gn); false when the texel is done.
+bool settle(bool ok, float xn[K], float cn, float An[NA], float gn[K], float exact, inout float x[K],
+            inout float A[NA], inout float g[K], inout float cost, inout float lam) {{
+    float biggest = 0.0, largest_x = 0.0;
+    for (int k = 0; k < K; ++k) {{
+        biggest = max(biggest, abs(xn[k] - x[k]));
+        largest_x = max(largest_x, abs(x[k]));
+    }}
+    bool better = ok && finite(cn) && cn < cost;
+    float gain = better ? (cost - cn) / max(cost, 1e-30) : 0.0;
+    if (better) {{ x = xn; A = An; g = gn; cost = cn; }}
+    lam = better ? max(lam / 3.0, 1e-12) : lam * 4.0;
+    bool negligible = ok && biggest <= 1e-6 * max(largest_x, 1e-12);
+    return !((better && gain < u_tolerance) || (!better && negligible) || lam > 1e10 || cost <= exact);
+}}
+
+void main() {{
+    int t = int(gl_GlobalInvocationID.x);
+    if (t >= u_texels) return;
+    int so = t * {stride}, wb = t * {work};
+    float x[K], xn[K], A[NA], g[K], An[NA], gn[K];
+    for (int k = 0; k < K; ++k) x[k] = st[so + k];
+    float exact = st[so + K + 2];
+    if (u_mode <= 1) {{  // whole fit (0), or the start of a stepwise one (1)
+        float cost = normal_equations(t, x, A, g);
+        bool running = st[so + K + 1] == 0.0 && cost > 0.0 && finite(cost);
+        float lam = u_damping;
+        int it = 0;
+        for (; u_mode == 0 && it < u_iterations && running; ++it) {{
+            bool ok = propose(A, g, x, lam, xn);
+            float cn = ok ? normal_equations(t, xn, An, gn) : cost;
+            running = settle(ok, xn, cn, An, gn, exact, x, A, g, cost, lam);
+        }}
+        for (int k = 0; k < K; ++k) st[so + k] = x[k];
+        st[so + K] = cost;
+        st[so + K + 1] = running ? 0.0 : 1.0;
+        st[so + K + 3] = float(it);
+        if (u_mode == 1) {{
+            for (int i = 0; i < NA; ++i) wk[wb + i] = A[i];
+            for (int k = 0; k < K; ++k) wk[wb + NA + k] = g[k];
+            wk[wb + NA + 2 * K] = lam;
+        }}
+        return;
+    }}
+    if (st[so + K + 1] != 0.0) return;  // done
+    for (int i = 0; i < NA; ++i) A[i] = wk[wb + i];
+    for (int k = 0; k < K; ++k) g[k] = wk[wb + NA + k];
+    float lam = wk[wb + NA + 2 * K];
+    if (u_mode == 2) {{  // propose a trial point, to be projected onto the texel's limits on the CPU
+        bool ok = propose(A, g, x, lam, xn);
+        for (int k = 0; k < K; ++k) wk[wb + NA + K + k] = xn[k];
+        wk[wb + NA + 2 * K + 1] = ok ? 1.0 : 0.0;
+        return;
+    }}
+    // u_mode == 3: evaluate the projected trial point, accept or reject it
+    bool ok = wk[wb + NA + 2 * K + 1] > 0.5;
+    for (int k = 0; k < K; ++k) xn[k] = wk[wb + NA + K + k];
+    float cost = st[so + K];
+    float cn = ok ? normal_equations(t, xn, An, gn) : cost;
+    bool running = settle(ok, xn, cn, An, gn, exact, x, A, g, cost, lam);
+    int it = int(st[so + K + 3]) + 1;
+    for (int k = 0; k < K; ++k) st[so + k] = x[k];
+    st[so + K] = cost;
+    st[so + K + 1] = running && it < u_iterations ? 0.0 : (running ? 2.0 : 1.0);
+    st[so + K + 3] = float(it);
+    for (int i = 0; i < NA; ++i) wk[wb + i] = A[i];
+    for (int k = 0; k < K; ++k) wk[wb + NA + k] = g[k];
+    wk[wb + NA + 2 * K] = lam;
+}}
+"""
