@@ -1,38 +1,57 @@
-"""Fitting: what each fitter's accuracy costs in time (issue 3; seed 000 Table 3.4).
+"""Fitting: the project's LM against what a scientist writes without it, paired, per CPU second (issue 27).
 
 What it measures
 ----------------
-A ``SampleModel`` node draws a 2-lobe Lafortune SBRDF (procedural maps over
-the model's typical ranges) at 400 direction pairs per texel with Gaussian
-noise σ = 0.01 sr⁻¹, into a SampledReflectance on disk.  Then, each as a Fit
-node run by the real Runner (threads scheduler, all cores), timed by the node's
-wall clock:
+Two data sets, each a grid of texels seen under one pose plan (light and
+camera positions over a 20 mm patch, 600 / 800 mm away; ω_i, ω_r per texel as
+the Reflectance node derives them), Gaussian noise σ = 0.01 sr⁻¹:
 
-- ``ls``:  McAllister's single-lobe line search (``line-search``);
-- ``lm1``: batched Levenberg–Marquardt, 1 lobe (``lm``, model lafortune);
-- ``lm2``: the same with 2 lobes.
+- ``peer``: the peer's data.  A 2-lobe Lafortune material (a forward lobe,
+  n from 8 to 300, and a back-scatter lobe sharing its specular colour; ρ_d,
+  ρ_s, C, n drawn per texel; |C_xy| ≤ C_z) under a plan where a third of the
+  pairs lie within 4° of the mirror direction, a third are grazing (both θ in
+  60–82°) and a third are uniform over θ ≤ 80°;
+- ``ct``: a different generating model: GGX Cook–Torrance (``SampleModel``'s
+  procedural maps over its typical ranges, energy scaled) under the same plan.
 
-``*_ms_per_texel`` is node wall time / texels.  ``lm2_rms`` (and the others in
-the table) is the mean over texels of the per-texel RMS residual, sr⁻¹, RGB
-pooled (seed 000 §4.4).
+Each fit sees the same training pairs; a further set of pairs from the same
+plan is never fitted, and the fits are scored there against the noise-free
+truth (``held-out``).  Per data set and lobe count (1, 2), paired in one run
+on the same cores:
 
-The scientist's baseline: the same 2-lobe fit written as a per-texel loop over
-``scipy.optimize.least_squares`` (default trust-region solver, 2-point numeric
-Jacobian, the model's raw parametrisation and bounds, the same starting point
-as ``lm``) on a subset of texels, one core; its time per texel extrapolates to
-the whole grid.  ``speedup_vs_scipy`` = scipy ms per texel / lm2 ms per texel;
-``rms_ratio_vs_scipy`` = lm2 mean RMS / scipy mean RMS on the same subset.
+- ``peer``: what a scientist writes from McAllister's procedure as
+  ``docs/fitting.md`` describes it, with numpy and scipy only: per texel,
+  ρ_d = the 10th percentile per channel, the luminance residual fitted by
+  ``scipy.optimize.least_squares`` (default trust-region solver, 2-point numeric
+  Jacobian) over the text's lobes (C_xy, C_z, n per lobe, magnitude folded
+  into C, started at the text's C = (−1, −1, 1), n = 10 and C = (1, 1, 1),
+  n = 5), then the specular colour by Eq 4.10;
+- ``lm1`` / ``lm2``: the ``lm`` fitter through the Fit node's tile kernel
+  (``sbrdf_core.nodes.fit.fit_tile``: direction derivation, limits, the
+  fit inside the physical bounds, enforcement, RMS, flags), ``holdout: 0`` so
+  it trains on exactly the peer's samples, every other option the default.
 
-Then a sweep on a smaller grid gives the accuracy-vs-time table and plot of
-``docs/accuracy-vs-time.md`` (fitters × lobes × iteration cap × samples per
-texel); ``--docs`` rewrites that section and its figure.
+Time is CPU time of this process (``time.process_time``: all threads, the
+numba kernels' included; nothing runs in child processes) and wall time,
+both per texel.  Kernels are compiled and cached off the clock first.
+``speedup_cpu_lmL`` = the L-lobe peer's CPU time / lmL's, on the peer's data;
+``peer_cpu_ms_per_texel`` is the 2-lobe peer's.  ``rms_ratio_lm2`` = mean
+training RMS of lm2 / of the 2-lobe peer on the peer's data.
 
-Sizes: full = 256×256 texels × 400 pairs (65 536 texels; scipy on 256 of
-them), sweep on 64×64; ``--quick`` = 64×64 texels (scipy on 48), sweep on
-32×32 — about a minute on 2 cores.
+``failed`` (the same test for both, per texel): a non-finite parameter or RMS,
+or the solver says it did not finish (the peer: ``least_squares`` status ≤ 0;
+lm: the Fit node's flag 8 or 16), or a training RMS above twice the best that
+either fit of that lobe count reached on the texel (and above 1.5 σ).  The last
+line's counts are on the peer's data, 2 lobes.
 
-Last line: ``fit: texels=... ls_ms_per_texel=... lm1_ms_per_texel=...
-lm2_ms_per_texel=... speedup_vs_scipy=... rms_ratio_vs_scipy=... lm2_rms=...``
+Sizes: full = 64×64 texels per data set × 300 training + 100 held-out pairs
+(the lm side in the Fit node's 32×32 tiles); ``--quick`` = one 32×32 tile per
+data set (about a minute on 2 cores).  ``--docs`` also runs the
+accuracy-vs-time sweep of ``docs/accuracy-vs-time.md`` and rewrites it.
+
+Last line: ``fit: texels=... peer_cpu_ms_per_texel=... lm1_cpu_ms_per_texel=...
+lm2_cpu_ms_per_texel=... speedup_cpu_lm1=... speedup_cpu_lm2=...
+rms_ratio_lm2=... failed_lm2=... failed_peer=...``
 """
 
 from __future__ import annotations
@@ -51,7 +70,202 @@ from report import machine, replace_section
 ROOT = Path(__file__).resolve().parent.parent
 NOISE = 0.01
 TWO_LOBES = {"lobes": 2}
+SIZE_MM = (20.0, 20.0)
+LIGHT_MM, CAMERA_MM = 600.0, 800.0
+MAX_THETA = np.radians(80.0)
+MIN_COS = 0.02
+#: McAllister's luminance weights (seed 000 Eq 2.3), as a scientist copies them from the text.
+LUMINANCE = np.array([0.2582, 0.6566, 0.0851])
 
+
+# -- data -------------------------------------------------------------------------------------------
+
+def _cap(rng, n, lo=0.0, hi=MAX_THETA):
+    """Unit directions uniform in solid angle with θ in [lo, hi]."""
+    z = rng.uniform(np.cos(hi), np.cos(lo), n)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    r = np.sqrt(np.clip(1 - z * z, 0, None))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
+def pose_plan(rng, n):
+    """``(light, camera)`` unit directions: a third near the mirror direction, a third grazing, a third uniform."""
+    k = n // 3
+    light, camera = _cap(rng, n), _cap(rng, n)
+    mirror = light[:k] * np.array([-1.0, -1.0, 1.0])
+    jitter = rng.normal(size=(k, 3))
+    jitter -= (jitter * mirror).sum(axis=1, keepdims=True) * mirror
+    jitter *= np.tan(np.radians(rng.uniform(0, 4.0, (k, 1)))) / np.maximum(np.linalg.norm(jitter, axis=1, keepdims=True), 1e-12)
+    camera[:k] = mirror + jitter
+    camera[:k, 2] = np.maximum(camera[:k, 2], 0.1)
+    camera[:k] /= np.linalg.norm(camera[:k], axis=1, keepdims=True)
+    grazing = np.radians((60.0, 82.0))
+    light[k:2 * k], camera[k:2 * k] = _cap(rng, k, *grazing), _cap(rng, k, *grazing)
+    return light, camera
+
+
+def lafortune_truth(rng, T):
+    """A 2-lobe Lafortune material per texel (C_z = 1 gauge, |C_xy| ≤ 1, lobes sharing their colour)."""
+    colour = rng.uniform(0.6, 1.0, (T, 3))
+    colour /= (colour @ LUMINANCE)[:, None]
+    u = lambda lo, hi: rng.uniform(lo, hi, (T, 1))  # noqa: E731
+    return {"rho_d": rng.uniform(0.02, 0.25, (T, 3)),
+            "rho_s_1": u(0.3, 3.0) * colour, "c_xy_1": u(-1.0, -0.9), "c_z_1": np.ones((T, 1)),
+            "exponent_1": np.exp(u(np.log(8.0), np.log(300.0))),
+            "rho_s_2": u(0.05, 0.3) * colour, "c_xy_2": u(0.75, 1.0), "c_z_2": np.ones((T, 1)),
+            "exponent_2": np.exp(u(np.log(2.0), np.log(20.0)))}
+
+
+def make_dataset(name, side, train, held, seed):
+    """Samples ``(V, U, S, 3)`` float32, validity, positions, and noise-free held-out truth."""
+    from sbrdf_core.geometry import tile_directions
+    from sbrdf_core.registry import Registry
+    from sbrdf_fitters.sample_model import material_maps, physical
+
+    rng = np.random.default_rng(seed)
+    reg = Registry()
+    T = side * side
+    if name == "peer":
+        model = reg.create("brdf-model", "lafortune", TWO_LOBES)
+        flat = lafortune_truth(rng, T)
+        maps = physical(model, {k: v.reshape(side, side, -1) for k, v in flat.items()})
+    else:
+        model = reg.create("brdf-model", "cook-torrance", {"distribution": "ggx"})
+        maps = material_maps(model, (side, side))
+    truth = {k: v.reshape(T, -1) for k, v in maps.items()}
+    light, camera = pose_plan(rng, train + held)
+    light, camera = light * LIGHT_MM, camera * CAMERA_MM
+    wi, _, wo = tile_directions((side, side), SIZE_MM, (0, side), (0, side), light, camera)
+    f = model.eval(truth, wi, wo)
+    valid = (wi[..., 2] > MIN_COS) & (wo[..., 2] > MIN_COS)
+    noisy = np.where(valid[..., None], f + NOISE * rng.standard_normal(f.shape), 0.0).astype(np.float32)
+    return {"name": name, "side": side, "light": light[:train], "camera": camera[:train],
+            "f": noisy[:, :train].reshape(side, side, train, 3), "valid": valid[:, :train].reshape(side, side, train),
+            "wi": wi[:, :train], "wo": wo[:, :train],
+            "held_wi": wi[:, train:], "held_wo": wo[:, train:], "held_f": f[:, train:], "held_valid": valid[:, train:]}
+
+
+def rms(diff, mask):
+    d = np.where(mask[..., None], diff, 0.0)
+    return np.sqrt(np.einsum("tsc,tsc->t", d, d) / np.maximum(mask.sum(axis=1) * diff.shape[-1], 1))
+
+
+# -- the peer: McAllister's procedure, per texel, numpy and scipy only ---------------------------------
+
+def peer_texel(f, valid, wi, wo, lobes):
+    """One texel: ρ_d percentile, luminance lobes by least_squares, specular colour by Eq 4.10."""
+    from scipy.optimize import least_squares
+
+    use = valid & (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    f, wi, wo = f[use].astype(np.float64), wi[use], wo[use]
+    rho_d = np.clip(np.percentile(f, 10.0, axis=0), 0, None)
+    f_s = f - rho_d
+    lum = f_s @ LUMINANCE
+    pxy = wi[:, 0] * wo[:, 0] + wi[:, 1] * wo[:, 1]
+    pz = wi[:, 2] * wo[:, 2]
+
+    def residual(x):
+        out = -lum
+        for j in range(lobes):
+            out = out + np.maximum(x[3 * j] * pxy + x[3 * j + 1] * pz, 0.0) ** x[3 * j + 2]
+        return out
+
+    x0 = np.array([-1.0, 1.0, 10.0, 1.0, 1.0, 5.0])[:3 * lobes]
+    lo = np.array([-10.0, 0.0, 0.1] * lobes)
+    hi = np.array([10.0, 10.0, 20000.0] * lobes)
+    sol = least_squares(residual, x0, bounds=(lo, hi))
+    peak = lum.max(initial=0.0)
+    ok = lum > max(0.05 * peak, 1e-12)
+    colour = (f_s[ok] / lum[ok, None]).mean(axis=0) if ok.any() else np.ones(3) / LUMINANCE.sum()
+    params = {"rho_d": rho_d}
+    for j in range(lobes):
+        params[f"rho_s_{j + 1}"] = colour
+        params[f"c_xy_{j + 1}"] = sol.x[3 * j:3 * j + 1]
+        params[f"c_z_{j + 1}"] = sol.x[3 * j + 1:3 * j + 2]
+        params[f"exponent_{j + 1}"] = sol.x[3 * j + 2:3 * j + 3]
+    return params, sol.status > 0
+
+
+def run_peer(data, lobes):
+    T = data["side"] ** 2
+    f, valid = data["f"].reshape(T, -1, 3), data["valid"].reshape(T, -1)
+    rows, ok = [], np.zeros(T, bool)
+    c0, w0 = time.process_time(), time.perf_counter()
+    for t in range(T):
+        p, ok[t] = peer_texel(f[t], valid[t], data["wi"][t], data["wo"][t], lobes)
+        rows.append(p)
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    params = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
+    return {"params": params, "solver_ok": ok, "cpu_s": cpu, "wall_s": wall}
+
+
+# -- the project: the Fit node's tile kernel with the lm fitter ---------------------------------------
+
+def run_lm(data, lobes, tile=32):
+    from sbrdf_core.nodes.fit import EXTRA, NONFINITE_RESULT, NOT_CONVERGED, FitOptions, fit_tile
+    from sbrdf_core.registry import Registry
+
+    reg = Registry()
+    model = reg.create("brdf-model", "lafortune", {"lobes": lobes})
+    fitter = reg.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": lobes}})
+    options = FitOptions(holdout=0.0)
+    side = data["side"]
+    out = np.zeros((side, side, model.size + len(EXTRA)), np.float32)
+    c0, w0 = time.process_time(), time.perf_counter()
+    for v0 in range(0, side, tile):
+        for u0 in range(0, side, tile):
+            v1, u1 = min(v0 + tile, side), min(u0 + tile, side)
+            info = [{"array-location": [(v0, v1), (u0, u1)]}]
+            out[v0:v1, u0:u1] = fit_tile(data["f"][v0:v1, u0:u1], data["valid"][v0:v1, u0:u1, :, None],
+                                         data["light"], data["camera"], (side, side), SIZE_MM, fitter, model,
+                                         options, block_info=info)
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    out = out.reshape(side * side, -1).astype(np.float64)
+    flags = out[:, model.size + EXTRA.index("flags")].astype(np.uint8)
+    return {"params": model.unpack(out[:, :model.size]), "solver_ok": (flags & (NOT_CONVERGED | NONFINITE_RESULT)) == 0,
+            "cpu_s": cpu, "wall_s": wall}
+
+
+def score(data, result, lobes):
+    """Training RMS against the noisy samples and held-out RMS against the noise-free truth, per texel."""
+    from sbrdf_core.registry import Registry
+
+    model = Registry().create("brdf-model", "lafortune", {"lobes": lobes})
+    T = data["side"] ** 2
+    p = result["params"]
+    with np.errstate(all="ignore"):
+        train = rms(model.eval(p, data["wi"], data["wo"]) - data["f"].reshape(T, -1, 3), data["valid"].reshape(T, -1))
+        held = rms(model.eval(p, data["held_wi"], data["held_wo"]) - data["held_f"], data["held_valid"])
+    finite = np.all([np.isfinite(v).all(axis=1) for v in p.values()], axis=0) & np.isfinite(train) & np.isfinite(held)
+    result.update(rms=np.where(finite, train, np.inf), held=np.where(finite, held, np.inf), finite=finite)
+    return result
+
+
+def failed(result, best):
+    """Non-finite, not finished by the solver's own account, or clearly worse than the best fit of the texel."""
+    worse = (result["rms"] > 2.0 * best) & (result["rms"] > 1.5 * NOISE)
+    return ~result["finite"] | ~result["solver_ok"] | worse
+
+
+def compare(data, lobes):
+    peer = score(data, run_peer(data, lobes), lobes)
+    lm = score(data, run_lm(data, lobes), lobes)
+    best = np.minimum(peer["rms"], lm["rms"])
+    T = data["side"] ** 2
+    row = {"set": data["name"], "lobes": lobes, "texels": T}
+    for who, r in (("peer", peer), ("lm", lm)):
+        fail = failed(r, best)
+        row[who] = {"cpu_ms": 1e3 * r["cpu_s"] / T, "wall_ms": 1e3 * r["wall_s"] / T,
+                    "rms": float(np.mean(r["rms"][r["finite"]])), "held": float(np.mean(r["held"][r["finite"]])),
+                    "failed": int(fail.sum()), "unfinished": int((~r["solver_ok"]).sum())}
+    return row
+
+
+def warm_up():
+    """Import, compile (or load from numba's cache) the kernels, off the clock."""
+    data = make_dataset("peer", 4, 60, 10, seed=99)
+    for lobes in (1, 2):
+        run_lm(data, lobes)
 
 def graph_text(texels, poses, fits: dict[str, dict], noise=NOISE, seed=0) -> str:
     sample = {"model": "lafortune", "model_params": TWO_LOBES, "texels": list(texels), "poses": poses,
@@ -91,42 +305,6 @@ def run(workdir: Path, texels, poses, fits) -> dict:
     return out
 
 
-def scipy_baseline(samples_url: str, subset: int, seed: int = 0) -> dict:
-    """The 2-lobe fit as a per-texel loop over scipy.optimize.least_squares, on ``subset`` texels."""
-    from scipy.optimize import least_squares
-
-    from sbrdf_core.geometry import tile_directions
-    from sbrdf_core.registry import Registry
-    from sbrdf_core.store import open_artifact
-
-    art = open_artifact(samples_url)
-    U, V = art.attrs["texels"]
-    rng = np.random.default_rng(seed)
-    picks = rng.choice(U * V, subset, replace=False)
-    model = Registry().create("brdf-model", "lafortune", TWO_LOBES)
-    lo, hi = model.bounds()
-    light, camera = art.read("light_pos"), art.read("camera_pos")
-    f_all, v_all = art.array("f_r"), art.array("valid")
-    rms, starts, seconds = [], [], 0.0
-    for flat in picks:
-        v, u = divmod(int(flat), U)
-        f = np.asarray(f_all[v, u].compute(), np.float64)[None]
-        ok = np.asarray(v_all[v, u].compute())[None]
-        wi, _, wo = tile_directions((U, V), tuple(art.attrs["size_mm"]), (v, v + 1), (u, u + 1), light, camera)
-        x0 = np.clip(model.pack(model.initial_guess(f, ok, wi, wo))[0], lo, hi)
-        starts.append(x0)
-
-        def residual(x):
-            return ((model.eval(model.unpack(x[None]), wi, wo) - f) * ok[..., None]).ravel()
-
-        t0 = time.perf_counter()
-        sol = least_squares(residual, x0, bounds=(lo, hi))
-        seconds += time.perf_counter() - t0
-        r = residual(sol.x)
-        rms.append(np.sqrt(np.sum(r * r) / (3 * ok.sum())))
-    return {"picks": picks, "rms": np.array(rms), "ms_per_texel": 1e3 * seconds / subset}
-
-
 SWEEP = [  # (label, plugin, params) — iteration caps only where the fitter iterates
     ("line search", "line-search", {}),
     ("McAllister LM, 1 lobe", "mcallister", {"model_params": {"lobes": 1}}),
@@ -154,7 +332,7 @@ def sweep(workdir: Path, texels, sample_counts) -> list[dict]:
     return rows
 
 
-def write_docs(rows, main_line, texels, sweep_texels, scipy_subset):
+def write_docs(rows, main_line, pairs, sweep_texels):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -195,7 +373,16 @@ def write_docs(rows, main_line, texels, sweep_texels, scipy_subset):
         "",
         *table,
         "",
-        f"Headline run ({texels[0]}×{texels[1]} texels × 400 samples; scipy baseline on {scipy_subset} texels):",
+        "Headline (the peer per texel against `lm`, paired in one run, CPU time of all threads; "
+        "see `benchmarks/fit.py` and [fitting.md](fitting.md)):",
+        "",
+        "| data | lobes | peer ms CPU/texel | lm ms CPU/texel | speedup (CPU) | speedup (wall) | RMS peer / lm | "
+        "held-out peer / lm | failed peer / lm |",
+        "|---|---:|---:|---:|---:|---:|---|---|---|",
+        *[f"| {r['set']} | {r['lobes']} | {r['peer']['cpu_ms']:.2f} | {r['lm']['cpu_ms']:.3f} | "
+          f"{r['peer']['cpu_ms'] / r['lm']['cpu_ms']:.1f} | {r['peer']['wall_ms'] / r['lm']['wall_ms']:.1f} | "
+          f"{r['peer']['rms']:.5f} / {r['lm']['rms']:.5f} | {r['peer']['held']:.5f} / {r['lm']['held']:.5f} | "
+          f"{r['peer']['failed']} / {r['lm']['failed']} |" for r in pairs],
         "",
         f"    {main_line}",
         "",
@@ -209,47 +396,48 @@ def write_docs(rows, main_line, texels, sweep_texels, scipy_subset):
     replace_section("fit", section)
 
 
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="64x64 texels, sweep on 32x32 (about a minute)")
-    ap.add_argument("--docs", action="store_true", help="rewrite the Fitting section of docs/accuracy-vs-time.md")
-    ap.add_argument("--no-sweep", action="store_true", help="only the headline figures")
+    ap.add_argument("--quick", action="store_true", help="32x32 texels per data set (about a minute)")
+    ap.add_argument("--docs", action="store_true", help="also run the accuracy-vs-time sweep and rewrite its section "
+                    "of docs/accuracy-vs-time.md")
     args = ap.parse_args()
-    texels = (64, 64) if args.quick else (256, 256)
-    sweep_texels = (32, 32) if args.quick else (64, 64)
-    subset = 48 if args.quick else 256
-    n = texels[0] * texels[1]
-    workdir = Path(tempfile.mkdtemp(prefix="sbrdf-fit-bench-"))
-    try:
-        warm = workdir / "warm"  # import, JIT-compile and cache the kernels off the clock
-        warm.mkdir()
-        run(warm, (8, 8), 50, FITS)
-        main_dir = workdir / "main"
-        main_dir.mkdir()
-        res = run(main_dir, texels, 400, FITS)
-        base = scipy_baseline(res["samples"], subset)
-        lm2_subset = res["lm2"]["rms"].reshape(-1)[base["picks"]]
-        ms = {k: 1e3 * res[k]["wall_s"] / n for k in FITS}
-        for k in FITS:
-            print(f"{k:>4}: {res[k]['wall_s']:8.2f} s wall, {ms[k]:.4f} ms/texel, mean RMS {res[k]['rms'].mean():.5f}, "
-                  f"max {res[k]['rms'].max():.5f}, flagged {res[k]['summary'].get('texels_flagged', {})}")
-        print(f"scipy least_squares loop: {base['ms_per_texel']:.2f} ms/texel on {subset} texels "
-              f"(all {n}: {base['ms_per_texel'] * n / 1e3:.0f} s extrapolated), mean RMS {base['rms'].mean():.5f} "
-              f"vs lm2 {lm2_subset.mean():.5f} on the same texels")
-        line = (f"fit: texels={n} ls_ms_per_texel={ms['ls']:.4f} lm1_ms_per_texel={ms['lm1']:.4f} "
-                f"lm2_ms_per_texel={ms['lm2']:.4f} speedup_vs_scipy={base['ms_per_texel'] / ms['lm2']:.1f} "
-                f"rms_ratio_vs_scipy={lm2_subset.mean() / base['rms'].mean():.4f} lm2_rms={res['lm2']['rms'].mean():.5f}")
-        shutil.rmtree(main_dir, ignore_errors=True)
-        if not args.no_sweep:
-            rows = sweep(workdir, sweep_texels, (100, 200, 400))
-            for r in rows:
+    side = 32 if args.quick else 64
+    t0 = time.perf_counter()
+    warm_up()
+    print(f"warm-up (import, compile or load cached kernels): {time.perf_counter() - t0:.1f} s wall")
+    rows = []
+    for k, name in enumerate(("peer", "ct")):
+        data = make_dataset(name, side, 300, 100, seed=k)
+        for lobes in (1, 2):
+            row = compare(data, lobes)
+            rows.append(row)
+            p, m = row["peer"], row["lm"]
+            print(f"{name:>4} {lobes} lobe(s), {row['texels']} texels: "
+                  f"peer {p['cpu_ms']:8.3f} ms CPU {p['wall_ms']:8.3f} ms wall per texel, RMS {p['rms']:.5f} "
+                  f"held-out {p['held']:.5f}, failed {p['failed']} (unfinished {p['unfinished']}) | "
+                  f"lm {m['cpu_ms']:7.3f} ms CPU {m['wall_ms']:7.3f} ms wall, RMS {m['rms']:.5f} "
+                  f"held-out {m['held']:.5f}, failed {m['failed']} (unfinished {m['unfinished']}) | "
+                  f"speedup CPU {p['cpu_ms'] / m['cpu_ms']:.1f}x wall {p['wall_ms'] / m['wall_ms']:.1f}x", flush=True)
+    one, two = rows[0], rows[1]
+    line = (f"fit: texels={one['texels']} peer_cpu_ms_per_texel={two['peer']['cpu_ms']:.3f} "
+            f"lm1_cpu_ms_per_texel={one['lm']['cpu_ms']:.4f} lm2_cpu_ms_per_texel={two['lm']['cpu_ms']:.4f} "
+            f"speedup_cpu_lm1={one['peer']['cpu_ms'] / one['lm']['cpu_ms']:.1f} "
+            f"speedup_cpu_lm2={two['peer']['cpu_ms'] / two['lm']['cpu_ms']:.1f} "
+            f"rms_ratio_lm2={two['lm']['rms'] / two['peer']['rms']:.4f} "
+            f"failed_lm2={two['lm']['failed']} failed_peer={two['peer']['failed']}")
+    if args.docs:
+        workdir = Path(tempfile.mkdtemp(prefix="sbrdf-fit-bench-"))
+        try:
+            sweep_rows = sweep(workdir, (32, 32) if args.quick else (64, 64), (100, 200, 400))
+            for r in sweep_rows:
                 print(f"  {r['fitter']:<28} S={r['samples']:<4} {r['ms_per_texel']:8.4f} ms/texel  "
                       f"RMS {r['rms_mean']:.5f} (max {r['rms_max']:.5f})")
-            if args.docs:
-                write_docs(rows, line, texels, sweep_texels, subset)
-        print(line)
-    finally:
-        shutil.rmtree(workdir, ignore_errors=True)
+            write_docs(sweep_rows, line, rows, (32, 32) if args.quick else (64, 64))
+        finally:
+            shutil.rmtree(workdir, ignore_errors=True)
+    print(line)
     return 0
 
 

@@ -16,6 +16,13 @@ texel's :class:`~sbrdf_core.constraints.Limits` (bounded peak, resolvable
 sharpness), so the fit is the best one *inside* them, not a clipped
 unbounded one.  Parameters named in ``fixed`` keep their initial value.
 
+A fit form with a ``separable_fit`` method (Lafortune with 1–2 isotropic
+lobes, Lambert) is solved that way instead when nothing asks for the general
+machinery (one start, linear loss, no fixed parameters): variable projection,
+where only the nonlinear shape parameters iterate and the magnitudes are
+solved in closed form at every evaluation; the result is then projected onto
+the limits and, where that moved it, refined by the general LM.
+
 Starting points do not depend on luck: the model's own initial guess and a
 Sobol set over the parameters' typical ranges, each with its magnitudes
 solved linearly (:meth:`~sbrdf_core.brdf.BRDFModel.refine_linear`), are
@@ -187,7 +194,9 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     more than one scores ``8 · starts`` candidates (:func:`candidate_starts`)
     and runs from each texel's best.  ``limits``: per-texel
     :class:`~sbrdf_core.constraints.Limits` every iterate is projected onto.
-    ``fixed``: fit-form parameter names held constant.  ``stats``, a dict, gets
+    ``fixed``: fit-form parameter names held constant.  With one start, the
+    linear loss and nothing fixed, a form's ``separable_fit`` (variable
+    projection) replaces the general LM.  ``stats``, a dict, gets
     ``restarted`` (``(T,)`` mask of texels whose best result came from a start
     other than their best-scored one).
     """
@@ -197,7 +206,6 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     form = model.fit_form()
     T = f_r.shape[0]
     f_r, valid = usable(f_r, valid)
-    plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
     lo, hi = form.bounds()
     free = np.ones(form.size, bool)
     slices = form.slices()
@@ -207,6 +215,25 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         free[slices[name]] = False
     project = projector(form, limits)
     everyone = np.arange(T)
+    separable = getattr(form, "separable_fit", None)
+    if separable is not None and loss == "linear" and free.all() and starts == 1:
+        out = separable(f_r, valid, wi, wo, initial=initial, limits=limits, iterations=iterations,
+                        tolerance=tolerance, damping=damping)
+        if out is not None:
+            x, cost, converged = out
+            if project is not None:  # bounds the shape iteration did not hold: project, then refine there
+                xp = project(x, everyone)
+                moved = np.flatnonzero(np.abs(xp - x).max(axis=1) > 1e-9 * (1.0 + np.abs(x).max(axis=1)))
+                if moved.size:
+                    part = form.least_squares(f_r[moved], valid[moved].astype(np.float64), wi[moved], wo[moved])
+                    sub = projector(form, limits.take(moved))
+                    x[moved], cost[moved], converged[moved] = levenberg_marquardt(
+                        part, xp[moved], (lo, hi), iterations=iterations, tolerance=tolerance, damping=damping,
+                        project=sub)
+            if stats is not None:
+                stats["restarted"] = np.zeros(T, bool)
+            return form.to_model(form.unpack(x)), converged, cost
+    plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
     count = 8 * starts if starts > 1 else 1
     cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, seed, initial)]
     for c in cands[1:]:  # fixed parameters keep the initial guess's value in every start

@@ -146,7 +146,7 @@ class SampleModel(NodeKind):
         index = da.zeros((n_v, n_u), chunks=(t, t), dtype=np.int8)
         packed = da.map_blocks(
             sample_tile, index, maps, light, camera, texels, size_mm, model, p["noise"], p["seed"], p["min_cos"], t,
-            new_axis=[2, 3], chunks=index.chunks + ((P,), (4,)), dtype=np.float32, name=f"sample-{ctx.node}",
+            new_axis=[2, 3], chunks=index.chunks + ((P,), (4,)), dtype=np.float32, name=ctx.key("sample"),
         )
         arrays = {"f_r": packed[..., :3], "valid": packed[..., 3] > 0.5,
                   "light_pos": da.from_array(light), "camera_pos": da.from_array(camera)}

@@ -224,6 +224,54 @@ class LafortuneModel(BRDFModel):
         beta = args["beta"] if self.has_beta else "0.0"
         return f"brdf_lafortune({wi}, {wo}, {args['rho_d']}, {rho_s}, {c}, {n}, {beta})"
 
+    def glsl_fit_gradient(self) -> str:
+        """``vec3 brdf_fit_gradient(wi, wo, float x[K], out vec3 grad[K])``: f and ∂f/∂x in the fit form
+        (C_z = 1, log n; ``x`` packed as :meth:`pack` of :meth:`fit_form`), for the ``lm-gl`` fitter."""
+        if self.channels != 3:
+            raise ValueError("lafortune: the GLSL fit gradient is for RGB lobes, not a single-channel model")
+        form = self.fit_form()
+        K, sl = form.size, form.slices()
+        lines = [f"vec3 brdf_fit_gradient(vec3 wi, vec3 wo, float x[{K}], out vec3 grad[{K}]) {{",
+                 f"    for (int k = 0; k < {K}; ++k) grad[k] = vec3(0.0);",
+                 "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);",
+                 "    float ix = wi.x, iy = wi.y, ox = wo.x, oy = wo.y;"]
+        if self.has_beta:
+            b = sl["beta"].start
+            lines += [f"    float cb = cos(x[{b}]), sb = sin(x[{b}]);",
+                      "    ix = cb * wi.x + sb * wi.y; iy = -sb * wi.x + cb * wi.y;",
+                      "    ox = cb * wo.x + sb * wo.y; oy = -sb * wo.x + cb * wo.y;"]
+        lines += ["    float pxx = ix * ox, pyy = iy * oy, pzz = wi.z * wo.z, q = iy * ox + ix * oy;",
+                  "    vec3 f = vec3(x[0], x[1], x[2]);",
+                  "    grad[0] = vec3(1.0, 0.0, 0.0); grad[1] = vec3(0.0, 1.0, 0.0); grad[2] = vec3(0.0, 0.0, 1.0);",
+                  "    vec3 dbeta = vec3(0.0);"]
+        for j in range(1, self.lobes + 1):
+            r = sl[f"rho_s_{j}"].start
+            cx = sl[f"c_x_{j}" if self.anisotropic else f"c_xy_{j}"].start
+            cy = sl[f"c_y_{j}"].start if self.anisotropic else cx
+            ln = sl[f"log_exponent_{j}"].start
+            shape = (f"        grad[{cx}] = rho * (ds * pxx); grad[{cy}] = rho * (ds * pyy);" if self.anisotropic
+                     else f"        grad[{cx}] = rho * (ds * (pxx + pyy));")
+            lines += ["    {",
+                      f"        vec3 rho = vec3(x[{r}], x[{r + 1}], x[{r + 2}]);",
+                      f"        float cx = x[{cx}], cy = x[{cy}], n = exp(x[{ln}]);",
+                      "        float d = cx * pxx + cy * pyy + pzz;",
+                      "        if (d > 0.0) {",
+                      "            float ld = log(d);",
+                      "            float s = exp(clamp(n * ld, -87.0, 60.0));",
+                      "            float ds = n * exp(clamp((n - 1.0) * ld, -87.0, 60.0));",
+                      "            f += rho * s;",
+                      f"            grad[{r}] = vec3(s, 0.0, 0.0); grad[{r + 1}] = vec3(0.0, s, 0.0); "
+                      f"grad[{r + 2}] = vec3(0.0, 0.0, s);",
+                      "    " + shape,
+                      f"            grad[{ln}] = rho * (s * ld * n);",
+                      "            dbeta += rho * (ds * (cx - cy) * q);",
+                      "        }",
+                      "    }"]
+        if self.has_beta:
+            lines.append(f"    grad[{sl['beta'].start}] = dbeta;")
+        lines += ["    return f;", "}", ""]
+        return "\n".join(lines)
+
     # -- fitting support ----------------------------------------------------------------------------
 
     def fit_form(self) -> LafortuneFitForm:
@@ -451,6 +499,45 @@ class LafortuneFitForm(LafortuneModel):
         from .lafortune_kernels import CompiledLafortuneProblem
 
         return CompiledLafortuneProblem(self, f_r, weight, wi, wo)
+
+    def separable_fit(self, f_r, valid, wi, wo, *, initial=None, limits=None, iterations=50, tolerance=1e-4,
+                      damping=1e-3):
+        """LM over the lobe shapes alone, magnitudes solved in closed form (``lafortune_kernels.separable_lm``).
+
+        Returns packed fit-form ``(x, cost, converged)``, or None where it does
+        not apply (anisotropic lobes, β, 3 or more lobes, which want several
+        starts): the caller then runs the general LM.  The shapes stay inside the sharpness and
+        grazing-growth bounds throughout; the caller projects the result onto
+        the rest of ``limits`` (the peak budget).
+        """
+        if self.anisotropic or self.has_beta or not 1 <= self.lobes <= 2:
+            return None
+        from .lafortune_kernels import run_parallel, separable_lm
+
+        T, L = f_r.shape[0], self.lobes
+        start = self.defaults(T) if initial is None else initial
+        theta0 = np.concatenate([np.concatenate([np.asarray(start[f"c_xy_{j}"], np.float64),
+                                                 np.asarray(start[f"log_exponent_{j}"], np.float64)], axis=1)
+                                 for j in range(1, L + 1)], axis=1)
+        n_cap = np.full(T, EXPONENT_BOUNDS[1]) if limits is None else np.broadcast_to(
+            np.minimum(limits.max_cosine_exponent(), EXPONENT_BOUNDS[1]), (T, 1))[:, 0]
+        growth = float(limits.growth) if limits is not None and limits.growth is not None else 0.0
+        max_theta = limits.max_theta if limits is not None else np.pi / 2
+        from sbrdf_lib.lm import EXACT, MAX_DAMPING
+
+        theta, mags, cost, converged, _ = run_parallel(
+            separable_lm, np.ascontiguousarray(wi, np.float64), np.ascontiguousarray(wo, np.float64),
+            np.ascontiguousarray(f_r, np.float64), np.ascontiguousarray(valid, np.float64), theta0,
+            np.log(np.maximum(n_cap, EXPONENT_BOUNDS[0])), *FIT_C_BOUNDS, float(np.log(EXPONENT_BOUNDS[0])), growth,
+            float(np.sin(max_theta) ** 2), float(np.cos(max_theta) ** 2), initial is None, int(iterations),
+            float(tolerance), float(damping), MAX_DAMPING, EXACT)
+        params = {"rho_d": mags[:, 0]}
+        for j in range(1, L + 1):
+            params[f"rho_s_{j}"] = mags[:, j]
+            params[f"c_xy_{j}"] = theta[:, 2 * j - 2:2 * j - 1]
+            params[f"log_exponent_{j}"] = theta[:, 2 * j - 1:2 * j]
+        lo, hi = self.bounds()
+        return np.clip(self.pack(params), lo, hi), cost, converged
 
     def refine_linear(self, params, f_r, valid, wi, wo):
         return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)

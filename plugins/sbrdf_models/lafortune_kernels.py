@@ -14,6 +14,7 @@ a fraction of the work per sample.  Packed layout (as :meth:`LafortuneFitForm.pa
 from __future__ import annotations
 
 import math
+import os
 import threading
 
 import numba
@@ -21,6 +22,12 @@ import numpy as np
 from numba import njit, prange
 
 LOG_CAP = 60.0
+
+# OpenMP workers that spin while waiting for the next parallel region burn CPU time that no fit uses (a quarter
+# of the fit's CPU time on a shared 2-core machine, measured); waiting passively costs microseconds of latency.
+# Read by libgomp when numba's OpenMP layer starts (the first parallel call), so setting it here is in time;
+# a value the user set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 @njit(cache=True, inline="always")
@@ -281,3 +288,493 @@ class CompiledLafortuneProblem:
         return run_parallel(normal_equations, np.ascontiguousarray(x, dtype=np.float64),
                             np.ascontiguousarray(idx, dtype=np.int64), self.wi, self.wo, self.f_r, self.weight,
                             *self.flags)
+
+
+# -- variable projection: only the lobe shapes iterate, magnitudes are solved in closed form ---------------
+
+#: The separable start's lobe-1 exponents: n = 2, 4, ..., 2^10 (the text's n = 10 among them, roughly), each
+#: the square of the last, so a scan costs one log and a multiply per candidate.
+SCAN_DOUBLINGS = 10
+#: Shapes tried for lobe 2 after lobe 1's scan, and for a lobe the iteration left weak: (C_xy, doublings), i.e.
+#: n = 2 .. 2^doublings: back-scatter (the text's C = (1, 1, 1)) or a second forward lobe.
+RESEED = ((1.0, 5), (-1.0, 7))
+#: Longest LM step in C_xy and in log n.
+MAX_STEP = (0.25, 1.0)
+#: A lobe whose largest magnitude is at most this fraction of the strongest lobe's is re-seeded (kept if better):
+#: 0, only a dead lobe (one with a magnitude keeps its own gradient).
+WEAK_LOBE = 0.0
+#: Two lobes closer than this in C_xy and in log n (and on the same side) are twins: the weaker is re-seeded.
+TWIN = (0.2, 1.0)
+
+
+@njit(cache=True, inline="always")
+def _solve(A, b, n):
+    """Solve the leading ``n × n`` block of ``A`` against ``b`` in place (Gaussian elimination, partial
+    pivoting; ``A`` and ``b`` are overwritten, ``b`` holds the solution).  Returns False if singular."""
+    for k in range(n):
+        p = k
+        big = abs(A[k, k])
+        for i in range(k + 1, n):
+            if abs(A[i, k]) > big:
+                big, p = abs(A[i, k]), i
+        if not big > 0.0:
+            return False
+        if p != k:
+            for j in range(n):
+                A[k, j], A[p, j] = A[p, j], A[k, j]
+            b[k], b[p] = b[p], b[k]
+        for i in range(k + 1, n):
+            m = A[i, k] / A[k, k]
+            for j in range(k, n):
+                A[i, j] -= m * A[k, j]
+            b[i] -= m * b[k]
+    for k in range(n - 1, -1, -1):
+        acc = b[k]
+        for j in range(k + 1, n):
+            acc -= A[k, j] * b[j]
+        b[k] = acc / A[k, k]
+    return True
+
+
+@njit(cache=True)
+def _nnls(G, h, sel, L1, a, free, A, rhs):
+    """min over a ≥ 0 of aᵀGa − 2aᵀh on the basis rows ``sel[:L1]`` of ``G``, ``h`` (one channel).
+
+    With at most 4 unknowns the exact solution is the best feasible one among
+    the unconstrained solutions on every subset (the KKT point is one of
+    them); the full set comes first, and when its solution is feasible it is
+    the optimum and nothing else is tried.  Writes ``a`` and the mask
+    ``free``; returns the objective.
+    """
+    best = 0.0
+    for i in range(L1):
+        a[i] = 0.0
+        free[i] = False
+    idx = np.empty(L1, np.int64)
+    full = (1 << L1) - 1
+    for m in range(full, 0, -1):  # all unknowns free first: feasible there (the usual case) is the optimum
+        mask = m
+        n = 0
+        for i in range(L1):
+            if mask >> i & 1:
+                idx[n] = i
+                n += 1
+        for i in range(n):
+            rhs[i] = h[sel[idx[i]]]
+            for j in range(n):
+                A[i, j] = G[sel[idx[i]], sel[idx[j]]]
+            A[i, i] += 1e-12 * (1.0 + A[i, i])
+        if not _solve(A, rhs, n):
+            continue
+        ok = True
+        for i in range(n):
+            if not (rhs[i] >= 0.0):
+                ok = False
+        if not ok:
+            continue
+        val = 0.0  # at the subset's optimum, aᵀGa − 2aᵀh = −aᵀh
+        for i in range(n):
+            val -= rhs[i] * h[sel[idx[i]]]
+        if val < best:
+            best = val
+            for i in range(L1):
+                a[i] = 0.0
+                free[i] = False
+            for i in range(n):
+                a[idx[i]] = rhs[i]
+                free[idx[i]] = True
+        if mask == full:
+            break
+    return best
+
+
+@njit(cache=True, inline="always")
+def _gram(pxy, pz, ws, S, lobes, c, n, f, d, G, H, derivatives):
+    """One pass over a texel's samples: ``G = Σ w² b bᵀ``, ``H = Σ w² b fᵀ`` for the basis
+    ``b = [1, s_1..s_L, (∂s_j/∂c_j, ∂s_j/∂log n_j) per lobe]`` (the derivatives only if asked).
+
+    ``s = exp(n log x)`` reuses ``log x`` for ∂s/∂log n = n s log x and ∂s/∂c = n s pxy / x: one log and
+    one exp per sample and lobe, no pow.
+    """
+    m = G.shape[0]
+    C = H.shape[1]
+    for i in range(m):
+        for k in range(m):
+            G[i, k] = 0.0
+        for k in range(C):
+            H[i, k] = 0.0
+    b = np.empty(m)
+    b[0] = 1.0
+    for s in range(S):
+        w = ws[s]
+        if w == 0.0:
+            continue
+        for j in range(lobes):
+            x = c[j] * pxy[s] + pz[s]
+            v = 0.0
+            lx = 0.0
+            if x > 0.0:
+                lx = math.log(x)
+                v = math.exp(min(n[j] * lx, LOG_CAP))
+            b[1 + j] = v
+            if derivatives:
+                q = 1 + lobes + 2 * j
+                b[q] = n[j] * v * pxy[s] / x if x > 0.0 else 0.0
+                b[q + 1] = n[j] * v * lx
+        w2 = w * w
+        for i in range(m):
+            bi = b[i] * w2
+            for k in range(i, m):
+                G[i, k] += bi * b[k]
+            for k in range(C):
+                H[i, k] += bi * f[d, s, k]
+    for i in range(m):
+        for k in range(i):
+            G[i, k] = G[k, i]
+
+
+@njit(cache=True, inline="always")
+def _magnitudes(G, H, L1, sel, a, free, A, rhs, col, acol, fcol):
+    """Non-negative magnitudes per channel (``a`` (L1, C)) for the current basis; returns Σ_c objective."""
+    C = H.shape[1]
+    total = 0.0
+    for k in range(C):
+        for i in range(G.shape[0]):
+            col[i] = H[i, k]
+        total += _nnls(G, col, sel, L1, acol, fcol, A, rhs)
+        for i in range(L1):
+            a[i, k] = acol[i]
+            free[i, k] = fcol[i]
+    return total
+
+
+@njit(cache=True)
+def _box(theta, lobes, c_lo, c_hi, ln_lo, ln_hi, growth, s2, c2):
+    """Clip lobe shapes to their box; with a grazing-growth bound, |c| ≤ max((g^(1/n) − cos²θ)/sin²θ, 1)."""
+    for j in range(lobes):
+        ln = min(max(theta[2 * j + 1], ln_lo), ln_hi)
+        theta[2 * j + 1] = ln
+        lo, hi = c_lo, c_hi
+        if growth > 0.0:
+            cap = max((math.exp(min(math.log(growth) / math.exp(ln), 50.0)) - c2) / s2, 1.0)
+            lo, hi = max(lo, -cap), min(hi, cap)
+        theta[2 * j] = min(max(theta[2 * j], lo), hi)
+
+
+@njit(cache=True)
+def _scan(jq, cand_c, cand_k, theta, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi):
+    """Lobe ``jq``'s best shape among candidates, the other lobes held, magnitudes by NNLS; writes theta.
+
+    Candidates come in groups (C_xy = ``cand_c[g]``, n = 2, 4, ..., 2^``cand_k[g]``): one log per group and
+    sample, then each n by squaring the last.  One pass over the samples accumulates, per candidate, only
+    the sums its own NNLS needs (with 1, the held lobes, itself, the data), not a Gram of all candidates.
+    """
+    C = f.shape[2]
+    Q = 0
+    for g in range(cand_c.size):
+        Q += cand_k[g]
+    L1 = L + 1
+    base = np.zeros((L, L))  # Gram of [1, held lobes]
+    hb = np.zeros((L, C))
+    gq = np.zeros((Q, L1))  # Σ w² s_q · [1, held..., s_q]
+    hq = np.zeros((Q, C))
+    b = np.empty(L)
+    b[0] = 1.0
+    v = np.empty(Q)
+    for s in range(S):
+        wt = ws[s]
+        if wt == 0.0:
+            continue
+        k = 1
+        for j in range(L):
+            if j == jq:
+                continue
+            x = theta[2 * j] * pxy[s] + pz[s]
+            b[k] = math.exp(min(math.exp(theta[2 * j + 1]) * math.log(x), LOG_CAP)) if x > 0.0 else 0.0
+            k += 1
+        q = 0
+        for g in range(cand_c.size):
+            x = max(cand_c[g] * pxy[s] + pz[s], 0.0)
+            for _ in range(cand_k[g]):
+                x = min(x * x, 1e100)
+                v[q] = x
+                q += 1
+        w2 = wt * wt
+        for i in range(L):
+            bi = b[i] * w2
+            for k2 in range(i, L):
+                base[i, k2] += bi * b[k2]
+            for k2 in range(C):
+                hb[i, k2] += bi * f[t, s, k2]
+        for q in range(Q):
+            vq = v[q] * w2
+            for i in range(L):
+                gq[q, i] += vq * b[i]
+            gq[q, L] += vq * v[q]
+            for k2 in range(C):
+                hq[q, k2] += vq * f[t, s, k2]
+    sel = np.arange(L1)
+    A, rhs, col = np.empty((L1, L1)), np.empty(L1), np.empty(L1)
+    acol, fcol = np.empty(L1), np.empty(L1, np.bool_)
+    a, free = np.empty((L1, C)), np.empty((L1, C), np.bool_)
+    Gs, Hs = np.empty((L1, L1)), np.empty((L1, C))
+    best, pick_c, pick_ln = np.inf, 0.0, 0.0
+    q = 0
+    for g in range(cand_c.size):
+        for kk in range(1, cand_k[g] + 1):
+            ln = kk * math.log(2.0)
+            if ln_lo <= ln <= ln_hi:
+                for i in range(L):
+                    for k2 in range(L):
+                        Gs[i, k2] = base[i, k2] if k2 >= i else base[k2, i]
+                    Gs[i, L] = gq[q, i]
+                    Gs[L, i] = gq[q, i]
+                    for k2 in range(C):
+                        Hs[i, k2] = hb[i, k2]
+                Gs[L, L] = gq[q, L]
+                for k2 in range(C):
+                    Hs[L, k2] = hq[q, k2]
+                val = _magnitudes(Gs, Hs, L1, sel, a, free, A, rhs, col, acol, fcol)
+                if val < best:
+                    best, pick_c, pick_ln = val, cand_c[g], ln
+            q += 1
+    if best < np.inf:
+        theta[2 * jq] = pick_c
+        theta[2 * jq + 1] = pick_ln
+    return best
+
+
+@njit(cache=True)
+def _kaufman(G, H, a, free, L, JJ, g, DB, Y, y):
+    """Kaufman's JᵀJ = Σ_c DᵀD − DᵀB (BᵀB)⁻¹ BᵀD (over the channel's free magnitudes) and the gradient Dᵀr,
+    all from the Gram sums."""
+    P, L1, C = 2 * L, L + 1, H.shape[1]
+    for k in range(P):
+        g[k] = 0.0
+        for l in range(P):
+            JJ[k, l] = 0.0
+    for ch in range(C):
+        for k in range(P):
+            ak = a[1 + k // 2, ch]
+            ik = 1 + L + k
+            acc = -H[ik, ch]
+            for i in range(L1):
+                acc += G[ik, i] * a[i, ch]
+            g[k] += ak * acc
+            for l in range(P):
+                JJ[k, l] += ak * a[1 + l // 2, ch] * G[ik, 1 + L + l]
+            for i in range(L1):
+                DB[k, i] = ak * G[ik, i] if free[i, ch] else 0.0
+        for l in range(P):
+            nf = 0
+            for i in range(L1):
+                if free[i, ch]:
+                    y[nf] = DB[l, i]
+                    r2 = 0
+                    for i2 in range(L1):
+                        if free[i2, ch]:
+                            Y[nf, r2] = G[i, i2]
+                            r2 += 1
+                    nf += 1
+            for i in range(nf):
+                Y[i, i] += 1e-12 * (1.0 + Y[i, i])
+            if nf == 0 or not _solve(Y, y, nf):
+                continue
+            for k in range(P):
+                acc = 0.0
+                r2 = 0
+                for i in range(L1):
+                    if free[i, ch]:
+                        acc += DB[k, i] * y[r2]
+                        r2 += 1
+                JJ[k, l] -= acc
+
+
+@njit(parallel=True, cache=True)
+def separable_lm(wi, wo, f, w, theta0, ln_hi, c_lo, c_hi, ln_lo, growth, s2, c2, scan, iterations, tolerance,
+                 damping, max_damping, exact):
+    """Levenberg–Marquardt over the lobe shapes alone (c_j, log n_j), magnitudes by non-negative least squares.
+
+    Variable projection (Golub–Pereyra, Kaufman's Jacobian): for fixed shapes
+    the model is linear in ρ_d and ρ_s,j per channel, so those are solved in
+    closed form on every evaluation and the iteration has 2L unknowns instead
+    of 3 + L(3 + 2).  Every quantity comes from the Gram sums of one pass
+    (:func:`_gram`): the cost aᵀGa − 2aᵀh + Σw²f², the gradient Dᵀr and
+    Kaufman's JᵀJ (:func:`_kaufman`).  ``scan``: first pick lobe 1's exponent
+    from :data:`SCAN_DOUBLINGS`, then lobe 2's shape from :data:`RESEED`, one
+    pass each.  A lobe the iteration leaves with no magnitude in any channel
+    has no gradient and would stay dead, and two lobes with nearly one shape
+    (:data:`TWIN`) fit one feature twice: such a lobe is re-seeded once from
+    :data:`RESEED` and the iteration continues; the texel keeps the better of
+    the two results.  A single lobe is re-seeded when the best candidate
+    already beats its converged fit (another basin: a back-scattering texel
+    started forward, or a spike on one bright sample).  Each texel iterates until its
+    own convergence.  Returns ``theta (T, 2L)``, magnitudes ``(T, L + 1, C)``,
+    ``cost (T,)``, ``converged (T,)`` and iterations used ``(T,)``.
+    """
+    T, S, _ = wi.shape
+    C = f.shape[2]
+    L = theta0.shape[1] // 2
+    L1, P = L + 1, 2 * L
+    m = 1 + L + P
+    re_c = np.array([r[0] for r in RESEED])
+    re_k = np.array([r[1] for r in RESEED])
+    one_k = np.array([SCAN_DOUBLINGS])
+    max_step = np.array(MAX_STEP)
+    theta_out = np.empty((T, P))
+    mags = np.zeros((T, L1, C))
+    cost_out = np.zeros(T)
+    conv_out = np.zeros(T, np.bool_)
+    iters = np.zeros(T, np.int64)
+    for t in prange(T):
+        pxy, pz, ws = np.empty(S), np.empty(S), np.empty(S)
+        energy = 0.0
+        for s in range(S):
+            wt = w[t, s]
+            pxy[s] = wi[t, s, 0] * wo[t, s, 0] + wi[t, s, 1] * wo[t, s, 1]
+            pz[s] = wi[t, s, 2] * wo[t, s, 2]
+            for k in range(C):
+                energy += (f[t, s, k] * wt) ** 2
+            ws[s] = wt if (wi[t, s, 2] > 0.0 and wo[t, s, 2] > 0.0) else 0.0
+        theta = theta0[t].copy()
+        _box(theta, L, c_lo, c_hi, ln_lo, ln_hi[t], growth, s2, c2)
+        if scan and L > 0:
+            _scan(0, theta[:1].copy(), one_k, theta, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi[t])
+            if L > 1:
+                _scan(1, re_c, re_k, theta, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi[t])
+            _box(theta, L, c_lo, c_hi, ln_lo, ln_hi[t], growth, s2, c2)
+        sel = np.arange(L1)
+        A, rhs, col = np.empty((L1, L1)), np.empty(L1), np.empty(m)
+        acol, fcol = np.empty(L1), np.empty(L1, np.bool_)
+        a, free = np.zeros((L1, C)), np.zeros((L1, C), np.bool_)
+        a2, free2 = np.empty((L1, C)), np.empty((L1, C), np.bool_)
+        G, H = np.zeros((m, m)), np.zeros((m, C))
+        G2, H2 = np.empty((m, m)), np.empty((m, C))
+        JJ, g, M, step = np.empty((P, P)), np.empty(P), np.empty((P, P)), np.empty(P)
+        DB, Y, y = np.empty((P, L1)), np.empty((L1, L1)), np.empty(L1)
+        c, n, trial = np.empty(L), np.empty(L), np.empty(P)
+        frozen = np.zeros(P, np.bool_)
+        used = 0
+        done = False
+        saved_theta, saved_a, saved_cost, saved_done = theta.copy(), a.copy(), np.inf, False
+        for rnd in range(2):
+            for j in range(L):
+                c[j], n[j] = theta[2 * j], math.exp(theta[2 * j + 1])
+            _gram(pxy, pz, ws, S, L, c, n, f, t, G, H, True)
+            cost = energy + _magnitudes(G, H, L1, sel, a, free, A, rhs, col, acol, fcol)
+            lam = damping
+            done = not (energy > 0.0) or L == 0 or cost <= exact * energy
+            budget = used + iterations
+            while not done and used < budget:
+                used += 1
+                _kaufman(G, H, a, free, L, JJ, g, DB, Y, y)
+                # A shape parameter held at its bound by a gradient pointing out of the box is frozen for this
+                # step (and the others solved without it): clipping an unconstrained step instead would leave
+                # the others moved for a direction that was not taken, and the texel stuck at its start.
+                for k in range(P):
+                    frozen[k] = False
+                ok = True
+                for _attempt in range(2):
+                    for k in range(P):
+                        step[k] = 0.0 if frozen[k] else -g[k]
+                        dk = max(JJ[k, k], 1e-12)
+                        for l in range(P):
+                            M[k, l] = 0.0 if (frozen[k] or frozen[l]) else JJ[k, l]
+                        M[k, k] = 1.0 if frozen[k] else M[k, k] + lam * dk
+                    ok = _solve(M, step, P)
+                    if not ok:
+                        break
+                    # A step longer than MAX_STEP (in C_xy, log n) is shortened: a weak lobe has little
+                    # curvature and would otherwise jump into another lobe's role, leaving its own dead.
+                    shrink = 1.0
+                    for k in range(P):
+                        if not np.isfinite(step[k]):
+                            step[k] = 0.0
+                        shrink = min(shrink, max_step[k % 2] / max(abs(step[k]), 1e-300))
+                    for k in range(P):
+                        trial[k] = theta[k] + shrink * step[k]
+                    _box(trial, L, c_lo, c_hi, ln_lo, ln_hi[t], growth, s2, c2)
+                    again = False
+                    for k in range(P):
+                        if not frozen[k] and trial[k] == theta[k] and step[k] != 0.0:
+                            frozen[k] = True
+                            again = True
+                    if not again:
+                        break
+                if not ok:
+                    lam *= 4.0
+                    done = lam > max_damping
+                    continue
+                big, scale = 0.0, 1e-12
+                # The quadratic model's predicted decrease, −2gᵀδ − δᵀJᵀJδ: when even that is below the
+                # tolerance, the step is not worth a pass over the samples (converged at an undamped step).
+                pred = 0.0
+                for k in range(P):
+                    dk = trial[k] - theta[k]
+                    pred -= 2.0 * g[k] * dk
+                    for l in range(P):
+                        pred -= dk * JJ[k, l] * (trial[l] - theta[l])
+                if lam <= damping and pred < tolerance * cost:
+                    done = True
+                    break
+                for k in range(P):
+                    big = max(big, abs(trial[k] - theta[k]))
+                    scale = max(scale, abs(theta[k]))
+                for j in range(L):
+                    c[j], n[j] = trial[2 * j], math.exp(trial[2 * j + 1])
+                _gram(pxy, pz, ws, S, L, c, n, f, t, G2, H2, True)
+                new = energy + _magnitudes(G2, H2, L1, sel, a2, free2, A, rhs, col, acol, fcol)
+                if np.isfinite(new) and new < cost:
+                    gain = (cost - new) / max(cost, 1e-300)
+                    theta[:] = trial
+                    G[:, :] = G2
+                    H[:, :] = H2
+                    a[:, :] = a2
+                    free[:, :] = free2
+                    cost = new
+                    lam = max(lam / 3.0, 1e-12)
+                    done = gain < tolerance
+                else:
+                    lam *= 4.0
+                    done = big <= 1e-9 * scale or lam > max_damping
+                if cost <= exact * energy:
+                    done = True
+            if rnd == 1:
+                if cost > saved_cost:  # the re-seeded lobe did not help: keep the first result
+                    theta[:] = saved_theta
+                    a[:, :] = saved_a
+                    cost, done = saved_cost, saved_done
+                break
+            if not done:
+                break
+            cand = theta.copy()
+            if L == 1:
+                # one lobe: the best re-seed candidate, if it already beats the converged fit, is another
+                # basin (a forward start on a back-scattering texel, a spike on one bright sample)
+                val = _scan(0, re_c, re_k, cand, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi[t])
+                if not energy + val < cost * (1.0 - 1e-9):
+                    break
+            else:
+                weak, lowest, strongest = -1, np.inf, 0.0
+                for j in range(L):
+                    peak = 0.0
+                    for k in range(C):
+                        peak = max(peak, a[1 + j, k])
+                    strongest = max(strongest, peak)
+                    if peak < lowest:
+                        weak, lowest = j, peak
+                # two lobes doing one lobe's job (same side, nearly the same shape) leave a basin unused
+                twins = L == 2 and theta[0] * theta[2] > 0.0 and abs(theta[0] - theta[2]) < TWIN[0] and \
+                    abs(theta[1] - theta[3]) < TWIN[1]
+                if not (lowest <= WEAK_LOBE * strongest or twins):
+                    break
+                _scan(weak, re_c, re_k, cand, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi[t])
+            saved_theta, saved_a, saved_cost, saved_done = theta.copy(), a.copy(), cost, done
+            theta[:] = cand
+            _box(theta, L, c_lo, c_hi, ln_lo, ln_hi[t], growth, s2, c2)
+        theta_out[t] = theta
+        mags[t] = a
+        cost_out[t] = max(cost, 0.0)
+        conv_out[t] = done
+        iters[t] = used
+    return theta_out, mags, cost_out, conv_out, iters

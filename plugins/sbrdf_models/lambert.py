@@ -47,8 +47,31 @@ class LambertModel(BRDFModel):
         n = np.maximum(w.sum(axis=1), 1)
         return {"rho_d": np.clip((f_r * w).sum(axis=1) / n, 0, 10)}
 
+    def separable_fit(self, f_r, valid, wi, wo, *, initial=None, limits=None, iterations=50, tolerance=1e-4,
+                      damping=1e-3):
+        """The least-squares ρ_d in closed form: each channel's mean over the valid samples above the horizon,
+        clipped to the bounds (exact: one unknown per channel).  ``sbrdf_lib.lm.fit_model`` takes this instead of
+        iterating; it returns packed ``(x, cost, converged)``."""
+        w = (np.asarray(valid, bool) & above_horizon(wi, wo)).astype(np.float64)
+        f = np.asarray(f_r, np.float64)
+        count = w.sum(axis=1)[:, None]
+        total = np.einsum("ts,tsc->tc", w, f)
+        lo, hi = self.bounds()
+        rho = np.clip(total / np.maximum(count, 1.0), lo, hi)
+        r = np.where(np.asarray(valid, bool)[..., None], w[..., None] * rho[:, None, :] - f, 0.0)
+        return rho, np.einsum("tsc,tsc->t", r, r), np.ones(f.shape[0], bool)
+
     def glsl(self):
         return "vec3 brdf_lambert(vec3 wi, vec3 wo, vec3 rho_d) { return (wi.z > 0.0 && wo.z > 0.0) ? rho_d : vec3(0.0); }"
+
+    def glsl_fit_gradient(self) -> str:
+        """``vec3 brdf_fit_gradient(wi, wo, float x[3], out vec3 grad[3])``: ρ_d and its identity gradient."""
+        return ("vec3 brdf_fit_gradient(vec3 wi, vec3 wo, float x[3], out vec3 grad[3]) {\n"
+                "    bool up = wi.z > 0.0 && wo.z > 0.0;\n"
+                "    grad[0] = up ? vec3(1.0, 0.0, 0.0) : vec3(0.0); grad[1] = up ? vec3(0.0, 1.0, 0.0) : vec3(0.0);\n"
+                "    grad[2] = up ? vec3(0.0, 0.0, 1.0) : vec3(0.0);\n"
+                "    return up ? vec3(x[0], x[1], x[2]) : vec3(0.0);\n"
+                "}\n")
 
 
 @hookimpl
