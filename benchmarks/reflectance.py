@@ -23,6 +23,16 @@ the memory this script used to make the capture does not count.  With
 ``--quick`` the threaded run is also done at half the size, so the two
 peaks show whether memory grows with the scan (it must not: the stack is
 stored in texel tiles and the transpose streams one tile of all poses at a time).
+``read_s`` = a plain read of the same CaptureSet (every pose's ``images`` and
+``valid`` chunk, read with zarr one after the other in a fresh process, no dask,
+right after the timed run, so the page cache is as warm for it as for the
+run): the bytes Register must read.  ``read_ratio`` = (Register + Reflectance
+seconds) / ``read_s`` (target ≤ 2).  ``stack_read_s`` is the same plain read of
+the registered stack (Reflectance's input) and ``reflectance_read_ratio`` =
+Reflectance seconds / ``stack_read_s``.
+``peak_rss_mb_<size>gb`` = the threaded run's peak RSS at two sizes, each in a
+fresh process: 0.5 and 2 GB at full size, ``--gb``/2 and ``--gb`` with
+``--quick`` (the two must agree within 10 %: memory flat in the scan).
 ``registration_rms_texel`` = mean homography RMS (mm) / texel size (mm).
 ``lambert_err`` = max over every valid texel and pose of |f_r·π/a − 1|.
 
@@ -51,6 +61,10 @@ the stores); ``--quick`` is 0.1 GB (about a minute on 2 cores).  Progress to
 stderr; the last line of stdout is::
 
     reflectance: gb=<float> mb_per_s=<float> peak_rss_mb=<float> registration_rms_texel=<float> lambert_err=<float>
+        register_s=<float> reflectance_s=<float> read_s=<float> read_ratio=<float> stack_read_s=<float>
+        reflectance_read_ratio=<float> peak_rss_mb_<a>gb=<float> peak_rss_mb_<b>gb=<float>
+
+(one line).
 """
 
 from __future__ import annotations
@@ -146,7 +160,7 @@ nodes:
     return path
 
 
-def timed_run(g: Path, scheduler: str) -> tuple[float, float]:
+def timed_run(g: Path, scheduler: str) -> tuple[float, float, dict]:
     """Run the graph in fresh processes, as ``sbrdf run`` would: first the capture
     node alone (untimed), then Register + Reflectance, timed and with their peak
     RSS sampled.  A fresh process keeps this script's own leftovers (the virtual
@@ -166,7 +180,34 @@ def timed_run(g: Path, scheduler: str) -> tuple[float, float]:
     r = child("reflectance")
     print(f"  register {r['register_s']:.1f} s, reflectance {r['reflectance_s']:.1f} s, peak RSS {r['peak']:.0f} MB "
           f"(runner process {r['peak_main']:.0f} MB, workers {r['peak_children']:.0f} MB)", file=sys.stderr, flush=True)
-    return r["register_s"] + r["reflectance_s"], r["peak"]
+    return r["register_s"] + r["reflectance_s"], r["peak"], r
+
+
+def plain_read(artifact: Path, names: tuple[str, ...]) -> float:
+    """Seconds to read every chunk (shard) of ``names`` of a stored artifact with plain zarr, in a fresh process."""
+    import json
+    import subprocess
+
+    cmd = [sys.executable, __file__, "--read", str(artifact), *[f"--node={n}" for n in names]]
+    out = subprocess.run(cmd, stdout=subprocess.PIPE, check=True, text=True).stdout
+    return float(json.loads(out.strip().splitlines()[-1])["read_s"])
+
+
+def read_child(artifact: str, names: list[str]) -> None:
+    """``--read``: what a user's loop over the stored arrays costs: one zarr read per stored chunk (shard), in order."""
+    import json
+
+    import zarr
+
+    g = zarr.open_group(artifact, mode="r")
+    t0 = time.perf_counter()
+    total = 0.0
+    for name in names:
+        z = g[name]
+        step = (z.shards or z.chunks)[0]
+        for p0 in range(0, z.shape[0], step):
+            total += float(np.asarray(z[p0:p0 + step]).ravel()[:1].sum())  # touch: the bytes are decoded
+    print(json.dumps({"read_s": time.perf_counter() - t0, "touch": total}))
 
 
 def child_run(g: str, scheduler: str, nodes: list[str]) -> None:
@@ -216,7 +257,7 @@ def summarise(store: Path) -> tuple[float, float, float]:
     return rms_texel, worst, n_valid / max(n, 1)
 
 
-def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None) -> dict:
+def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None, keep: bool = False) -> dict:
     folder = scan or tmp / f"scan-{gb:g}"
     P = poses_for(gb)
     if scan is not None and (scan / "capture.json").exists() and len(os.listdir(scan / "images")) == P:
@@ -227,8 +268,14 @@ def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None) -> dict:
     mb = P * W * H * 3 * 4 / 1e6
     out = {"P": P, "mb": mb}
     store = tmp / f"store-{gb:g}-threads"
-    secs, peak = timed_run(graph(tmp / "g.yaml", folder, store), "threads")
-    out.update(threads_s=secs, threads_peak=peak)
+    secs, peak, nodes = timed_run(graph(tmp / "g.yaml", folder, store), "threads")
+    out.update(threads_s=secs, threads_peak=peak, register_s=nodes["register_s"], reflectance_s=nodes["reflectance_s"])
+    # The plain reads, right after the run (the same page cache): the capture Register reads, the stack Reflectance reads.
+    out["read_s"] = plain_read(store / "capture", ("images", "valid"))
+    out["stack_read_s"] = plain_read(store / "register", ("radiance", "valid"))
+    print(f"plain read: capture {out['read_s']:.2f} s (ratio {secs / out['read_s']:.2f}), registered stack "
+          f"{out['stack_read_s']:.2f} s (Reflectance ratio {nodes['reflectance_s'] / out['stack_read_s']:.2f})",
+          file=sys.stderr, flush=True)
     out["rms_texel"], out["lambert_err"], out["valid"] = summarise(store)
     print(f"threads: {P} poses, {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS {peak:.0f} MB; "
           f"registration RMS {out['rms_texel']:.3f} texel; lambert max err {out['lambert_err']:.4f}; "
@@ -236,13 +283,13 @@ def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None) -> dict:
     shutil.rmtree(store, ignore_errors=True)
     if cluster:
         store = tmp / f"store-{gb:g}-cluster"
-        secs, peak = timed_run(graph(tmp / "gc.yaml", folder, store), "cluster")
+        secs, peak, _ = timed_run(graph(tmp / "gc.yaml", folder, store), "cluster")
         rms, err, _ = summarise(store)
         out.update(cluster_s=secs, cluster_peak=peak, cluster_err=err)
         print(f"cluster (2 workers): {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS (all processes) "
               f"{peak:.0f} MB; lambert max err {err:.4f}", flush=True)
         shutil.rmtree(store, ignore_errors=True)
-    if scan is None:
+    if scan is None and not keep:
         shutil.rmtree(folder, ignore_errors=True)
     return out
 
@@ -304,23 +351,31 @@ def main() -> None:
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--scheduler", help=argparse.SUPPRESS)
     ap.add_argument("--node", action="append", help=argparse.SUPPRESS)
+    ap.add_argument("--read", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         return child_run(args.child, args.scheduler, args.node)
+    if args.read:
+        return read_child(args.read, args.node)
     gb = args.gb if args.gb is not None else (0.1 if args.quick else 2.0)
     tmp = Path(tempfile.mkdtemp(prefix="sbrdf-reflectance-", dir=args.tmpdir))
     try:
-        if args.quick:
-            half = one(tmp, gb / 2, cluster=False)
-            print(f"memory check: peak RSS {half['threads_peak']:.0f} MB at {gb / 2:g} GB", flush=True)
+        small = gb / 2 if args.quick or args.gb is not None else 0.5
+        half = one(tmp, small, cluster=False)
+        print(f"memory check: peak RSS {half['threads_peak']:.0f} MB at {small:g} GB", flush=True)
         r = one(tmp, gb, cluster=not args.no_cluster, scan=args.scan)
         peak = max(r["threads_peak"], r.get("cluster_peak", 0.0))
         err = max(r["lambert_err"], r.get("cluster_err", 0.0))
         lf = lafortune(tmp)
         print(f"lafortune: poses={LAF_POSES} texels={TEXELS} median_rel_err={lf['median']:.4f} p95_rel_err={lf['p95']:.4f} "
               f"per_pose_median={lf['pp_median']:.4f} per_pose_p95={lf['pp_p95']:.4f}", flush=True)
+        key = lambda g: f"peak_rss_mb_{g:g}gb".replace(".", "_")  # noqa: E731
         print(f"reflectance: gb={r['mb'] / 1e3:.3f} mb_per_s={r['mb'] / r['threads_s']:.1f} peak_rss_mb={peak:.0f} "
-              f"registration_rms_texel={r['rms_texel']:.3f} lambert_err={err:.4f}")
+              f"registration_rms_texel={r['rms_texel']:.3f} lambert_err={err:.4f} register_s={r['register_s']:.2f} "
+              f"reflectance_s={r['reflectance_s']:.2f} read_s={r['read_s']:.2f} "
+              f"read_ratio={r['threads_s'] / r['read_s']:.2f} stack_read_s={r['stack_read_s']:.2f} "
+              f"reflectance_read_ratio={r['reflectance_s'] / r['stack_read_s']:.2f} "
+              f"{key(small)}={half['threads_peak']:.0f} {key(gb)}={r['threads_peak']:.0f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

@@ -53,9 +53,15 @@ alone, bilinear.
 two 1080p cells the last line reports (same 20k mesh).  ``--docs`` rewrites
 the rendering section of docs/accuracy-vs-time.md and its figure.
 
+The ``cpu`` renderer is timed too, on the ``gl_vs_cpu_rel_rms`` frame (320×240,
+~5k-triangle terrain + plane + sphere, 2 lobes, 2 lights, one sample per pixel):
+``cpu_ms_320x240`` is one ``render_scene`` (wall), ``gl_ms_320x240`` the
+median of three ``gl`` frames of the same scene after a first one (timed as
+the fps cells are), ``cpu_over_gl`` their ratio; same process, same cores.
+
 Last line: ``render: gl_vs_cpu_rel_rms=... fps_1080p_1lobe_1light=...
 fps_1080p_3lobe_3light=... aa_edge_err=... aa_off_edge_err=... mip_refit_err=...
-mip_average_err=... device=...``
+mip_average_err=... gl_ms_320x240=... cpu_ms_320x240=... cpu_over_gl=... device=...``
 """
 
 from __future__ import annotations
@@ -286,8 +292,10 @@ def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> 
 # -- gl against cpu ---------------------------------------------------------------------------------------------------
 
 
-def gl_vs_cpu(obj: Path) -> tuple[float, float, int]:
-    """Relative RMS (and max relative error) of gl against cpu over interior pixels both renderers hit."""
+def gl_vs_cpu(obj: Path) -> tuple[float, float, int, float, float]:
+    """Relative RMS (and max relative error) of gl against cpu over interior pixels both renderers hit, and
+    each renderer's time for this frame (ms: gl the median of 3 frames after the first, as :func:`frame_ms`
+    times them; cpu one ``render_scene``, wall and CPU time alike on one process)."""
     extra = ("  - {shape: plane, size: [6, 6], material: s, transform: {translate: [0, 0, -0.3]}}\n"
              "  - {shape: sphere, radius: 0.35, material: s, transform: {translate: [0.9, -0.7, 0.4]}}\n")
     scene = load_scene(scene_text(obj, 2, (320, 240), extra, background=-1.0) + "antialias: 1\n")
@@ -296,9 +304,12 @@ def gl_vs_cpu(obj: Path) -> tuple[float, float, int]:
     d = GLScene(scene, materials, meshes)
     try:
         img = d.draw().image.astype(np.float64)
+        gl_ms = float(np.median([frame_ms(d) for _ in range(3)]))
     finally:
         d.release()
+    t0 = time.perf_counter()
     ref, _ = render_scene(scene, materials, {k: m for k, m in meshes.items() if scene.objects[k].shape == "mesh"})
+    cpu_ms = (time.perf_counter() - t0) * 1e3
     dirs, origin = scene.camera.rays()
     H, W = dirs.shape[:2]
     _, which = cast(scene, materials, dirs.reshape(-1, 3), origin, {0: meshes[0]})
@@ -314,7 +325,7 @@ def gl_vs_cpu(obj: Path) -> tuple[float, float, int]:
     a, b = img[interior], ref[interior]
     rel_rms = float(np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b**2)))
     rel_max = float(np.max(np.abs(a - b)) / np.max(b))
-    return rel_rms, rel_max, int(interior.sum())
+    return rel_rms, rel_max, int(interior.sum()), gl_ms, cpu_ms
 
 
 # -- antialiasing -----------------------------------------------------------------------------------------------------
@@ -538,7 +549,8 @@ def main(argv=None):
         terrain_obj(small, small_grid)
         print(f"terrain: {triangles} triangles; device {context().info['GL_RENDERER']}", flush=True)
         rel = gl_vs_cpu(small)
-        print(f"gl vs cpu: rel rms {rel[0]:.4g}, rel max {rel[1]:.4g} over {rel[2]} pixels "
+        print(f"gl vs cpu: rel rms {rel[0]:.4g}, rel max {rel[1]:.4g} over {rel[2]} pixels; 320×240 frame "
+              f"gl {rel[3]:.1f} ms, cpu {rel[4]:.0f} ms "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
         aa = aa_edges()
         print(f"texel edges ({aa['edge_pixels']} of {aa['pixels']} pixels) against 8×8 cpu: antialias "
@@ -561,7 +573,8 @@ def main(argv=None):
     main_line = (f"render: gl_vs_cpu_rel_rms={rel[0]:.4g} fps_1080p_1lobe_1light={hd[('float', 1, 1)]:.4g} "
                  f"fps_1080p_3lobe_3light={hd[('float', 3, 3)]:.4g} aa_edge_err={aa['on']:.4g} "
                  f"aa_off_edge_err={aa['off']:.4g} mip_refit_err={mip['refit']:.4g} "
-                 f"mip_average_err={mip['average']:.4g} device={device}")
+                 f"mip_average_err={mip['average']:.4g} gl_ms_320x240={rel[3]:.4g} cpu_ms_320x240={rel[4]:.4g} "
+                 f"cpu_over_gl={rel[4] / rel[3]:.4g} device={device}")
     if args.docs:
         write_docs(results, triangles, rel, device, main_line, args.quick, aa, mip)
     print(f"total {time.perf_counter() - t0:.0f} s")

@@ -216,12 +216,14 @@ def run_batch(
     ``variables`` (``--var``) are common to every scan (a scan's own values win);
     ``overrides`` (``--set``) apply to every scan.  ``scheduler`` is a local
     scheduler's name, a ``tcp://`` address (one client is shared by the scans)
-    or a ``distributed.Client``.  ``concurrent`` scans run at once on a local
-    scheduler (threads of this process, each computing its own graphs); on a
-    distributed one the scans run one at a time, since some node kinds name
-    their dask keys by node name only and scans in flight together would share
-    them.  Per-node progress bars are shown only when one scan runs at a time.  ``echo`` gets one line per scan start
-    and finish.
+    or a ``distributed.Client``.  ``concurrent`` scans run at once (threads of
+    this process, each submitting its own graphs), on a local scheduler or on
+    one cluster: every dask key a node makes names its artifact (a hash of its
+    URL, ``BuildContext.key``; write keys hash the store URL), so scans in
+    flight together never share a key.  On a cluster, a few scans in flight keep
+    the workers busy while one scan's client builds, writes attributes or
+    finalizes.  Per-node progress bars are shown only when one scan runs at a
+    time.  ``echo`` gets one line per scan start and finish.
     """
     from .runner import Runner
 
@@ -265,12 +267,6 @@ def run_batch(
         shared: Any = client
     else:
         shared = scheduler
-    if concurrent > 1 and not (isinstance(shared, str) and "://" not in shared):
-        # Some node kinds name their dask keys by node name only ("fit-<node>"), so two scans in flight on one
-        # distributed scheduler would share keys (and results): on a cluster the scans run one at a time.
-        logger.warning("--concurrent %d ignored on a distributed scheduler: scans run one at a time there", concurrent)
-        say(f"note: --concurrent {concurrent} ignored on a distributed scheduler; scans run one at a time")
-        concurrent = 1
     n = len(scans)
     index = {s.scan: i + 1 for i, s in enumerate(report.scans)}
 

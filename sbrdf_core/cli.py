@@ -400,8 +400,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="run once per scan: a CSV (header: variable names, optional store column) or a folder of "
                    "capture folders (variables scan and path); one store per scan under the graph's store")
     p.add_argument("--concurrent", type=int, default=1, metavar="N",
-                   help="with --batch: scans run at once on a local scheduler (default 1; bars only when 1; a "
-                   "distributed scheduler runs them one at a time)")
+                   help="with --batch: scans run at once, on a local scheduler or one cluster (default 1; bars "
+                   "only when 1)")
     _wait_options(p, "if another run holds the store, wait for it instead of refusing")
     p.set_defaults(func=cmd_run)
 

@@ -37,6 +37,7 @@ What a run does is logged on ``sbrdf_core.runner`` (``sbrdf -v``).
 from __future__ import annotations
 
 import getpass
+import hashlib
 import logging
 import platform
 import socket
@@ -135,6 +136,9 @@ class ChunkWrites:
 
     def __init__(self, url: str, token: str, arrays: dict, done: dict):
         self.url, self.token, self.arrays = url, token, arrays
+        # Write keys name the store too: two stores given identical artifacts (same token) on one cluster
+        # must not share a write task, or only one of them would be written.
+        self.key_id = f"{token}-{hashlib.sha1(url.encode()).hexdigest()[:8]}"
         self.numblocks = {name: arr.numblocks for name, arr in arrays.items()}
         self._starts = {name: [np.concatenate([[0], np.cumsum(c)]) for c in arr.chunks] for name, arr in arrays.items()}
         self.pending: list[tuple[str, tuple]] = []
@@ -154,7 +158,7 @@ class ChunkWrites:
         arr = self.arrays[name]
         block = Delayed((arr.name, *index), arr.__dask_graph__(), layer=arr.__dask_layers__()[0])
         region = tuple(slice(int(s[i]), int(s[i + 1])) for s, i in zip(self._starts[name], index))
-        write = delayed(write_chunk, pure=True, name=f"write-{name}-{chunk_key(index)}-{self.token}")
+        write = delayed(write_chunk, pure=True, name=f"write-{name}-{chunk_key(index)}-{self.key_id}")
         return write(block, self.url, name, self.token, index, region)
 
 

@@ -19,7 +19,7 @@ The marker, not the chunk file, is the proof: a killed writer can leave a torn
 chunk file, but a marker is only created after its chunk was written whole.
 
 Integrity (docs/reliability.md).  Every array is written with a ``crc32c``
-codec after ``zstd`` in its codec chain, so a damaged chunk fails to decode
+codec after its compressor (:func:`_codecs`) in its codec chain, so a damaged chunk fails to decode
 instead of reading back as other numbers, and every chunk is written even when
 it equals the fill value, so a missing chunk file means a lost chunk, not an
 empty one.  Arrays opened through :class:`Artifact` raise
@@ -83,10 +83,19 @@ _ARRAY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*(/[A-Za-z0-9_][A-Za-z0-9_-]
 
 
 def _codecs():
-    """zstd, then a crc32c checksum of the compressed bytes (zstd's own checksum is off)."""
-    from zarr.codecs import Crc32cCodec, ZstdCodec
+    """Blosc (lz4, byte shuffle), then a crc32c checksum of the compressed bytes.
 
-    return [ZstdCodec(level=0, checksum=False), Crc32cCodec()]
+    Byte-shuffled lz4 rather than zstd: on float32 radiance and f_r it keeps
+    11 % fewer bytes (shuffling groups the exponents) and encodes about five
+    times faster, decodes about twice as fast; zstd (level 3) compressed at
+    ~120 MB/s a core, which made every node that writes a scan's samples
+    compression-bound, not disk-bound (Reflectance 7.0-9.6 s against 5.2-5.4 s
+    at 0.57 GB, docs/cluster.md).  Stores written with zstd still read: the
+    codecs are each array's own metadata.
+    """
+    from zarr.codecs import BloscCodec, Crc32cCodec
+
+    return [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"), Crc32cCodec()]
 
 
 def _fs(url: str) -> tuple[fsspec.AbstractFileSystem, str]:

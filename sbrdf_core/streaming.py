@@ -80,7 +80,7 @@ def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Ca
         graph = merged_graph(tasks)
         shared = {k: v for k, v in graph.items() if isinstance(v, DataNode)}
         inner = {k: v for k, v in graph.items() if k not in shared}
-        key = f"write-{node}-{names[0]}-{'.'.join(map(str, group[1]))}-{token}"
+        key = f"write-{node}-{names[0]}-{'.'.join(map(str, group[1]))}-{getattr(writes, 'key_id', token)}"
         deps = [resolve(k, v.value) for k, v in shared.items()]
         fused = delayed(run_group, pure=True, traverse=False)
         yield fused(Subgraph(inner, [t.key for t in tasks]), list(shared), *deps, dask_key_name=key), len(tasks)

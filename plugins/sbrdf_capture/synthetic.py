@@ -57,10 +57,28 @@ class SyntheticCapture:
         self.intensity = intensity if intensity is not None else light_distance_mm**2
         self.noise, self.saturation, self.seed, self.pose_delay = noise, saturation, seed, pose_delay_s
         self.model = None
+        self._cache: dict | None = None
+
+    def __getstate__(self) -> dict:
+        # The per-pose cache is rebuilt where the poses are read: it never travels with the source.
+        return {**self.__dict__, "_cache": None}
 
     def bind(self, registry) -> None:
         """Called by the runner: resolve the model through the run's registry."""
         self.model = registry.create("brdf-model", self.model_name, self.model_params)
+        self._cache = None
+
+    def _pose_inputs(self) -> dict:
+        """What every pose shares (texel centres, pose positions, flattened ground truth), computed once per process:
+        recomputing the maps for every pose was half of ``read_pose``."""
+        if self._cache is None:
+            self._cache = {
+                "p": texel_centres(self.texels, self.size_mm).reshape(-1, 3),
+                "light": self.light_positions(),
+                "camera": self.camera_positions(),
+                "truth": {k: v.reshape(-1, v.shape[-1]) for k, v in self.ground_truth().items()},
+            }
+        return self._cache
 
     # -- geometry -----------------------------------------------------------------
 
@@ -103,11 +121,10 @@ class SyntheticCapture:
         if self.pose_delay:
             time.sleep(self.pose_delay)
         n_u, n_v = self.texels
-        p = texel_centres(self.texels, self.size_mm).reshape(-1, 1, 3)
-        wi, r = directions_to(p[:, 0], self.light_positions()[index: index + 1])
-        wo, _ = directions_to(p[:, 0], self.camera_positions()[index: index + 1])
-        truth = {k: v.reshape(-1, v.shape[-1]) for k, v in self.ground_truth().items()}
-        f = self.model.eval(truth, wi, wo)  # (T, 1, 3)
+        c = self._pose_inputs()
+        wi, r = directions_to(c["p"], c["light"][index: index + 1])
+        wo, _ = directions_to(c["p"], c["camera"][index: index + 1])
+        f = self.model.eval(c["truth"], wi, wo)  # (T, 1, 3)
         cos_i = np.clip(wi[..., 2], 0, None)
         L = f * (self.intensity * cos_i / r**2)[..., None]
         if self.noise:

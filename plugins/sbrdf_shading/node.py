@@ -137,7 +137,7 @@ class CompressShadingMapNode(NodeKind):
         slices = slices.rechunk({0: -1, 3: -1})
         packed = da.map_blocks(compress_tile, slices, (lo, hi), coarse, fine, drop_axis=0,
                                chunks=(slices.chunks[1], slices.chunks[2], (2 * C + 1,)), dtype=np.float32,
-                               name=f"shading-compress-{ctx.node}")
+                               name=ctx.key("shading-compress"))
 
         def finalize(art):
             rms = art.read("rms").astype(np.float64)

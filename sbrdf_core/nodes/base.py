@@ -120,6 +120,20 @@ class BuildContext:
     #: ``None`` until the runner has run the prepare step.
     prepared: dict[str, Any] | None = None
 
+    def key(self, prefix: str) -> str:
+        """A dask key name for this node's ``prefix`` tasks: ``<prefix>-<node>-<8 hex digits>``.
+
+        The digits hash the artifact's URL, its inputs' tokens and the node's
+        parameters, so two runs sharing a distributed scheduler (a batch of
+        scans, whose nodes have the same names) never share a key, and so never
+        each other's results.  dask's ``key_split`` drops the digits: dashboards
+        and task counts still see ``<prefix>-<node>``.
+        """
+        import hashlib
+
+        ident = repr((self.url, sorted((p, getattr(a, "token", None)) for p, a in self.inputs.items()), sorted(self.params.items())))
+        return f"{prefix}-{self.node}-{hashlib.sha1(ident.encode()).hexdigest()[:8]}"
+
 
 class NodeKind:
     """Base class of node kinds; subclasses set the class attributes and ``build``."""

@@ -76,7 +76,7 @@ class Capture(NodeKind):
         packed = da.map_blocks(
             _read_block, index, shared(source),
             new_axis=[1, 2, 3], chunks=((1,) * P, (H,), (W,), (4,)), dtype=np.float32,
-            name=f"capture-read-{ctx.node}",
+            name=ctx.key("capture-read"),
         )
         small = lambda a: da.from_array(np.asarray(a, dtype=np.float64))  # noqa: E731
         return Output(

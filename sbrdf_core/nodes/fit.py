@@ -36,7 +36,7 @@ from ..artifacts import ParamMaps, SampledReflectance
 from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbourhood_max, sample_support
 from ..geometry import tile_directions
 from ..params import Param
-from .base import BuildContext, NodeKind, Output, Port
+from .base import BuildContext, NodeKind, Output, Port, shared
 
 logger = logging.getLogger(__name__)
 
@@ -144,16 +144,21 @@ def masked_rms(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("tsc,tsc->t", d, d) / np.maximum(mask.sum(axis=1) * diff.shape[-1], 1))
 
 
-def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[int, int], min_train: int):
+def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[int, int], min_train: int,
+                  skip: int = 0):
     """``(train, test)`` masks: a seeded ``fraction`` of each texel's valid samples held out.
 
     Seeded by the tile's position, so a tile gives the same split on every run
     and on any worker.  A texel keeps all its samples for training when
-    holding some out would leave it fewer than ``2 · min_train``.
+    holding some out would leave it fewer than ``2 · min_train``.  ``skip``
+    draws of the tile's stream are passed over first: a task fitting rows of a
+    tile (:func:`fit_block`) gets the same split as the whole tile would.
     """
     if fraction <= 0:
         return valid, np.zeros_like(valid)
     rng = np.random.default_rng([seed, *offset])
+    if skip:
+        rng.bit_generator.advance(skip)  # one 64-bit draw per double
     test = valid & (rng.random(valid.shape) < fraction)
     enough = valid.sum(axis=1) >= 2 * max(min_train, 1)
     test &= enough[:, None]
@@ -173,13 +178,15 @@ def _neighbour_pool(grid: tuple[int, int], texels: np.ndarray, *arrays):
     return out
 
 
-def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, options=FitOptions(), block_info=None):
+def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, options=FitOptions(), block_info=None,
+             holdout_at: tuple[tuple[int, int], int] | None = None):
     """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + len(EXTRA))`` = packed parameters and :data:`EXTRA`.
 
     Non-finite samples are dropped before the fitter sees them, and whatever
     the fitter returns, no NaN or inf reaches the parameter maps: such texels
     get the model's defaults and a flag saying why.  ``rms_holdout`` is NaN
-    where a texel had no held-out sample.
+    where a texel had no held-out sample.  ``holdout_at`` = ``(tile origin, draws to skip)`` seeds the
+    held-out split of a block that is part of a stored tile (:func:`_fit_rows`).
     """
     t0 = time.perf_counter()
     (v0, v1), (u0, u1) = block_info[0]["array-location"][:2]
@@ -193,7 +200,8 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     f_r, valid = usable(f_r, valid)
     min_samples = options.min_samples or model.size
     support = neighbourhood_max(sample_support(f_r, valid).reshape(grid)).ravel()
-    train, test = holdout_split(valid, options.holdout, options.holdout_seed, (v0, u0), min_samples)
+    origin, skip = holdout_at if holdout_at is not None else ((v0, u0), 0)
+    train, test = holdout_split(valid, options.holdout, options.holdout_seed, origin, min_samples, skip)
     resolution = angular_resolution(wi, wo, train)
     sparse = np.flatnonzero(train.sum(axis=1) < min_samples)
     if sparse.size:  # fitted to the pooled samples: bounded by what the pool resolves
@@ -243,6 +251,58 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     return out.reshape(grid + (-1,)).astype(np.float32)
 
 
+#: Working memory of one Fit task (a tile and its fit), from which its texels are chosen: a budget in
+#: bytes, not a fixed tile, so a task holds the same bytes whatever the number of poses.
+FIT_TASK_BYTES = 96 * 2**20
+#: Bytes per sample (a texel's pose) one Fit task holds: the node's float64 copies of f_r, ω_i, ω_o and the
+#: residuals, plus the fitter's work (measured with tracemalloc: the lm fitter's generic LM of Lambert about
+#: 340, its compiled Lafortune kernels about 190).
+FIT_SAMPLE_BYTES = 320
+
+
+def fit_block(poses: int, tile: tuple[int, int], budget: int | None = None) -> int:
+    """Rows of a stored tile per Fit task: all of them, or fewer when the tile's samples are over ``budget``.
+
+    Reflectance stores tiles whose bytes only roughly track the poses (power-of-two edges, DESIGN.md), and
+    a Fit task's memory is many times a sample's stored bytes, so the node fits a tile in strips of whole
+    rows whose samples fit the budget (default :data:`FIT_TASK_BYTES`): memory per task stays within one
+    row's samples of the budget from small scans to large ones.  A strip is fitted as the whole tile fits
+    those rows (:func:`_fit_rows`), so scans whose tiles fit the budget and those whose tiles do not get
+    the same maps (for fitters that fit texels independently, as ``lm`` does).
+    """
+    rows, cols = tile
+    samples = max(1, (FIT_TASK_BYTES if budget is None else budget) // FIT_SAMPLE_BYTES)
+    return int(min(rows, max(1, samples // (max(cols, 1) * max(poses, 1)))))
+
+
+def _fit_rows(grid, f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, options, tile,
+              block_info=None) -> np.ndarray:
+    """Kernel: rows ``v0:v1`` of a stored tile -> what :func:`fit_tile` gives those rows of the whole tile.
+
+    Reads the rows and one more on each side within the tile (the 3×3 neighbourhood bounds and the
+    borrowing of sparse texels see the neighbours the whole tile would) and seeds the held-out split
+    with the tile's stream at these rows.  The side rows are fitted too and dropped.
+    """
+    (v0, v1), (u0, u1) = block_info[None]["array-location"][:2]
+    tile_v0 = v0 - v0 % tile[0]
+    e0, e1 = max(tile_v0, v0 - 1), min(tile_v0 + tile[0], f_r.shape[0], v1 + 1)
+    P = f_r.shape[2]
+    info = {0: {"array-location": [(e0, e1), (u0, u1), (0, P), (0, 3)]}}
+    out = fit_tile(f_r[e0:e1, u0:u1], valid[e0:e1, u0:u1][..., None], light_pos, camera_pos, texels, size_mm, fitter,
+                   model, options, block_info=info, holdout_at=((tile_v0, u0), (e0 - tile_v0) * (u1 - u0) * P))
+    return out[v0 - e0:v1 - e0]
+
+
+def _within(n: int, tile: int, part: int) -> tuple[int, ...]:
+    """Chunk sizes along an axis of ``n`` stored in ``tile``-sized chunks, each split into parts of ``part``:
+    no task's part crosses a stored tile."""
+    out: list[int] = []
+    for start in range(0, n, tile):
+        size = min(tile, n - start)
+        out += [part] * (size // part) + ([size % part] if size % part else [])
+    return tuple(out)
+
+
 class Fit(NodeKind):
     name = "Fit"
     doc = ("Fit a BRDF model per texel inside its physical bounds; writes parameter maps, training and held-out "
@@ -276,11 +336,23 @@ class Fit(NodeKind):
         options = cls.options(ctx)
         f_r, valid = samples.array("f_r"), samples.array("valid")
         K = model.size
-        packed = da.map_blocks(
-            fit_tile, f_r, valid[..., None], samples.read("light_pos"), samples.read("camera_pos"),
-            tuple(samples.attrs["texels"]), tuple(samples.attrs["size_mm"]), ctx.plugin, model, options,
-            drop_axis=[3], chunks=f_r.chunks[:2] + ((K + len(EXTRA),),), dtype=np.float32, name=f"fit-{ctx.node}",
-        )
+        tile = (f_r.chunks[0][0], f_r.chunks[1][0])
+        rows = fit_block(f_r.shape[2], tile)
+        if rows >= tile[0]:  # a stored tile per task
+            packed = da.map_blocks(
+                fit_tile, f_r, valid[..., None], samples.read("light_pos"), samples.read("camera_pos"),
+                tuple(samples.attrs["texels"]), tuple(samples.attrs["size_mm"]), ctx.plugin, model, options,
+                drop_axis=[3], chunks=f_r.chunks[:2] + ((K + len(EXTRA),),), dtype=np.float32, name=ctx.key("fit"),
+            )
+        else:  # rows of a tile per task, read by the task (tile chunks would be held while their parts wait)
+            V, U = f_r.shape[:2]
+            grid = da.zeros((V, U), chunks=(_within(V, tile[0], rows), f_r.chunks[1]), dtype=np.uint8)
+            packed = da.map_blocks(
+                _fit_rows, grid, shared(samples.zarr_array("f_r")), shared(samples.zarr_array("valid")),
+                shared(samples.read("light_pos")), shared(samples.read("camera_pos")),
+                tuple(samples.attrs["texels"]), tuple(samples.attrs["size_mm"]), ctx.plugin, model, options, tile,
+                new_axis=[2], chunks=grid.chunks + ((K + len(EXTRA),),), dtype=np.float32, name=ctx.key("fit"),
+            )
         arrays = {f"params/{name}": packed[..., s] for name, s in model.slices().items()}
         column = {name: packed[..., K + i] for i, name in enumerate(EXTRA)}
         arrays["rms"] = column["rms"]

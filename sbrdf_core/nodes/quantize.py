@@ -149,7 +149,7 @@ class Quantize(NodeKind):
         restored = da.concatenate([da.asarray(decoded[p.name]).astype(np.float32) for p in model.parameters], axis=-1)
         restored = restored.rechunk(original.chunks)
         error = da.map_blocks(_error_tile, original, restored, model, 16, drop_axis=[2], dtype=np.float32,
-                              name=f"quantize-error-{ctx.node}")
+                              name=ctx.key("quantize-error"))
         arrays = {f"textures/{k}": t for k, t in enc.textures.items()}
         arrays.update({f"scale/{k}": da.asarray(s, dtype=np.float64) for k, s in enc.scale.items()})
         arrays.update({f"bias/{k}": da.asarray(b, dtype=np.float64) for k, b in enc.bias.items()})
@@ -168,7 +168,7 @@ class Quantize(NodeKind):
             own = da.map_blocks(
                 _own_tile, stacked.rechunk(tile + (-1,)), K, model, tuple(sa["texels"]), tuple(sa["size_mm"]),
                 samples.read("light_pos"), samples.read("camera_pos"), drop_axis=[2], dtype=np.float32,
-                name=f"quantize-error-own-{ctx.node}")
+                name=ctx.key("quantize-error-own"))
             arrays["error_own"] = own.rechunk(original.chunks[:2])
         sized = optional(ctx.plugin, "bytes_per_texel", "quantizer")
         bytes_per_texel = (sized(enc.textures) if callable(sized) else

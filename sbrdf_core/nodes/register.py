@@ -104,7 +104,7 @@ class Register(NodeKind):
             _resample_poses, index, shared(capture.zarr_array("images")),
             shared(capture.zarr_array("valid")), shared(ctx.plugin), shared(reg),
             new_axis=[1, 2, 3], chunks=(index.chunks[0], (V,), (U,), (4,)),
-            dtype=np.float32, name=f"register-resample-{ctx.node}",
+            dtype=np.float32, name=ctx.key("register-resample"),
         )
         small = lambda a: da.from_array(np.asarray(a))  # noqa: E731
         # Stored pose-major, one shard per pose block (one task writes it whole),

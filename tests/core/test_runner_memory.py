@@ -39,12 +39,14 @@ class TaskSizes(Callback):
         super().__init__()
         self.count: dict[str, int] = defaultdict(int)
         self.largest: dict[str, int] = defaultdict(int)
+        self.names: set[str] = set()  # the key names themselves (a tuple key's name part)
 
     def _start(self, dsk):
         for key, task in dsk.items():
             if not callable(getattr(task, "func", None)):
                 continue
             kind = key_split(key)
+            self.names.add(key[0] if isinstance(key, tuple) else key)
             self.count[kind] += 1
             self.largest[kind] = max(self.largest[kind], len(cloudpickle.dumps(task)))
             for arg in getattr(task, "args", ()):  # a streamed node's fused chunk group: count its tasks too
@@ -91,3 +93,16 @@ def test_per_pose_tasks_do_not_grow_with_the_number_of_poses(sizes):
     # entry, a homography, a light position: ≥ 24 bytes each) would add far more.
     grown = {k: (few.largest[k], many.largest[k]) for k in repeated if many.largest[k] > few.largest[k] + 64}
     assert not grown, f"tasks whose spec grows with the number of poses (bytes at 4 → 12 poses): {grown}"
+
+
+def test_task_keys_name_their_artifact(sizes):
+    """Key names carry a hash of the artifact (``BuildContext.key``): two runs of one graph into two stores, as a
+    batch of scans on one cluster makes, share no key, while ``key_split`` still counts them by node."""
+    import re
+
+    few, many = sizes
+    for prefix in ("capture-read-capture", "register-resample-register", "reflectance-reflectance"):
+        a = {n for n in few.names if n.startswith(prefix + "-")}
+        b = {n for n in many.names if n.startswith(prefix + "-")}
+        assert len(a) == 1 and len(b) == 1 and a != b, (prefix, a, b)
+        assert re.fullmatch(re.escape(prefix) + r"-[0-9a-f]{8}", a.pop())
