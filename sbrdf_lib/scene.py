@@ -46,9 +46,9 @@ from sbrdf_core.params import Param, resolve
 from .mesh import FORMATS as MESH_FORMATS
 from .mesh import load_mesh, mesh_files, mesh_vertex_radius
 
-__all__ = ["ANTIALIAS_DEFAULT", "ANTIALIAS_MAX", "CAMERA", "DISPLAY", "LIGHTS", "MATERIAL", "OBJECT", "SHAPES",
-           "TOP_KEYS", "TRANSFORM", "Camera", "Features", "Light", "MaterialRef", "PluginKeys", "Scene", "SceneError",
-           "SceneObject", "downsample", "load_scene", "plugin_keys", "reference", "rgb", "scene_fingerprint",
+__all__ = ["ANTIALIAS_DEFAULT", "ANTIALIAS_MAX", "AREA_LIGHT", "CAMERA", "CAMERA_PATH", "DISPLAY", "KEYFRAME", "LIGHTMAP",
+           "LIGHTS", "MATERIAL", "OBJECT", "SHAPES", "TOP_KEYS", "TRANSFORM", "Camera", "Features", "Light", "MaterialRef", "PluginKeys", "Scene",
+           "SceneError", "SceneObject", "downsample", "load_scene", "plugin_keys", "reference", "rgb", "scene_fingerprint",
            "transform_matrix"]
 
 logger = logging.getLogger(__name__)
@@ -85,7 +85,10 @@ SHAPES = {
     "cylinder": (Param("radius", "float", 0.5, "radius", bounds=(1e-9, None)),
                  Param("height", "float", 1.0, "extent along z (no caps)", bounds=(1e-9, None)),
                  Param("segments", "int", 128, "GL tessellation around the axis", bounds=(3, 4096))),
-    "mesh": (Param("file", "str", doc="triangle mesh (OBJ, PLY, glTF or GLB), relative to the scene file"),),
+    "mesh": (Param("file", "str", doc="triangle mesh (OBJ, PLY, glTF or GLB), relative to the scene file"),
+             Param("uv_layout", "str", "auto", "texture coordinates of a mesh whose file has none: planar (projected "
+                   "onto its xy bounds), chart (each triangle its own atlas place: what a light map needs), auto "
+                   "(chart when the scene has lightmap:, else planar)", choices=("auto", "planar", "chart"))),
 }
 
 MATERIAL = (
@@ -113,8 +116,55 @@ DISPLAY = (
     Param("gamma", "str", "srgb", "display transfer of the PNG", choices=("srgb", "2.2")),
 )
 
+#: ``lightmap:``: per-object irradiance maps (Mühlbacher §4.3, Eq 4.1), baked by ``sbrdf_lightmap``; renderers
+#: then shade diffuse as ρ_d·E(uv) from the maps (ρ_d: the models' diffuse BRDF value, k_d/π) and the lights
+#: add only the rest of f_r.
+LIGHTMAP = (
+    Param("directory", "str", doc="folder of the maps (object_000.exr, ... by object index), relative to the scene "
+          "file; the bake writes it, the renderers read it"),
+    Param("size", "int", 64, "texels per side of each object's map (in its UV chart, uv / uv_repeat)",
+          bounds=(2, 4096)),
+    Param("bounces", "int", 1, "diffuse bounces after the direct light (0: direct only)", bounds=(0, 16)),
+    Param("samples", "int", 64, "hemisphere rays per texel (environment and bounces) and points per area light",
+          bounds=(1, 1 << 16)),
+    Param("seed", "int", 0, "seed of the bake's sample points", bounds=(0, None)),
+    Param("smooth", "int", 1, "3x3 tent-filter passes over each bounce's map (indirect light is smooth; each pass "
+          "cuts its Monte Carlo noise); 0: none", bounds=(0, 16)),
+    Param("area_lights", "list", [], "rectangular emitters that light the bake only (diffuse): "
+          "{position, size, rotate_deg, radiance}; they face +z after rotate_deg"),
+    Param("use", "bool", True, "renderers shade diffuse from the maps (false: from the lights, as without a bake)"),
+)
+
+#: One ``lightmap: {area_lights: [...]}`` entry.
+AREA_LIGHT = (
+    Param("position", "list", doc="centre of the rectangle", length=3, item="float"),
+    Param("size", "list", [1.0, 1.0], "extent along its own x and y", length=2, item="float", bounds=(1e-9, None)),
+    Param("rotate_deg", "list", [180.0, 0.0, 0.0], "rotation about x, y, z; the default faces down (-z)", length=3,
+          item="float", unit="deg"),
+    Param("radiance", "any", 1.0, "emitted radiance L_e (a number or an RGB triple), one-sided"),
+)
+
+#: ``camera_path:``: a walkthrough (Mühlbacher §4.6.4): keyframes interpolated in time, rendered at ``fps``.
+CAMERA_PATH = (
+    Param("keyframes", "list", doc="at least two {time, position, look_at, fov_deg (optional)}, times increasing; "
+          "two consecutive equal poses hold the camera still (progressive refinement there)"),
+    Param("fps", "float", 24.0, "frames per second of the sequence", bounds=(0.1, 240.0)),
+    Param("interpolation", "str", "catmull-rom", "between keyframes: linear, or catmull-rom (C1 through the keys)",
+          choices=("linear", "catmull-rom")),
+)
+
+#: One ``camera_path: {keyframes: [...]}`` entry.
+KEYFRAME = (
+    Param("time", "float", doc="seconds from the start of the path", bounds=(0.0, None), unit="s"),
+    Param("position", "list", doc="eye position", length=3, item="float"),
+    Param("look_at", "list", doc="point at the centre of the image", length=3, item="float"),
+    Param("fov_deg", "float", None, "vertical field of view; default: the camera's", nullable=True,
+          bounds=(1.0, 170.0), unit="deg"),
+)
+
 #: The renderers' own top-level keys; plugins' sections (``environment``) come after them.
-TOP_KEYS = ("camera", "materials", "objects", "lights", "shadows", "display", "background", "effects", "antialias")
+TOP_KEYS = ("camera", "materials", "objects", "lights", "shadows", "display", "background", "effects", "antialias",
+            "lightmap", "camera_path")
 
 #: Samples per pixel when a scene does not say (``antialias:``): a 2×2 stratified pattern.
 ANTIALIAS_DEFAULT = 4
@@ -235,6 +285,7 @@ class Features:
     anisotropic: dict[str, bool] = field(default_factory=dict)
     alpha: dict[str, bool] = field(default_factory=dict)
     two_sided: dict[str, bool] = field(default_factory=dict)  # transmissive models lit from either side
+    lightmap: bool = False  # diffuse from the light maps; the lights add f_r − ρ_d
 
     @property
     def lights(self) -> int:
@@ -256,6 +307,15 @@ class Scene:
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     effects: dict[str, dict] = field(default_factory=dict)  # scene-effect name -> options, for plugins' effects
     antialias: int = ANTIALIAS_DEFAULT  # samples per pixel, a square n²: an n×n stratified sub-pixel grid
+    #: ``lightmap:`` values as attributes (``area_lights``: dicts with ``matrix`` and RGB ``radiance``), or None.
+    lightmap: Any = None
+    #: ``camera_path:`` values as attributes (``keyframes``: dicts with float times and array poses), or None.
+    camera_path: Any = None
+
+    @property
+    def lightmapped(self) -> bool:
+        """Whether renderers shade diffuse from the baked maps (``lightmap:`` given with ``use: true``)."""
+        return self.lightmap is not None and bool(self.lightmap.use)
 
     def section(self, name: str) -> Any:
         """A plugin section's values (attributes named as its keys), or None when the scene does not give it."""
@@ -295,6 +355,7 @@ class Scene:
             anisotropic={m: bool(optional(materials[m].model, "anisotropic", "brdf-model")) for m in used if m in materials},
             alpha={m: materials[m].alpha is not None for m in used if m in materials},
             two_sided={m: bool(optional(materials[m].model, "two_sided", "brdf-model")) for m in used if m in materials},
+            lightmap=self.lightmapped,
         )
 
     def bounds(self) -> tuple[np.ndarray, float]:
@@ -396,12 +457,12 @@ def load_scene(source: str | Path, material_names: tuple[str, ...] = (), registr
         except yaml.YAMLError as e:
             raise SceneError([_yaml.syntax_problem(e, src)]) from None
         file, base = src, Path(src).resolve().parent
-    return _SceneValidator(text, file, base, plugin_keys(registry)).run()
+    return _SceneValidator(text, file, base, plugin_keys(registry), registry).run()
 
 
 class _SceneValidator:
-    def __init__(self, text: str, file: str, base: Path, keys: PluginKeys):
-        self.text, self.file, self.base, self.keys = text, file, base, keys
+    def __init__(self, text: str, file: str, base: Path, keys: PluginKeys, registry=None):
+        self.text, self.file, self.base, self.keys, self.registry = text, file, base, keys, registry
         self.problems: list[Problem] = []
 
     def problem(self, message: str, path: tuple = ()) -> None:
@@ -467,14 +528,74 @@ class _SceneValidator:
             self.problem(f"effects must map scene-effect names to their options, e.g. {{ambient: {{radiance: 0.1}}}}, "
                          f"got {doc.get('effects')!r}", ("effects",))
             effects = {}
+        lightmap = self.lightmap(doc.get("lightmap"))
+        for o in objects:  # a mesh without UVs gets a chart where a light map needs one
+            if o.shape == "mesh" and o.params.get("uv_layout") == "auto":
+                o.params["uv_layout"] = "chart" if lightmap is not None else "planar"
+        camera_path = self.camera_path(doc.get("camera_path"), camera)
         lit = [n for n, p in self.keys.sections.items() if (p.extra or {}).get("light")]
-        if not lights and not any(sections[n] is not None for n in lit):
+        if not lights and not any(sections[n] is not None for n in lit) and not (lightmap and lightmap.area_lights):
             self.problem(f"the scene has no light: add {' or '.join(['lights:'] + [n + ':' for n in lit])}", ())
         if self.problems:
             raise SceneError(sorted(self.problems, key=lambda p: (p.line or 0, p.message)))
         return Scene(self.file, camera, tuple(objects), materials, tuple(lights), sections, shadows,
                      display["exposure"], display["gamma"], background, {str(k): dict(v or {}) for k, v in effects.items()},
-                     antialias)
+                     antialias, lightmap=lightmap, camera_path=camera_path)
+
+    def camera_path(self, raw, camera) -> Any:
+        """The ``camera_path:`` section, keyframes checked (times increasing, valid views), or None."""
+        if raw is None:
+            return None
+        values = self.params(CAMERA_PATH, raw, "camera_path", ("camera_path",))
+        if len(values) < len(CAMERA_PATH):
+            return None
+        keys = []
+        raw_keys = values["keyframes"] if isinstance(values["keyframes"], list) else []
+        if len(raw_keys) < 2:
+            self.problem("camera_path: keyframes must be a list of at least two {time, position, look_at}",
+                         ("camera_path", "keyframes"))
+        for i, decl in enumerate(raw_keys):
+            path = ("camera_path", "keyframes", i)
+            k = self.params(KEYFRAME, decl, f"camera_path keyframe {i}", path)
+            if len(k) < len(KEYFRAME):
+                continue
+            pos, look = np.array(k["position"]), np.array(k["look_at"])
+            up = camera.up if camera is not None else np.array([0.0, 0.0, 1.0])
+            fwd = look - pos
+            if np.linalg.norm(fwd) < 1e-12 or np.linalg.norm(np.cross(fwd, up)) < 1e-9 * np.linalg.norm(fwd):
+                self.problem(f"camera_path keyframe {i}: look_at must differ from position and not lie along up", path)
+            if keys and k["time"] <= keys[-1]["time"]:
+                self.problem(f"camera_path keyframe {i}: time {k['time']} must be after the previous keyframe's "
+                             f"({keys[-1]['time']})", path + ("time",))
+            keys.append({"time": k["time"], "position": pos, "look_at": look, "fov_deg": k["fov_deg"]})
+        values["keyframes"] = keys
+        return SimpleNamespace(**values)
+
+    def lightmap(self, raw) -> Any:
+        """The ``lightmap:`` section (directory resolved from the scene file; it need not exist yet), or None."""
+        if raw is None:
+            return None
+        values = self.params(LIGHTMAP, raw, "lightmap", ("lightmap",))
+        if len(values) < len(LIGHTMAP):
+            return None
+        values["directory"] = self.path(values["directory"])
+        areas = []
+        for i, decl in enumerate(values["area_lights"] or []):
+            path = ("lightmap", "area_lights", i)
+            a = self.params(AREA_LIGHT, decl, f"lightmap area light {i}", path)
+            if len(a) < len(AREA_LIGHT):
+                continue
+            try:
+                radiance = rgb(a["radiance"])
+                assert radiance.shape == (3,) and np.all(np.isfinite(radiance)) and np.all(radiance >= 0)
+            except (ValueError, TypeError, AssertionError):
+                self.problem(f"lightmap area light {i}: radiance must be a non-negative number or RGB triple, got "
+                             f"{a['radiance']!r}", path + ("radiance",))
+                continue
+            areas.append({"matrix": transform_matrix(a["position"], a["rotate_deg"], 1.0), "size": tuple(a["size"]),
+                          "radiance": radiance})
+        values["area_lights"] = areas
+        return SimpleNamespace(**values)
 
     def section(self, name: str, declared: Param, raw) -> Any:
         """A plugin section's values (paths resolved from the scene file and checked), or None when absent."""
@@ -514,8 +635,26 @@ class _SceneValidator:
                         store = m[p.name] if m[p.name] == "input" else self.path(m[p.name])
                         surface = {"key": p.name, "store": store,
                                    "options": {q.name: m[q.name] for q in group if q is not p and q.name in m}}
-            out[str(name)] = MaterialRef(str(name), art, model, m["model_params"], m["params"], m.get("filter", "bilinear"),
-                                         surface)
+            out[str(name)] = MaterialRef(str(name), art, model, self.model_paths(model, m["model_params"]), m["params"],
+                                         m.get("filter", "bilinear"), surface)
+        return out
+
+    def model_paths(self, model, model_params: dict) -> dict:
+        """A model's file parameters (declared ``extra={"path": True}``, e.g. merl's ``path``) are relative to the
+        scene file, as a graph's are to the graph file; an unknown model is reported where it is created."""
+        if model is None or not model_params:
+            return model_params
+        from sbrdf_core.errors import PluginError
+        from sbrdf_core.registry import default_registry
+
+        try:
+            declared = (self.registry or default_registry()).get("brdf-model", model).params or ()
+        except PluginError:
+            return model_params
+        out = dict(model_params)
+        for p in declared:
+            if (p.extra or {}).get("path") and isinstance(out.get(p.name), str):
+                out[p.name] = self.path(out[p.name])
         return out
 
     def objects(self, raw, materials) -> list[SceneObject]:
@@ -610,6 +749,10 @@ def scene_fingerprint(path: str, registry=None) -> str:
     files += [str(Path(m.artifact) / "zarr.json") for m in scene.materials.values() if m.artifact not in (None, "input")]
     files += [str(Path(m.surface["store"]) / "zarr.json") for m in scene.materials.values()
               if m.surface and m.surface["store"] != "input"]
+    if scene.lightmap is not None:  # a re-bake re-renders
+        from .lightmap import map_path
+
+        files += [map_path(scene.lightmap.directory, k) for k in range(len(scene.objects))]
     for f in files:
         try:
             st = os.stat(f)
@@ -642,6 +785,10 @@ def reference(registry=None) -> str:
         out += [f"`type: {kind}`:", "", param_table(params)]
     for name, p in keys.sections.items():
         out += [f"## `{name}`", "", p.doc, "", param_table(p.schema or ())]
+    out += ["## `camera_path`", "", "A walkthrough (docs/walkthrough.md).", "", param_table(CAMERA_PATH),
+            "`keyframes: [...]`:", "", param_table(KEYFRAME)]
+    out += ["## `lightmap`", "", "Per-object irradiance maps (docs/walkthrough.md), baked by the `LightmapBake` node.",
+            "", param_table(LIGHTMAP), "`area_lights: [...]`:", "", param_table(AREA_LIGHT)]
     out += ["## `display`", "", param_table(DISPLAY),
             "## Other keys", "", "`shadows` (bool, default false), `background` (a number or an RGB triple), "
             "`effects` (scene-effect name -> its options, for effects that plugins add, e.g. "

@@ -30,8 +30,8 @@ from sbrdf_core.errors import SbrdfError
 
 from .mesh import load_mesh
 
-__all__ = ["EPS", "Hits", "Mesh", "cast", "intersect", "intersect_mesh", "local_frame", "tessellate", "unit",
-           "vertex_frames"]
+__all__ = ["ATLAS_MARGIN", "EPS", "Hits", "Mesh", "cast", "intersect", "intersect_mesh", "local_frame", "tessellate",
+           "triangle_atlas", "unit", "vertex_frames"]
 
 EPS = 1e-7
 
@@ -145,6 +145,12 @@ def tessellate(obj) -> Mesh:
         if uv is None:  # planar projection onto the mesh's xy bounding box
             lo, hi = pos[:, :2].min(0), pos[:, :2].max(0)
             uv = (pos[:, :2] - lo) / np.where(hi > lo, hi - lo, 1.0)
+            if p.get("uv_layout", "planar") == "chart":  # a light map needs a chart: one atlas cell per triangle pair
+                nrm, _ = vertex_frames(pos, uv, idx, nrm)  # smooth normals from the shared vertices, then split them
+                corners = np.asarray(idx, np.int64).ravel()
+                pos, nrm, tan = pos[corners], nrm[corners], None
+                uv = triangle_atlas(len(idx))
+                idx = np.arange(len(corners), dtype=np.uint32).reshape(-1, 3)
         if tan is None or nrm is None:  # glTF: tangents are meaningful only with the normals they were made for
             nrm, tan = vertex_frames(pos, uv, idx, nrm)
         else:
@@ -154,6 +160,28 @@ def tessellate(obj) -> Mesh:
     else:  # pragma: no cover - the scene validator rejects unknown shapes
         raise SbrdfError(f"unknown shape {obj.shape!r}")
     return _to_world(obj, pos, nrm, tan, uv, idx)
+
+
+#: Inset of a generated chart's triangles in their atlas cell (fraction of the cell): keeps texels of neighbours apart.
+ATLAS_MARGIN = 0.1
+
+
+def triangle_atlas(n: int, margin: float = ATLAS_MARGIN) -> np.ndarray:
+    """Per-corner texture coordinates ``(3n, 2)`` giving each of ``n`` triangles its own place in [0, 1]².
+
+    Triangles go in pairs into the cells of a g × g grid (g = ⌈√⌈n/2⌉⌉), one below and one above the cell's
+    diagonal, each inset by ``margin`` of the cell and both counter-clockwise: a chart without overlap, as a
+    light map needs, for meshes whose file has no UVs.  Shapes are not kept (each triangle is mapped affinely
+    onto its half cell), so texel density follows the triangle count, not the area.
+    """
+    g = max(1, int(np.ceil(np.sqrt(np.ceil(n / 2)))))
+    m = margin
+    lower = np.array([[m, m], [1 - 2 * m, m], [m, 1 - 2 * m]])
+    upper = np.array([[1 - m, 1 - m], [2 * m, 1 - m], [1 - m, 2 * m]])
+    k = np.arange(n)
+    cell = np.stack([(k // 2) % g, (k // 2) // g], axis=1).astype(np.float64)
+    local = np.where((k % 2 == 0)[:, None, None], lower[None], upper[None])
+    return ((cell[:, None, :] + local) / g).reshape(-1, 2)
 
 
 def _to_world(obj, pos, nrm, tan, uv, idx) -> Mesh:

@@ -105,6 +105,8 @@ class EnvironmentEffect:
         self.mc_samples, self.seed = mc_samples, seed
         self.frame_index = 0  # progressive: which block of QMC points the next frame uses
         self._gl = None
+        self.reflectors: set[str] = set()  # materials whose specular lobes another effect draws (prepare)
+        self.lightmapped = False  # diffuse from the scene's light maps (prepare)
 
     # -- protocol: selection --------------------------------------------------------------------------------------
 
@@ -134,6 +136,12 @@ class EnvironmentEffect:
         """Load the map and build what the method needs (D(N), S maps, the MIP chain)."""
         env = scene.section("environment")
         self.file = env.file
+        # a reflector's specular lobes are the mirror effect's (reflected objects occlude the environment there)
+        # (and a cube-mapped object's: its cube map holds the environment too, occluded by the room)
+        self.reflectors = {scene.objects[k].material for k, o in enumerate(scene.objects)
+                           if (o.shape == "plane" and o.params.get("reflector")) or o.params.get("cube_map")}
+        # a light-mapped scene's diffuse (the environment's included) comes from the maps: specular only here
+        self.lightmapped = bool(getattr(scene, "lightmapped", False))
         logger.info("environment %s (%s, intensity %g): method %s", env.file, env.layout, env.intensity, self.method)
         key = (os.path.abspath(env.file), os.path.getmtime(env.file) if os.path.exists(env.file) else 0, env.layout,
                env.intensity, self.size)
@@ -157,7 +165,7 @@ class EnvironmentEffect:
                                                           prefilter.mip_sizes(self.prefiltered_size))]
         with _LOCK:
             todo = [(k, n, s) for k, n, s in wanted if (how, k, s) not in self.maps]
-            if self.method == "mc" or self.method == "progressive":
+            if (self.method == "mc" or self.method == "progressive") and not self.reflectors:
                 todo = [t for t in todo if t[0] != "D"]
             if todo:
                 if how == "gl":
@@ -200,6 +208,10 @@ class EnvironmentEffect:
                 out[lit] += material.surface.radiance(hits.uv[lit], wi, wo[lit], np.broadcast_to(radiance, wi.shape))
         return out
 
+    def radiance(self, dirs: np.ndarray) -> np.ndarray:
+        """The environment's radiance ``(R, 3)`` along world directions ``(R, 3)`` (level 0, bilinear)."""
+        return cubemap.sample(self.levels[0], np.asarray(dirs, np.float64))
+
     @property
     def levels(self) -> list[np.ndarray]:
         return self.maps["levels"]
@@ -230,6 +242,10 @@ class EnvironmentEffect:
             return out
         idx = np.nonzero(front)[0]
         sub = {k: v[idx] for k, v in params.items()}
+        if material.name in self.reflectors:  # diffuse only: the mirror effect adds the specular
+            if not self.lightmapped:
+                out[idx] = np.asarray(sub["rho_d"]) * cubemap.sample(self.map("D", self.diffuse_size), n[idx])
+            return out
         frame = (t[idx], b[idx], n[idx])
         ids = idx if pixels is None else np.asarray(pixels)[idx]
         out[idx] = self._shade(model, sub, wo[idx], frame, ids)
@@ -242,9 +258,12 @@ class EnvironmentEffect:
             level0 = self.levels[0]
             incident = lambda d: cubemap.sample(level0, d.reshape(-1, 3)).reshape(d.shape)  # noqa: E731
             return sampling.monte_carlo(model, params, wo, frame, incident, mc_lobes(model, params, wo),
-                                        self.mc_samples, self.seed, self.mc_samples * self.frame_index, ids)
+                                        self.mc_samples, self.seed, self.mc_samples * self.frame_index, ids,
+                                        specular_only=self.lightmapped)
         kind = lobes.kind(model, self.method)
-        out = np.asarray(params["rho_d"]) * cubemap.sample(self.map("D", self.diffuse_size), n)
+        out = np.zeros((len(wo), 3))
+        if not self.lightmapped:
+            out += np.asarray(params["rho_d"]) * cubemap.sample(self.map("D", self.diffuse_size), n)
         if kind == "cosine":
             for lobe in lobes.cosine_lobes(model, params):
                 p = lobes.peak(lobe, wo)
@@ -334,6 +353,13 @@ class EnvironmentEffect:
                     "        }", "    }"]
             return (f"const int ENV_LIGHTS = {D};\nuniform vec3 u_env_light_dir[{D}];\n"
                     f"uniform vec3 u_env_light_radiance[{D}];\n", loop)
+        if material.name in self.reflectors:  # diffuse only; the mirror effect declares atlas_lod
+            if self.lightmapped:
+                return "", []
+            return ("uniform sampler2D u_env_D;\n",
+                    ["    if (wo.z > 0.0) {  // environment: diffuse D(N) of a reflector (sbrdf_envmap)",
+                     f"        L += {exprs['rho_d']} * atlas_lod(u_env_D, N, 0.0, {float(self.diffuse_size)!r}, 0.0);",
+                     "    }"])
         return fragment_code(self, material, exprs)
 
     def gl_prepare(self, drawer) -> None:
@@ -351,6 +377,10 @@ class EnvironmentEffect:
 
     def gl_use(self, first_unit: int) -> int:
         return self._gl.use(first_unit)
+
+    def gl_camera(self, drawer) -> None:
+        """The camera moved (a walkthrough): the progressive mode starts its running mean again."""
+        self.frame_index = 0
 
     def gl_frame(self, drawer) -> None:
         """Before each frame of ``drawer`` (a GLScene): the progressive mode advances its block of points."""

@@ -92,7 +92,7 @@ def beckmann_loop(P: str, acc: tuple[str, str], call: str, rho_d: str, lookup: s
 def _textures(effect) -> list[tuple[str, str, int]]:
     """(uniform name, map key, face size) of the atlases a method reads."""
     m = effect.method
-    out = [] if m == "progressive" else [("u_env_D", "D", effect.diffuse_size)]
+    out = [] if m == "progressive" and not getattr(effect, "reflectors", None) else [("u_env_D", "D", effect.diffuse_size)]
     if m == "prefiltered-discrete":
         out += [(f"u_env_S{k}", f"S{e:g}", effect.prefiltered_size) for k, e in enumerate(prefilter.EXPONENTS)]
     elif m == "prefiltered-mip":
@@ -113,7 +113,7 @@ def fragment_code(effect, material, exprs: dict) -> tuple[str, list[str]]:
     body = ["    if (wo.z > 0.0) {  // environment lighting (sbrdf_envmap)"]
     size_D, size_S, size = (float(effect.diffuse_size), float(effect.prefiltered_size), float(effect.size))
     top = float(np.log2(effect.size))
-    if effect.method != "progressive":
+    if effect.method != "progressive" and not getattr(effect, "lightmapped", False):  # else: the light map's
         body.append(f"        L += {exprs['rho_d']} * atlas_lod(u_env_D, N, 0.0, {size_D!r}, 0.0);")
     if effect.method.startswith("prefiltered"):
         if effect.method == "prefiltered-discrete":
@@ -217,6 +217,8 @@ def _progressive_block(effect, model, exprs) -> list[str]:
     except SbrdfError:
         kind = "other"
     call = model.glsl_call("wi", "wo", exprs)
+    if getattr(effect, "lightmapped", False):  # the diffuse part is the light map's
+        call = f"({call} - {exprs['rho_d']})"
     strategies = ["hemisphere"]
     setup = []
     if kind == "cosine":
@@ -317,7 +319,8 @@ class GLResources:
                 prog[uniform].value = unit
             unit += 1
         if self.effect.method == "progressive":
-            prog["u_env_accum"].value = unit
+            if "u_env_accum" in prog:  # not in a reflector's program (diffuse only)
+                prog["u_env_accum"].value = unit
             unit += 1
         return unit - first
 
@@ -342,8 +345,9 @@ class GLResources:
         if k > 0:  # through memory: llvmpipe's framebuffer copy clamps float colour to [0, 1]
             self.accum.write(drawer.fbo.read(components=4, dtype="f4"))
         for prog in drawer.programs.values():
-            prog["u_env_xi"].write(pts.tobytes())
-            prog["u_env_weight"].value = 1.0 / (k + 1)
+            if "u_env_xi" in prog:
+                prog["u_env_xi"].write(pts.tobytes())
+                prog["u_env_weight"].value = 1.0 / (k + 1)
 
     def release(self) -> None:
         for _, tex in self.textures:

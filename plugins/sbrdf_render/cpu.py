@@ -15,6 +15,9 @@ resolution and n×n blocks are averaged in linear radiance
 ``gl`` rasterises the same points, so the two still agree pixel for pixel.
 ``antialias: 1`` casts one ray through each pixel centre.
 
+A scene with ``lightmap:`` shades diffuse as ρ_d·E(uv) from its baked maps
+(:func:`lightmap_radiance`, seed 004 Eq 4.1) and the lights add f_r − ρ_d.
+
 ``filter: trilinear`` materials with MIP levels choose their level from the
 texel footprint between neighbouring rays of the grid cast (:func:`lods`).
 
@@ -39,7 +42,8 @@ from . import materials as mat
 from .base import SceneRenderer
 from .effects import active_effects, check_covered
 
-__all__ = ["BATCH", "CPURenderer", "cast", "lods", "occluded", "render_scene", "shade", "texel_edges"]
+__all__ = ["BATCH", "CPURenderer", "cast", "check_lightmapped", "lightmap_radiance", "lods", "occluded", "render_scene", "shade",
+           "texel_edges"]
 
 logger = logging.getLogger(__name__)
 
@@ -55,10 +59,11 @@ def occluded(scene, materials, points: np.ndarray, to_light: np.ndarray, distanc
 
 
 def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray, shadow=None,
-          lod: np.ndarray | None = None) -> np.ndarray:
+          lod: np.ndarray | None = None, diffuse: bool = True) -> np.ndarray:
     """Radiance ``(R, 3)`` of hit points under point and directional lights (Eq 6.3).
 
-    ``lod``: each hit's MIP level of detail (trilinear materials, :func:`lods`).
+    ``lod``: each hit's MIP level of detail (trilinear materials, :func:`lods`).  ``diffuse=False``: the lights
+    add f_r − ρ_d only (a light-mapped scene's diffuse comes from its maps, :func:`lightmap_radiance`).
     """
     model = material.model
     two_sided = bool(contracts.optional(model, "two_sided", "brdf-model"))  # transmissive: lit from either side, |N·ω_l|
@@ -92,8 +97,41 @@ def shade(material: mat.SceneMaterial, lights, hits: Hits, view_dirs: np.ndarray
                 out[idx] += material.surface.radiance(hits.uv[sl][lit], wi_local[lit], wo_local[lit], E[lit])
                 continue
             f = model.eval({k2: v[lit] for k2, v in params.items()}, wi_local[lit][:, None], wo_local[lit][:, None])[:, 0]
+            if not diffuse:
+                from sbrdf_lib.lightmap import diffuse_value
+
+                front = (wi_local[lit][:, 2] > 0) & (wo_local[lit][:, 2] > 0)  # where the Lambertian term exists
+                f = f - diffuse_value(params)[lit] * front[:, None]
             out[idx] += f * E[lit] * np.abs(cos[lit])[:, None]
     return out
+
+
+def lightmap_radiance(scene, materials: dict, maps: dict, hits: Hits, which: np.ndarray) -> np.ndarray:
+    """ρ_d · E(uv) of light-mapped hits (Mühlbacher Eq 4.1, ρ_d = k_d/π), ``(R, 3)``; 0 on misses."""
+    from sbrdf_lib.lightmap import chart_uv, diffuse_value, lookup
+
+    out = np.zeros((len(which), 3))
+    for k, obj in enumerate(scene.objects):
+        sel = np.nonzero(which == k)[0]
+        if sel.size == 0:
+            continue
+        m = materials[obj.material]
+        uv = hits.uv[sel]
+        rho_d = diffuse_value(m.model.unpack(m.lookup(uv)))
+        out[sel] = rho_d * lookup(maps[k], chart_uv(obj, uv))
+    return out
+
+
+def check_lightmapped(scene, materials: dict) -> None:
+    """A light-mapped scene's materials need a diffuse term (ρ_d or k_d) and a model rather than a shading rule."""
+    from sbrdf_core.errors import SbrdfError
+    from sbrdf_lib.lightmap import has_diffuse
+
+    for name in sorted({o.material for o in scene.objects}):
+        m = materials[name]
+        if m.surface is not None or not has_diffuse(m.model):
+            raise SbrdfError(f"{scene.file}: lightmap: material {name!r} has no rho_d or k_d; light maps shade "
+                             "k_d/pi E (Eq 4.1) with the model's diffuse term")
 
 
 def lods(scene, materials: dict, hits: Hits, which: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -142,6 +180,12 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
         def shadow(k, points, wi, dist):
             return occluded(scene, materials, points, wi, dist, meshes)
     lod_all = lods(scene, materials, hits, which, (H, W)) if any(m.trilinear for m in materials.values()) else None
+    lit_maps = scene.lightmapped
+    if lit_maps:
+        from sbrdf_lib.lightmap import load_maps
+
+        check_lightmapped(scene, materials)
+        diffuse = lightmap_radiance(scene, materials, load_maps(scene), hits, which)
     for name, material in materials.items():
         ks = [k for k, o in enumerate(scene.objects) if o.material == name]
         sel = np.nonzero(np.isin(which, ks))[0]
@@ -149,7 +193,9 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
             continue
         sub = Hits(hits.t[sel], hits.position[sel], hits.normal[sel], hits.tangent[sel], hits.uv[sel])
         lod = lod_all[sel] if material.trilinear else None
-        image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow, lod)
+        image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow, lod, diffuse=not lit_maps)
+        if lit_maps:
+            image[sel] += diffuse[sel]
         for effect in effects:  # environment lighting, mirrors: only what the scene wants
             image[sel] += effect.cpu_radiance(material, sub, dirs[sel], sel)
     image = downsample(image.reshape(H, W, 3), n)

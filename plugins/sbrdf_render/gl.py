@@ -11,8 +11,11 @@ The shader is generated from what the scene uses (:func:`fragment_source`):
 the number of point and directional lights and their fall-off, tangent frames
 only for anisotropic materials, the alpha-kill only where a material has
 transparency, two-sided lighting only for transmissive models, shadow-map
-lookups only when the scene asks for shadows.  Nothing else is compiled or
-bound.  The GeForce 4 emulation lives in :mod:`sbrdf_render.gf4`.
+lookups only when the scene asks for shadows, light-map look-ups (ρ_d·E,
+Eq 4.1 of seed 004; the lights then add f_r − ρ_d) only for a scene with
+``lightmap:``.  Nothing else is compiled or bound.  The GeForce 4 emulation
+lives in :mod:`sbrdf_render.gf4`; walkthroughs (a moving camera,
+:meth:`GLScene.set_camera`) in :mod:`sbrdf_render.walkthrough`.
 
 Antialiasing (the scene's ``antialias: n²``, 4 unless it says) is
 supersampling with the ``cpu`` renderer's pattern: the scene is drawn into a
@@ -81,6 +84,15 @@ def fragment_source(material: mat.SceneMaterial, features: Features, effects: tu
     out += [f"uniform sampler2D u_params_{k};" for k in range(ntex)]
     if material.alpha is not None:
         out.append("uniform sampler2D u_alpha;")
+    diffuse = None
+    if features.lightmap:  # diffuse from the object's light map (Eq 4.1); the lights add f_r − ρ_d
+        from sbrdf_lib.lightmap import diffuse_glsl
+
+        diffuse = diffuse_glsl(exprs) if surface is None else None
+        if diffuse is None:
+            raise SbrdfError(f"gl renderer: lightmap: material {material.name!r} has no rho_d or k_d; light maps "
+                             "shade k_d/pi E (Eq 4.1) with the model's diffuse term")
+        out += ["uniform sampler2D u_lightmap;", "uniform vec2 u_lm_repeat;"]
     if NP:
         out += [f"uniform vec3 u_point_pos[{NP}];", f"uniform vec3 u_point_power[{NP}];"]
     if ND:
@@ -92,7 +104,10 @@ def fragment_source(material: mat.SceneMaterial, features: Features, effects: tu
                 f"const float SHADOW_BIAS = {BIAS!r};", SHADOW_LOOKUP]
     if surface is None:
         out.append(model.glsl())
-        radiance = f"{model.glsl_call('wi', 'wo', exprs)} * E * {'abs(c)' if two_sided else 'c'}"
+        f = model.glsl_call("wi", "wo", exprs)
+        if diffuse is not None:  # the Lambertian term exists where both directions are above the surface
+            f = f"({f} - (wi.z > 0.0 && wo.z > 0.0 ? {diffuse} : vec3(0.0)))"
+        radiance = f"{f} * E * {'abs(c)' if two_sided else 'c'}"
     else:
         out.append(surface.glsl())
         radiance = surface.glsl_radiance("wi", "wo", "E")
@@ -110,6 +125,8 @@ def fragment_source(material: mat.SceneMaterial, features: Features, effects: tu
     body += ["    vec3 V = normalize(u_eye - v_pos);",
              "    vec3 wo = vec3(dot(T, V), dot(B, V), dot(N, V));",
              "    vec3 L = vec3(0.0);"]
+    if diffuse is not None:
+        body.append(f"    L += {diffuse} * texture(u_lightmap, v_uv / u_lm_repeat).rgb;  // k_d/pi E (Eq 4.1)")
     lit = "c != 0.0" if two_sided else "c > 0.0"
 
     def light_loop(count, setup, shadow_base):
@@ -207,12 +224,24 @@ class GLScene(Drawer):
             prog = self.programs[obj.material]
             cols = [mesh.positions, mesh.normals] + ([mesh.tangents] if m.anisotropic else []) + [mesh.uvs]
             names = ["in_pos", "in_normal"] + (["in_tangent"] if m.anisotropic else []) + ["in_uv"]
-            fmt = "3f 3f " + ("4f " if m.anisotropic else "") + "2f"
+            # attributes the compiler dropped (a light-mapped Lambertian shader needs no normal) become padding
+            fmt = " ".join(f"{c.shape[1]}f" if nm in prog else f"{c.shape[1]}x4" for c, nm in zip(cols, names))
+            names = [nm for nm in names if nm in prog]
             vbo = self._keep(ctx.buffer(np.concatenate(cols, axis=1).astype("f4").tobytes()))
             ibo = self._keep(ctx.buffer(mesh.indices.astype("u4").tobytes()))
             self.vaos.append((obj.material, self._keep(ctx.vertex_array(prog, [(vbo, fmt, *names)], ibo))))
             self.triangles += mesh.triangles
         self.meshes = meshes
+        self.lightmaps: list = []
+        if self.features.lightmap:
+            from sbrdf_lib.lightmap import load_maps
+
+            for _, E in sorted(load_maps(scene).items()):
+                t = self._keep(ctx.texture((E.shape[1], E.shape[0]), 3, np.ascontiguousarray(E, "f4").tobytes(),
+                                           dtype="f4"))
+                t.filter = (moderngl.LINEAR, moderngl.LINEAR)
+                t.repeat_x = t.repeat_y = False
+                self.lightmaps.append(t)
         self.shadow = None
         if self.features.shadows:
             from .shadows import ShadowMaps
@@ -276,19 +305,26 @@ class GLScene(Drawer):
         points = [lt for lt in scene.lights if lt.type == "point"]
         dirs = [lt for lt in scene.lights if lt.type == "directional"]
         for name, prog in self.programs.items():
-            prog["u_mvp"].write(mvp.T.tobytes())
-            prog["u_eye"].value = tuple(scene.camera.position)
+            def put(uniform, data, prog=prog):  # the compiler drops what a variant does not use (lit Lambertian)
+                if uniform in prog:
+                    prog[uniform].write(np.ascontiguousarray(data).tobytes())
+
+            put("u_mvp", mvp.T)
+            put("u_eye", np.asarray(scene.camera.position, "f4"))
             if points:
-                prog["u_point_pos"].write(np.array([lt.vector for lt in points], "f4").tobytes())
-                prog["u_point_power"].write(np.array([lt.power for lt in points], "f4").tobytes())
-                if "u_point_falloff" in prog:
-                    prog["u_point_falloff"].write(np.array([lt.falloff for lt in points], "i4").tobytes())
+                put("u_point_pos", np.array([lt.vector for lt in points], "f4"))
+                put("u_point_power", np.array([lt.power for lt in points], "f4"))
+                put("u_point_falloff", np.array([lt.falloff for lt in points], "i4"))
             if dirs:
-                prog["u_dir_dir"].write(np.array([lt.vector for lt in dirs], "f4").tobytes())
-                prog["u_dir_power"].write(np.array([lt.power for lt in dirs], "f4").tobytes())
+                put("u_dir_dir", np.array([lt.vector for lt in dirs], "f4"))
+                put("u_dir_power", np.array([lt.power for lt in dirs], "f4"))
             unit = 0
             for uniform, _ in self.textures[name]:
                 prog[uniform].value = unit
+                unit += 1
+            if self.lightmaps:
+                if "u_lightmap" in prog:
+                    prog["u_lightmap"].value = unit
                 unit += 1
             surface = self.materials[name].surface
             for uniform, value in (surface.gl_uniforms() if surface is not None else {}).items():
@@ -299,6 +335,21 @@ class GLScene(Drawer):
                 unit += len(self.shadow.maps)
             for effect in self.effects:
                 unit += effect.gl_uniforms(prog, unit)
+
+    def set_camera(self, camera) -> None:
+        """Move the camera (walkthroughs): uniforms, and effects that follow it (``gl_camera(drawer)``, optional).
+
+        ``camera``'s resolution is ignored: the framebuffer keeps its size.
+        """
+        import dataclasses
+
+        self.scene = dataclasses.replace(self.scene, camera=dataclasses.replace(
+            camera, resolution=self.scene.camera.resolution))
+        for effect in self.effects:
+            follow = getattr(effect, "gl_camera", None)  # effects of this repository; not in the contract yet
+            if callable(follow):
+                follow(self)
+        self._set_uniforms()
 
     def draw(self, read: bool = True) -> Frame:
         import moderngl
@@ -315,10 +366,15 @@ class GLScene(Drawer):
         bg = tuple(float(x) for x in self.scene.background)
         with self.query:
             self.fbo.clear(*bg, 0.0, depth=1.0)
-            for name, vao in self.vaos:
+            for k, (name, vao) in enumerate(self.vaos):
                 unit = 0
                 for _, t in self.textures[name]:
                     t.use(unit)
+                    unit += 1
+                if self.lightmaps:
+                    self.lightmaps[k].use(unit)
+                    if "u_lm_repeat" in self.programs[name]:
+                        self.programs[name]["u_lm_repeat"].value = tuple(float(x) for x in self.scene.objects[k].uv_repeat)
                     unit += 1
                 if self.shadow is not None:
                     self.shadow.use(unit)
@@ -357,9 +413,21 @@ class GLRenderer(SceneRenderer):
             out.update(prepare_hardware(scene, material, self._registry()))
         return out
 
+    def render_path(self, material, out_dir: str, **options) -> dict:
+        """The scene's camera path as frames and a video in ``out_dir`` (:func:`sbrdf_render.walkthrough.render_path`)."""
+        from .walkthrough import render_path
+
+        if self.pipeline != "float":
+            raise SbrdfError("walkthroughs are drawn by the float pipeline")
+        scene, materials = self.load(material)
+        return render_path(scene, materials, out_dir, registry=self._registry(),
+                           exposure=self.exposure, **options)
+
     def render(self, material, prepared: dict | None = None) -> RenderResult:
         scene, materials = self.load(material, prepared)
         if self.pipeline == "geforce4":
+            if scene.lightmapped:
+                raise SbrdfError(f"{scene.file}: the geforce4 pipeline draws no light maps; use pipeline: float")
             if scene.section("environment") is not None:
                 raise SbrdfError(f"{scene.file}: the geforce4 pipeline draws point and directional lights only; "
                                  "use pipeline: float for environment lighting")

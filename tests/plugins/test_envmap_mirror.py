@@ -87,22 +87,91 @@ def test_scenes_without_a_reflector_have_no_mirror_pass(gl):
     assert all("mir_" not in fs for _, fs in s.sources.values())
 
 
-def test_reflector_errors(gl, tmp_path):
-    from sbrdf_core.io import write_exr
-
-    write_exr(str(tmp_path / "e.exr"), np.ones((4, 8, 3), np.float32))
-    scene = mirror_scene(extra=f"environment: {{file: {tmp_path / 'e.exr'}, options: {{size: 4, prefiltered_size: 4, "
-                               "diffuse_size: 4}}")
-    with pytest.raises(SbrdfError, match="environment map is not supported"):
-        render_scene(scene, mat.resolve(scene, None, REGISTRY))
+def test_reflector_errors(gl):
     text = """
 camera: {position: [0, -2, 1], resolution: [8, 8]}
-materials: {m: {model: lambert, params: {}}}
+materials: {m: {model: lambert, params: {}}, n: {model: lambert, params: {}}}
 objects: [{shape: plane, material: m, reflector: true}, {shape: sphere, material: m}]
 lights: [{type: directional, direction: [0, 0, 1]}]
 """
     scene = load_scene(text)
     with pytest.raises(SbrdfError, match="material of its own"):
         render_scene(scene, mat.resolve(scene, None, REGISTRY))
-    with pytest.raises(SbrdfError, match="reflector"):
-        load_scene(text.replace("shape: sphere, material: m", "shape: sphere, material: m, reflector: true"))
+    shared = load_scene(text.replace("shape: sphere, material: m", "shape: plane, material: m, reflector: true"))
+    with pytest.raises(SbrdfError, match="planes 0 and 1 share material 'm'"):
+        render_scene(shared, mat.resolve(shared, None, REGISTRY))
+    lonely = load_scene(text.replace("reflector: true", "reflector: false") + "mirror: {samples: 3}\n")
+    with pytest.raises(SbrdfError, match="no plane has reflector: true"):
+        render_scene(lonely, mat.resolve(lonely, None, REGISTRY))
+
+
+def test_mirror_options_come_from_the_scene_file_and_are_validated():
+    from sbrdf_lib.scene import SceneError
+    from sbrdf_render.effects import active_effects
+
+    scene = mirror_scene(extra="mirror: {samples: 3, refinements: 2, mc_samples: 8}")
+    eff = [e for e in active_effects(scene, mat.resolve(scene, None, REGISTRY), REGISTRY) if e.name == "mirror"][0]
+    assert (eff.samples, eff.refinements, eff.mc_samples) == (3, 2, 8)
+    with pytest.raises(SceneError, match=r"<scene>:14: .*'samples' = 100 is outside"):
+        mirror_scene(extra="mirror:\n  samples: 100")
+    with pytest.raises(SceneError, match="unknown parameter"):
+        mirror_scene(extra="mirror: {sample: 3}")
+
+
+SKY_SCENE = """
+camera: {{position: [0.3, -2.6, 1.3], look_at: [0.0, 0.2, 0.4], fov_deg: 45, resolution: [48, 36]}}
+antialias: 1
+materials:
+  floor: {{model: lafortune, params: {{rho_d: 0.05, rho_s_1: 31.8, c_xy_1: -1.0, c_z_1: 1.0, exponent_1: 200}}}}
+  wall: {{model: lafortune, params: {{rho_d: 0.1, rho_s_1: 63.6, c_xy_1: -1.0, c_z_1: 1.0, exponent_1: 400}}}}
+  ball: {{model: lambert, params: {{rho_d: [0.6, 0.3, 0.1]}}}}
+  post: {{model: lambert, params: {{rho_d: [0.1, 0.3, 0.6]}}}}
+objects:
+  - {{shape: plane, size: [4, 4], material: floor, reflector: {refl}}}
+  - {{shape: plane, size: [3, 1.2], material: wall, reflector: {refl},
+     transform: {{translate: [0, 1.5, 0.6], rotate_deg: [90, 0, 0]}}}}
+  - {{shape: sphere, radius: 0.4, material: ball, transform: {{translate: [0.3, 0.2, 0.4]}}}}
+  - {{shape: cylinder, radius: 0.2, height: 1.0, material: post, transform: {{translate: [-0.5, 0.6, 0.5]}}}}
+lights:
+  - {{type: directional, direction: [0.3, -0.5, 1.0], irradiance: 2.0}}
+environment: {{file: {sky}, options: {{method: sampling, size: 32, diffuse_size: 8}}}}
+{mirror}
+"""
+
+
+@pytest.fixture(scope="module")
+def sky_file(tmp_path_factory):
+    from sbrdf_core.io import write_exr
+    from sbrdf_envmap.procedural import sky
+
+    path = tmp_path_factory.mktemp("sky") / "sky.exr"
+    write_exr(str(path), sky())
+    return path
+
+
+def test_two_mirrors_and_an_environment_in_one_frame_match_the_reference(gl, sky_file):
+    """A floor and a wall mirror (one pass each) under an environment map and a directional light, against the
+    cpu reference (ray-cast Monte Carlo, 256 samples per strategy; the rays that leave the scene see the
+    environment, the reflected objects its D(N)).  Measured rel RMS over the image: 0.096 (3 samples), 0.078 (7),
+    0.062 (15); mean brightness within 1.3 % at 7.  Bound: 0.12 at 7 samples, falling with the count."""
+    def scene(refl="true", samples=7, mc=256):
+        mirror = f"mirror: {{samples: {samples}, mc_samples: {mc}}}" if refl == "true" else ""
+        return load_scene(SKY_SCENE.format(refl=refl, sky=sky_file, mirror=mirror))
+
+    ref_scene = scene()
+    ref, _ = render_scene(ref_scene, mat.resolve(ref_scene, None, REGISTRY), registry=REGISTRY)
+    errs = []
+    for k in (3, 7, 15):
+        s = scene(samples=k)
+        got, drawer = draw(gl, s, mat.resolve(s, None, REGISTRY))
+        errs.append(float(np.sqrt(((got - ref) ** 2).mean() / (ref ** 2).mean())))
+        if k == 7:
+            assert abs(got.mean() / ref.mean() - 1) < 0.04
+            src = {name: fs for name, (_, fs) in drawer.sources.items()}
+            assert "u_mir0_rad" in src["floor"] and "u_mir1_rad" in src["wall"] and "u_mir1" not in src["floor"]
+            assert "mir_" not in src["ball"] and "env_sample_cosine" not in src["floor"]  # the mirror's lobes only
+    assert errs[1] < 0.12 and errs[0] > errs[1] > errs[2], errs
+    plain = scene(refl="false")
+    _, drawer = draw(gl, plain, mat.resolve(plain, None, REGISTRY))
+    assert [e.name for e in drawer.effects] == ["environment"]
+    assert all("mir" not in fs for _, fs in drawer.sources.values())  # no mirror code without a reflector
