@@ -49,9 +49,14 @@ Sizes: full = 64×64 texels per data set × 300 training + 100 held-out pairs
 data set (about a minute on 2 cores).  ``--docs`` also runs the
 accuracy-vs-time sweep of ``docs/accuracy-vs-time.md`` and rewrites it.
 
+The ``lm`` figures are its defaults; the ``_vp`` keys are the same fits with
+``variable_projection: true`` (opt-in: faster, but a higher error at unseen
+directions in benchmarks/fidelity.py).
+
 Last line: ``fit: texels=... peer_cpu_ms_per_texel=... lm1_cpu_ms_per_texel=...
 lm2_cpu_ms_per_texel=... speedup_cpu_lm1=... speedup_cpu_lm2=...
-rms_ratio_lm2=... failed_lm2=... failed_peer=...``
+rms_ratio_lm2=... failed_lm2=... failed_peer=... speedup_cpu_lm1_vp=...
+speedup_cpu_lm2_vp=... rms_ratio_lm2_vp=... failed_lm2_vp=...``
 """
 
 from __future__ import annotations
@@ -201,13 +206,14 @@ def run_peer(data, lobes):
 
 # -- the project: the Fit node's tile kernel with the lm fitter ---------------------------------------
 
-def run_lm(data, lobes, tile=32):
+def run_lm(data, lobes, tile=32, variable_projection=False):
     from sbrdf_core.nodes.fit import EXTRA, NONFINITE_RESULT, NOT_CONVERGED, FitOptions, fit_tile
     from sbrdf_core.registry import Registry
 
     reg = Registry()
     model = reg.create("brdf-model", "lafortune", {"lobes": lobes})
-    fitter = reg.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": lobes}})
+    fitter = reg.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": lobes},
+                                         "variable_projection": variable_projection})
     options = FitOptions(holdout=0.0)
     side = data["side"]
     out = np.zeros((side, side, model.size + len(EXTRA)), np.float32)
@@ -250,10 +256,11 @@ def failed(result, best):
 def compare(data, lobes):
     peer = score(data, run_peer(data, lobes), lobes)
     lm = score(data, run_lm(data, lobes), lobes)
+    vp = score(data, run_lm(data, lobes, variable_projection=True), lobes)
     best = np.minimum(peer["rms"], lm["rms"])
     T = data["side"] ** 2
     row = {"set": data["name"], "lobes": lobes, "texels": T}
-    for who, r in (("peer", peer), ("lm", lm)):
+    for who, r in (("peer", peer), ("lm", lm), ("vp", vp)):
         fail = failed(r, best)
         row[who] = {"cpu_ms": 1e3 * r["cpu_s"] / T, "wall_ms": 1e3 * r["wall_s"] / T,
                     "rms": float(np.mean(r["rms"][r["finite"]])), "held": float(np.mean(r["held"][r["finite"]])),
@@ -266,6 +273,7 @@ def warm_up():
     data = make_dataset("peer", 4, 60, 10, seed=99)
     for lobes in (1, 2):
         run_lm(data, lobes)
+        run_lm(data, lobes, variable_projection=True)
 
 def graph_text(texels, poses, fits: dict[str, dict], noise=NOISE, seed=0) -> str:
     sample = {"model": "lafortune", "model_params": TWO_LOBES, "texels": list(texels), "poses": poses,
@@ -419,14 +427,20 @@ def main() -> int:
                   f"held-out {p['held']:.5f}, failed {p['failed']} (unfinished {p['unfinished']}) | "
                   f"lm {m['cpu_ms']:7.3f} ms CPU {m['wall_ms']:7.3f} ms wall, RMS {m['rms']:.5f} "
                   f"held-out {m['held']:.5f}, failed {m['failed']} (unfinished {m['unfinished']}) | "
-                  f"speedup CPU {p['cpu_ms'] / m['cpu_ms']:.1f}x wall {p['wall_ms'] / m['wall_ms']:.1f}x", flush=True)
+                  f"speedup CPU {p['cpu_ms'] / m['cpu_ms']:.1f}x wall {p['wall_ms'] / m['wall_ms']:.1f}x | "
+                  f"variable projection {row['vp']['cpu_ms']:7.3f} ms CPU, RMS {row['vp']['rms']:.5f} held-out "
+                  f"{row['vp']['held']:.5f}, failed {row['vp']['failed']}, speedup CPU "
+                  f"{p['cpu_ms'] / row['vp']['cpu_ms']:.1f}x", flush=True)
     one, two = rows[0], rows[1]
     line = (f"fit: texels={one['texels']} peer_cpu_ms_per_texel={two['peer']['cpu_ms']:.3f} "
             f"lm1_cpu_ms_per_texel={one['lm']['cpu_ms']:.4f} lm2_cpu_ms_per_texel={two['lm']['cpu_ms']:.4f} "
             f"speedup_cpu_lm1={one['peer']['cpu_ms'] / one['lm']['cpu_ms']:.1f} "
             f"speedup_cpu_lm2={two['peer']['cpu_ms'] / two['lm']['cpu_ms']:.1f} "
             f"rms_ratio_lm2={two['lm']['rms'] / two['peer']['rms']:.4f} "
-            f"failed_lm2={two['lm']['failed']} failed_peer={two['peer']['failed']}")
+            f"failed_lm2={two['lm']['failed']} failed_peer={two['peer']['failed']} "
+            f"speedup_cpu_lm1_vp={one['peer']['cpu_ms'] / one['vp']['cpu_ms']:.1f} "
+            f"speedup_cpu_lm2_vp={two['peer']['cpu_ms'] / two['vp']['cpu_ms']:.1f} "
+            f"rms_ratio_lm2_vp={two['vp']['rms'] / two['peer']['rms']:.4f} failed_lm2_vp={two['vp']['failed']}")
     if args.docs:
         workdir = Path(tempfile.mkdtemp(prefix="sbrdf-fit-bench-"))
         try:

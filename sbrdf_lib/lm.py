@@ -17,11 +17,16 @@ sharpness), so the fit is the best one *inside* them, not a clipped
 unbounded one.  Parameters named in ``fixed`` keep their initial value.
 
 A fit form with a ``separable_fit`` method (Lafortune with 1–2 isotropic
-lobes, Lambert) is solved that way instead when nothing asks for the general
-machinery (one start, linear loss, no fixed parameters): variable projection,
-where only the nonlinear shape parameters iterate and the magnitudes are
-solved in closed form at every evaluation; the result is then projected onto
-the limits and, where that moved it, refined by the general LM.
+lobes, Lambert) can be solved that way instead when nothing asks for the
+general machinery (one start, linear loss, no fixed parameters): variable
+projection, where only the nonlinear shape parameters iterate and the
+magnitudes are solved in closed form at every evaluation; the result is then
+projected onto the limits and, where that moved it, refined by the general
+LM.  It is taken where the form says it is exact (``separable_exact``:
+Lambert's closed form) or the caller asks (``separable=True``, the ``lm``
+fitter's ``variable_projection``): for Lafortune it is 2–4× faster but found
+fits with a higher error at unseen directions (benchmarks/fidelity.py:
+median 0.153 → 0.204 with 2 lobes on GGX truth), so it is not the default.
 
 Starting points do not depend on luck: the model's own initial guess and a
 Sobol set over the parameters' typical ranges, each with its magnitudes
@@ -182,7 +187,7 @@ IRLS_ROUNDS = 4
 
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
-              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None):
+              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None, separable=False):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
@@ -196,7 +201,8 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     :class:`~sbrdf_core.constraints.Limits` every iterate is projected onto.
     ``fixed``: fit-form parameter names held constant.  With one start, the
     linear loss and nothing fixed, a form's ``separable_fit`` (variable
-    projection) replaces the general LM.  ``stats``, a dict, gets
+    projection) replaces the general LM where the form marks it exact or
+    ``separable`` asks for it (module docstring).  ``stats``, a dict, gets
     ``restarted`` (``(T,)`` mask of texels whose best result came from a start
     other than their best-scored one).
     """
@@ -215,9 +221,11 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         free[slices[name]] = False
     project = projector(form, limits)
     everyone = np.arange(T)
-    separable = getattr(form, "separable_fit", None)
-    if separable is not None and loss == "linear" and free.all() and starts == 1:
-        out = separable(f_r, valid, wi, wo, initial=initial, limits=limits, iterations=iterations,
+    fast = getattr(form, "separable_fit", None)
+    if separable is False and not getattr(form, "separable_exact", False):
+        fast = None
+    if fast is not None and loss == "linear" and free.all() and starts == 1:
+        out = fast(f_r, valid, wi, wo, initial=initial, limits=limits, iterations=iterations,
                         tolerance=tolerance, damping=damping)
         if out is not None:
             x, cost, converged = out

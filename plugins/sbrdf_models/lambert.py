@@ -47,6 +47,9 @@ class LambertModel(BRDFModel):
         n = np.maximum(w.sum(axis=1), 1)
         return {"rho_d": np.clip((f_r * w).sum(axis=1) / n, 0, 10)}
 
+    #: :meth:`separable_fit` is the exact least-squares solution, so ``fit_model`` always takes it.
+    separable_exact = True
+
     def separable_fit(self, f_r, valid, wi, wo, *, initial=None, limits=None, iterations=50, tolerance=1e-4,
                       damping=1e-3):
         """The least-squares ρ_d in closed form: each channel's mean over the valid samples above the horizon,

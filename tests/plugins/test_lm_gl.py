@@ -133,7 +133,8 @@ def test_sharp_lobes_exponents_to_ten_thousand():
     for v in gpu.params.values():
         assert np.isfinite(v).all()
     assert np.all(gpu.params["exponent_1"] <= 20000.0)
-    assert np.mean(gpu.rms < 2 * noise) >= 0.25
+    print("at the noise level: lm-gl", np.mean(gpu.rms < 2 * noise), "lm", np.mean(cpu.rms < 2 * noise))
+    assert np.mean(gpu.rms < 2 * noise) >= np.mean(cpu.rms < 2 * noise) - 1 / T  # as often as lm, within a texel
     assert np.median(gpu.rms) <= 1.05 * np.median(cpu.rms) + 1e-5
 
 

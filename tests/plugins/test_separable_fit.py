@@ -22,7 +22,7 @@ def general(monkeypatch, cls):
 def test_separable_fit_is_as_good_as_the_general_lm(registry, monkeypatch, lobes):
     model = registry.create("brdf-model", "lafortune", {"lobes": lobes})
     _, f, valid, wi, wo = data(model, T=40, noise=0.01, seed=3)
-    _, conv_fast, cost_fast = fit_model(model, f, valid, wi, wo)
+    _, conv_fast, cost_fast = fit_model(model, f, valid, wi, wo, separable=True)
     general(monkeypatch, LafortuneFitForm)
     _, _, cost_general = fit_model(model, f, valid, wi, wo)
     assert conv_fast.all()
@@ -38,7 +38,7 @@ def test_separable_fit_stays_inside_the_bounds(registry):
         truth[f"c_xy_{j}"] = truth[f"c_xy_{j}"] * 1.3
     f = model.eval(truth, wi, wo)
     limits = Limits(peak=None, resolution=np.full(30, 0.1), growth=1.0, albedo=None)
-    params, _, cost = fit_model(model, f, valid, wi, wo, limits=limits)
+    params, _, cost = fit_model(model, f, valid, wi, wo, limits=limits, separable=True)
     cap = float(np.asarray(limits.max_cosine_exponent()).max())
     for j in (1, 2):
         assert (np.abs(params[f"c_xy_{j}"]) <= params[f"c_z_{j}"] + 1e-9).all()
@@ -56,7 +56,7 @@ def test_separable_fit_handles_empty_and_dark_texels(registry):
     valid[0] = False
     wi[2, :, 2] = -np.abs(wi[2, :, 2])
     f[2] = 0.3
-    params, converged, cost = fit_model(model, f, valid, wi, wo)
+    params, converged, cost = fit_model(model, f, valid, wi, wo, separable=True)
     assert converged.all() and np.isfinite(cost).all()
     assert all(np.isfinite(v).all() for v in params.values())
     assert np.allclose(params["rho_d"], 0.0)
@@ -75,3 +75,18 @@ def test_lambert_closed_form_equals_the_general_lm(registry, monkeypatch):
     slow, _, cost_slow = fit_model(model, f, valid, wi, wo, iterations=200, tolerance=1e-12)
     np.testing.assert_allclose(fast["rho_d"], slow["rho_d"], rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(cost_fast, cost_slow, rtol=1e-6)
+
+
+def test_variable_projection_is_opt_in_for_lafortune(registry, monkeypatch):
+    """By default (and through lm without variable_projection) Lafortune takes the general LM; Lambert's exact
+    closed form is always taken."""
+    calls = []
+    original = LafortuneFitForm.separable_fit
+    monkeypatch.setattr(LafortuneFitForm, "separable_fit", lambda self, *a, **k: calls.append(1) or original(self, *a, **k))
+    model = registry.create("brdf-model", "lafortune", {"lobes": 1})
+    _, f, valid, wi, wo = data(model, T=8, noise=0.01, seed=1)
+    fit_model(model, f, valid, wi, wo)
+    registry.create("fitter", "lm", {"model": "lafortune"}).fit(model, f, valid, wi, wo)
+    assert calls == []
+    registry.create("fitter", "lm", {"model": "lafortune", "variable_projection": True}).fit(model, f, valid, wi, wo)
+    assert calls == [1]
