@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import cubemap, lobes
-from .glsl import ESTIMATORS, beckmann_loop, cosine_ring_loop, pattern_decls
-from .mirror_glsl import BACKGROUND_VS, PASS_VS, background_fragment, pass_fragment
+from .glsl import ESTIMATORS, beckmann_footprint_block, cosine_ring_loop, pattern_decls
+from .mirror_glsl import BACKGROUND_VS, background_fragment, scene_pass
 
 
 def _vec4_array(name: str, rows: np.ndarray) -> str:
@@ -75,19 +75,8 @@ vec3 cub_sample_cosine(vec3 rho, vec3 a, float n, vec3 N, vec3 P) {{
     elif kind == "beckmann":
         mx, my = lobes.glsl_slopes(model, exprs)
         call = model.glsl_call("wi", "wo", exprs)
-        body += [f"""        {{
-            float mx = {mx}, my = {my};
-            float r = my / mx;
-            int pat = r > CUB_LINE_THRESHOLD ? 1 : (r < 1.0 / CUB_LINE_THRESHOLD ? 2 : 0);
-            float lx = sqrt(-log(CUB_XI_BORDER));
-            vec3 wc = vec3(-wo.x, -wo.y, wo.z);
-            float tu = atan(lx * mx), tv = atan(lx * my);
-            vec3 hu = vec3(sin(tu), 0.0, cos(tu)), hv = vec3(0.0, sin(tv), cos(tv));
-            vec3 wu = 2.0 * dot(wo, hu) * hu - wo, wv = 2.0 * dot(wo, hv) * hv - wo;
-            float au = acos(clamp(dot(wc, wu), -1.0, 1.0)), av = acos(clamp(dot(wc, wv), -1.0, 1.0));
-{beckmann_loop("CUB", acc, call, diffuse_glsl(exprs) or "vec3(0.0)", "cub_fetch(v_pos, w, au, av)")}
-            L += cub_ratio(num, den);
-        }}"""]
+        body.append(beckmann_footprint_block("CUB", acc, mx, my, call, diffuse_glsl(exprs) or "vec3(0.0)",
+                                             "cub_fetch(v_pos, w, au, av)"))
     body.append("    }")
     return "\n".join(decls) + "\n", body
 
@@ -128,37 +117,8 @@ class CubePass:
         if env is not None:
             env_tex = keep(_atlas(ctx, env.levels, moderngl.LINEAR_MIPMAP_NEAREST))
             D_tex = keep(_atlas(ctx, [env.map("D", env.diffuse_size)], moderngl.LINEAR))
-        points = [lt for lt in scene.lights if lt.type == "point"]
-        dirs = [lt for lt in scene.lights if lt.type == "directional"]
-        programs: dict = {}
-        vaos = []
-        for k, obj in enumerate(scene.objects):
-            if k == target.index:
-                continue
-            m = drawer.materials[obj.material]
-            if obj.material not in programs:
-                prog = keep(ctx.program(vertex_shader=PASS_VS, fragment_shader=pass_fragment(
-                    m, len(points), len(dirs), env.diffuse_size if env is not None else 0, bool(lightmaps))))
-                if points and "u_point_pos" in prog:
-                    prog["u_point_pos"].write(np.array([lt.vector for lt in points], "f4").tobytes())
-                    prog["u_point_power"].write(np.array([lt.power for lt in points], "f4").tobytes())
-                    prog["u_point_falloff"].write(np.array([float(lt.falloff) for lt in points], "f4").tobytes())
-                if dirs and "u_dir_dir" in prog:
-                    prog["u_dir_dir"].write(np.array([lt.vector for lt in dirs], "f4").tobytes())
-                    prog["u_dir_power"].write(np.array([lt.power for lt in dirs], "f4").tobytes())
-                for j, (uniform, _) in enumerate(drawer.textures[obj.material]):
-                    if uniform in prog:
-                        prog[uniform].value = j
-                for name in ("u_mir_D", "u_lightmap"):
-                    if name in prog:
-                        prog[name].value = len(drawer.textures[obj.material])
-                programs[obj.material] = prog
-            mesh = drawer.meshes[k]
-            vbo = keep(ctx.buffer(np.concatenate([mesh.positions, mesh.normals, mesh.uvs], 1).astype("f4").tobytes()))
-            ibo = keep(ctx.buffer(mesh.indices.astype("u4").tobytes()))
-            vaos.append((obj.material, keep(ctx.vertex_array(programs[obj.material],
-                                                             [(vbo, "3f 3f 2f", "in_pos", "in_normal", "in_uv")], ibo)),
-                         k))
+        programs, vaos = scene_pass(ctx, drawer, scene, target.index, env.diffuse_size if env is not None else 0,
+                                    bool(lightmaps), keep)
         background = None
         if env is not None:
             bg = keep(ctx.program(vertex_shader=BACKGROUND_VS, fragment_shader=background_fragment(env.size)))

@@ -180,23 +180,30 @@ vec3 env_sample_cosine(vec3 rho, vec3 a, float n, vec3 N) {{  // ring about the 
     return lines
 
 
-def _beckmann_block(effect, mx: str, my: str, call: str, rho_d: str) -> list[str]:
-    acc = ESTIMATORS[effect.estimator]
-    size, top = float(effect.size), float(np.log2(effect.size))
-    lookup = f"atlas_lod(u_env_src, w, env_lod(au, av, w), {size!r}, {top!r})"
+def beckmann_footprint_block(P: str, acc: tuple[str, str], mx: str, my: str, call: str, rho_d: str,
+                             lookup: str) -> str:
+    """A Beckmann lobe's whole block: its pattern from the slopes' ratio, the angles ``au``, ``av`` its border
+    spans along the two axes (for the look-up's MIP level), :func:`beckmann_loop`, and the estimator's ratio
+    (``<p>_ratio``).  Shared by the environment map (``ENV``) and the per-object cube maps (``CUB``)."""
     return f"""        {{
             float mx = {mx}, my = {my};
             float r = my / mx;
-            int pat = r > ENV_LINE_THRESHOLD ? 1 : (r < 1.0 / ENV_LINE_THRESHOLD ? 2 : 0);
-            float lx = sqrt(-log(ENV_XI_BORDER));
+            int pat = r > {P}_LINE_THRESHOLD ? 1 : (r < 1.0 / {P}_LINE_THRESHOLD ? 2 : 0);
+            float lx = sqrt(-log({P}_XI_BORDER));
             vec3 wc = vec3(-wo.x, -wo.y, wo.z);
             float tu = atan(lx * mx), tv = atan(lx * my);
             vec3 hu = vec3(sin(tu), 0.0, cos(tu)), hv = vec3(0.0, sin(tv), cos(tv));
             vec3 wu = 2.0 * dot(wo, hu) * hu - wo, wv = 2.0 * dot(wo, hv) * hv - wo;
             float au = acos(clamp(dot(wc, wu), -1.0, 1.0)), av = acos(clamp(dot(wc, wv), -1.0, 1.0));
-{beckmann_loop("ENV", acc, call, rho_d, lookup)}
-            L += env_ratio(num, den);
-        }}""".split("\n")
+{beckmann_loop(P, acc, call, rho_d, lookup)}
+            L += {P.lower()}_ratio(num, den);
+        }}"""
+
+
+def _beckmann_block(effect, mx: str, my: str, call: str, rho_d: str) -> list[str]:
+    size, top = float(effect.size), float(np.log2(effect.size))
+    lookup = f"atlas_lod(u_env_src, w, env_lod(au, av, w), {size!r}, {top!r})"
+    return beckmann_footprint_block("ENV", ESTIMATORS[effect.estimator], mx, my, call, rho_d, lookup).split("\n")
 
 
 def _progressive_decls(effect) -> list[str]:

@@ -203,6 +203,45 @@ vec3 mir_sample_cosine(vec3 rho, vec3 a, float n, vec3 N, vec3 P) {{
     return "\n".join(decls) + "\n", body
 
 
+def scene_pass(ctx, drawer, scene, skip: int, env_D: int, lightmap: bool, keep):
+    """What a pass that draws the scene again needs (a mirror's reflection, a cube map's faces): one program per
+    material (:func:`pass_fragment`, its lights and texture units set) and a vertex array per object but ``skip``.
+
+    ``keep`` takes every GL object made (for release).  Returns ``(programs, [(material, vao, object index)])``.
+    """
+    points = [lt for lt in scene.lights if lt.type == "point"]
+    dirs = [lt for lt in scene.lights if lt.type == "directional"]
+    programs: dict = {}
+    vaos = []
+    for k, obj in enumerate(scene.objects):
+        if k == skip:
+            continue
+        if obj.material not in programs:
+            prog = keep(ctx.program(vertex_shader=PASS_VS, fragment_shader=pass_fragment(
+                drawer.materials[obj.material], len(points), len(dirs), env_D, lightmap)))
+            if points and "u_point_pos" in prog:
+                prog["u_point_pos"].write(np.array([lt.vector for lt in points], "f4").tobytes())
+                prog["u_point_power"].write(np.array([lt.power for lt in points], "f4").tobytes())
+                prog["u_point_falloff"].write(np.array([float(lt.falloff) for lt in points], "f4").tobytes())
+            if dirs and "u_dir_dir" in prog:
+                prog["u_dir_dir"].write(np.array([lt.vector for lt in dirs], "f4").tobytes())
+                prog["u_dir_power"].write(np.array([lt.power for lt in dirs], "f4").tobytes())
+            for j, (uniform, _) in enumerate(drawer.textures[obj.material]):
+                if uniform in prog:
+                    prog[uniform].value = j
+            for name in ("u_mir_D", "u_lightmap"):  # the unit after the material's own textures
+                if name in prog:
+                    prog[name].value = len(drawer.textures[obj.material])
+            programs[obj.material] = prog
+        mesh = drawer.meshes[k]
+        vbo = keep(ctx.buffer(np.concatenate([mesh.positions, mesh.normals, mesh.uvs], 1).astype("f4").tobytes()))
+        ibo = keep(ctx.buffer(mesh.indices.astype("u4").tobytes()))
+        vaos.append((obj.material, keep(ctx.vertex_array(programs[obj.material],
+                                                         [(vbo, "3f 3f 2f", "in_pos", "in_normal", "in_uv")], ibo)),
+                     k))
+    return programs, vaos
+
+
 class MirrorPass:
     """One reflector's mirrored-camera buffer (radiance with a MIP chain, position, normal), redrawn every frame.
 
@@ -237,41 +276,12 @@ class MirrorPass:
         p0, n = refl.plane
         self.mvp = self._mvp(scene.camera)
         clip = np.append(n, -np.dot(n, p0)).astype("f4")
-        points = [lt for lt in scene.lights if lt.type == "point"]
-        dirs = [lt for lt in scene.lights if lt.type == "directional"]
-        self.programs: dict = {}
-        self.vaos = []
-        for k, obj in enumerate(scene.objects):
-            if k == refl.index:
-                continue
-            m = drawer.materials[obj.material]
-            if obj.material not in self.programs:
-                fs = pass_fragment(m, len(points), len(dirs), env.diffuse_size if env is not None else 0,
-                                   bool(getattr(drawer, "lightmaps", None)))
-                prog = self._keep(ctx.program(vertex_shader=PASS_VS, fragment_shader=fs))
-                prog["u_mvp"].write(self.mvp.T.tobytes())
-                prog["u_clip"].value = tuple(float(x) for x in clip)
-                if points and "u_point_pos" in prog:
-                    prog["u_point_pos"].write(np.array([lt.vector for lt in points], "f4").tobytes())
-                    prog["u_point_power"].write(np.array([lt.power for lt in points], "f4").tobytes())
-                    prog["u_point_falloff"].write(np.array([float(lt.falloff) for lt in points], "f4").tobytes())
-                if dirs and "u_dir_dir" in prog:
-                    prog["u_dir_dir"].write(np.array([lt.vector for lt in dirs], "f4").tobytes())
-                    prog["u_dir_power"].write(np.array([lt.power for lt in dirs], "f4").tobytes())
-                for j, (uniform, _) in enumerate(drawer.textures[obj.material]):
-                    if uniform in prog:
-                        prog[uniform].value = j
-                if "u_mir_D" in prog:
-                    prog["u_mir_D"].value = len(drawer.textures[obj.material])
-                if "u_lightmap" in prog:
-                    prog["u_lightmap"].value = len(drawer.textures[obj.material])
-                self.programs[obj.material] = prog
-            mesh = drawer.meshes[k]
-            vbo = self._keep(ctx.buffer(np.concatenate([mesh.positions, mesh.normals, mesh.uvs], 1).astype("f4").tobytes()))
-            ibo = self._keep(ctx.buffer(mesh.indices.astype("u4").tobytes()))
-            vao = self._keep(ctx.vertex_array(self.programs[obj.material],
-                                              [(vbo, "3f 3f 2f", "in_pos", "in_normal", "in_uv")], ibo))
-            self.vaos.append((obj.material, vao, k))
+        self.programs, self.vaos = scene_pass(ctx, drawer, scene, refl.index,
+                                              env.diffuse_size if env is not None else 0,
+                                              bool(getattr(drawer, "lightmaps", None)), self._keep)
+        for prog in self.programs.values():
+            prog["u_mvp"].write(self.mvp.T.tobytes())
+            prog["u_clip"].value = tuple(float(x) for x in clip)
         self.background = None
         if env is not None:
             prog = self._keep(ctx.program(vertex_shader=BACKGROUND_VS, fragment_shader=background_fragment(env.size)))

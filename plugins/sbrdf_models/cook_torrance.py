@@ -41,6 +41,27 @@ ALPHA_BOUNDS = (1e-3, 2.0)
 SQRT_PI = float(np.sqrt(np.pi))
 
 
+def schlick_lobe(params, wi, wo, spec, schlick):
+    """f_r = ρ_d + F·spec with Schlick's F = F0 + (1 − F0)·``schlick`` per RGB channel, 0 below the horizon,
+    ``(T, S, 3)``: a microfacet model given its D·G/(4 cos θ_i cos θ_o) term ``spec`` ``(T, S)``."""
+    f0 = np.asarray(params["f0"])[:, None, :]
+    f = np.asarray(params["rho_d"])[:, None, :] + (f0 + (1.0 - f0) * schlick[..., None]) * spec[..., None]
+    return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+
+
+def schlick_lobe_jacobian(params, wi, wo, spec, dspec, schlick):
+    """∂f_r/∂x of :func:`schlick_lobe`: ρ_d (3 columns), F0 (3), then one column per shape parameter, from
+    ``dspec`` ``(T, S, K)`` (∂spec by each); ``(T, S, 3, 6 + K)``."""
+    up = above_horizon(wi, wo).astype(float)
+    f0 = np.asarray(params["f0"])[:, None, :]
+    F = f0 + (1.0 - f0) * schlick[..., None]
+    eye = np.eye(3)
+    cols = [up[..., None] * eye[c] for c in range(3)]
+    cols += [(spec * (1.0 - schlick))[..., None] * eye[c] for c in range(3)]
+    cols += [F * dspec[..., k:k + 1] for k in range(dspec.shape[-1])]
+    return np.stack(cols, axis=-1)
+
+
 class CookTorranceModel(BRDFModel):
     name = "cook-torrance"
     anisotropic = False
@@ -108,21 +129,11 @@ class CookTorranceModel(BRDFModel):
 
     def eval(self, params, wi, wo):
         spec, _, schlick = self._terms(params, wi, wo)
-        f0 = np.asarray(params["f0"])[:, None, :]
-        F = f0 + (1.0 - f0) * schlick[..., None]
-        f = np.asarray(params["rho_d"])[:, None, :] + F * spec[..., None]
-        return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+        return schlick_lobe(params, wi, wo, spec, schlick)
 
     def jacobian(self, params, wi, wo):
-        up = above_horizon(wi, wo).astype(float)
         spec, dspec, schlick = self._terms(params, wi, wo)
-        f0 = np.asarray(params["f0"])[:, None, :]
-        F = f0 + (1.0 - f0) * schlick[..., None]
-        eye = np.eye(3)
-        cols = [up[..., None] * eye[c] for c in range(3)]
-        cols += [(spec * (1.0 - schlick))[..., None] * eye[c] for c in range(3)]
-        cols.append(F * dspec[..., None])
-        return np.stack(cols, axis=-1)
+        return schlick_lobe_jacobian(params, wi, wo, spec, dspec[..., None], schlick)
 
     # -- renderer and fitter support -------------------------------------------------------------
 

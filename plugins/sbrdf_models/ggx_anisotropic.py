@@ -36,6 +36,8 @@ from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from .cook_torrance import schlick_lobe, schlick_lobe_jacobian
+
 COS_FLOOR = 1e-6
 ALPHA_BOUNDS = (1e-3, 1.0)
 
@@ -89,20 +91,11 @@ class GGXAnisotropicModel(BRDFModel):
 
     def eval(self, params, wi, wo):
         spec, _, schlick = self._terms(params, wi, wo)
-        f0 = np.asarray(params["f0"])[:, None, :]
-        f = np.asarray(params["rho_d"])[:, None, :] + (f0 + (1.0 - f0) * schlick[..., None]) * spec[..., None]
-        return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+        return schlick_lobe(params, wi, wo, spec, schlick)
 
     def jacobian(self, params, wi, wo):
-        up = above_horizon(wi, wo).astype(float)
         spec, dspec, schlick = self._terms(params, wi, wo)
-        f0 = np.asarray(params["f0"])[:, None, :]
-        F = f0 + (1.0 - f0) * schlick[..., None]
-        eye = np.eye(3)
-        cols = [up[..., None] * eye[c] for c in range(3)]
-        cols += [(spec * (1.0 - schlick))[..., None] * eye[c] for c in range(3)]
-        cols += [F * dspec[..., k:k + 1] for k in range(3)]
-        return np.stack(cols, axis=-1)
+        return schlick_lobe_jacobian(params, wi, wo, spec, dspec, schlick)
 
     def glsl(self) -> str:
         """``vec3 brdf_ggx_anisotropic(wi, wo, rho_d, f0, alpha_t, alpha_b, phi)`` in the surface frame."""
