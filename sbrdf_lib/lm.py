@@ -53,9 +53,11 @@ __all__ = [
     "candidate_starts",
     "diffuse_percentile",
     "fit_model",
+    "keep_better",
     "levenberg_marquardt",
     "projector",
     "robust_weights",
+    "starting_points",
 ]
 
 logger = logging.getLogger(__name__)
@@ -242,19 +244,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
                 stats["restarted"] = np.zeros(T, bool)
             return form.to_model(form.unpack(x)), converged, cost
     plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
-    count = 8 * starts if starts > 1 else 1
-    cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, seed, initial)]
-    for c in cands[1:]:  # fixed parameters keep the initial guess's value in every start
-        c[:, ~free] = cands[0][:, ~free]
-    if project is not None:
-        cands = [project(c, everyone) for c in cands]
-    if len(cands) > 1:
-        costs = np.stack([_cost(plain, c) for c in cands])  # (C, T)
-        order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
-        stack = np.stack(cands)  # (C, T, K)
-        x_starts = [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
-    else:
-        x_starts = cands
+    x_starts = starting_points(form, plain, f_r, valid, wi, wo, starts, seed, initial, free, project)
     logger.debug("LM fit of %s: %d texels, %d start(s), loss %s", form.name, T, len(x_starts), loss)
     opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free, project=project)
     best = None
@@ -267,16 +257,47 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
                 weight = robust_weights(form, x, f_r, valid, wi, wo, loss, loss_scale)
         if loss != "linear":
             cost = _cost(plain, x)
-        if best is None:
-            best = [x, cost, converged, np.zeros(T, bool)]
-            continue
-        better = cost < best[1] * (1 - 1e-9)
-        best[0][better], best[1][better], best[2][better] = x[better], cost[better], converged[better]
-        best[3] |= better
+        best = keep_better(best, x, cost, converged, 1e-9)
+    assert best is not None
     x, cost, converged, restarted = best
     if stats is not None:
         stats["restarted"] = restarted
     return form.to_model(form.unpack(x)), converged, cost
+
+
+def starting_points(form, plain, f_r, valid, wi, wo, starts: int, seed: int = 0, initial=None, free=None,
+                    project=None) -> list[np.ndarray]:
+    """The packed fit-form points LM runs from, best first: with ``starts`` > 1, the ``starts`` best-scoring
+    (on ``plain``, the unweighted problem) of ``8 · starts`` candidates (:func:`candidate_starts`), per texel;
+    parameters not ``free`` keep the first candidate's (the initial guess's) value; every start is projected
+    by ``project``.  What :func:`fit_model` and the ``lm-gl`` fitter both start from."""
+    T = f_r.shape[0]
+    lo, hi = form.bounds()
+    everyone = np.arange(T)
+    count = 8 * starts if starts > 1 else 1
+    cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, seed, initial)]
+    if free is not None:
+        for c in cands[1:]:  # fixed parameters keep the initial guess's value in every start
+            c[:, ~free] = cands[0][:, ~free]
+    if project is not None:
+        cands = [project(c, everyone) for c in cands]
+    if len(cands) == 1:
+        return cands
+    costs = np.stack([_cost(plain, c) for c in cands])  # (C, T)
+    order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
+    stack = np.stack(cands)  # (C, T, K)
+    return [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
+
+
+def keep_better(best, x, cost, converged, margin: float):
+    """Fold one start's result into ``best`` (``[x, cost, converged, restarted]`` or None): a texel takes it where
+    its cost is lower by more than the relative ``margin``, and is then marked restarted."""
+    if best is None:
+        return [x, cost, converged, np.zeros(len(cost), bool)]
+    better = cost < best[1] * (1 - margin)
+    best[0][better], best[1][better], best[2][better] = x[better], cost[better], converged[better]
+    best[3] |= better
+    return best
 
 
 def _cost(problem, x):

@@ -30,7 +30,7 @@ from sbrdf_core.contracts import optional
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable
 from sbrdf_core.params import Param
-from sbrdf_lib.lm import IRLS_ROUNDS, LOSSES, candidate_starts, fit_model, projector, robust_weights
+from sbrdf_lib.lm import IRLS_ROUNDS, LOSSES, fit_model, keep_better, projector, robust_weights, starting_points
 
 from . import device, shader
 
@@ -111,7 +111,8 @@ class GLLevenbergMarquardtFitter:
             free[slices[name]] = False
         project = projector(form, limits)
         everyone = np.arange(T)
-        x_starts = self._starts(model, form, f_r, valid, wi, wo, free, project)
+        x_starts = starting_points(form, form.least_squares(f_r, valid.astype(np.float64), wi, wo), f_r, valid, wi,
+                                   wo, self.starts or model.suggested_starts, self.seed, None, free, project)
         n = valid.sum(axis=1)
         energy = np.einsum("tsc,tsc->t", f_r, f_r)
         scale = np.maximum(np.sqrt(energy / np.maximum(3 * n, 1)), 1e-6)  # residuals in units of the texel's RMS
@@ -150,12 +151,7 @@ class GLLevenbergMarquardtFitter:
                 x[b], converged[b] = x0[b], False
                 sub = form.least_squares(f_r[b], plain_weight[b], wi[b], wo[b])
                 cost[b] = np.nan_to_num(sub.normal_equations(x0[b], np.arange(b.size))[2], nan=np.inf)
-            if best is None:
-                best = [x, cost, converged, np.zeros(T, bool)]
-                continue
-            better = cost < best[1] * (1 - 1e-6)
-            best[0][better], best[1][better], best[2][better] = x[better], cost[better], converged[better]
-            best[3] |= better
+            best = keep_better(best, x, cost, converged, 1e-6)  # float32 costs: a coarser margin than lm's
         assert best is not None
         x, cost, converged, restarted = best
         if project is not None and self.loss == "linear":
@@ -188,26 +184,6 @@ class GLLevenbergMarquardtFitter:
 
     def _add(self, key: str, seconds: float) -> None:
         self.timings[key] = self.timings.get(key, 0.0) + seconds
-
-    def _starts(self, model, form, f_r, valid, wi, wo, free, project):
-        """The starting points ``lm`` would run from (:func:`sbrdf_lib.lm.fit_model`'s choice)."""
-        starts = self.starts or model.suggested_starts
-        T = f_r.shape[0]
-        lo, hi = form.bounds()
-        everyone = np.arange(T)
-        count = 8 * starts if starts > 1 else 1
-        cands = [np.clip(form.pack(c), lo, hi) for c in candidate_starts(form, f_r, valid, wi, wo, count, self.seed)]
-        for c in cands[1:]:
-            c[:, ~free] = cands[0][:, ~free]
-        if project is not None:
-            cands = [project(c, everyone) for c in cands]
-        if len(cands) == 1:
-            return cands
-        plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
-        costs = np.stack([plain.normal_equations(c, everyone)[2] for c in cands])
-        order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
-        stack = np.stack(cands)
-        return [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
 
     def _polish(self, model, form, x, cost, converged, f_r, valid, wi, wo, lo, hi, free, limits, project, everyone):
         """The CPU's share: texels still outside their limits (a robust loss, which the stepwise GPU pass does not
