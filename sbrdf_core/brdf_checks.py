@@ -10,6 +10,7 @@ They use only :meth:`BRDFModel.eval`, vectorised over texels.
 - :func:`reciprocity_error`: max relative |f(ω_i, ω_o) − f(ω_o, ω_i)| over random pairs.
 - :func:`directional_albedo`: a(ω_i) = ∫ f(ω_i, ω_o) cos θ_o dω_o by deterministic quadrature.
 - :func:`energy_report`: the largest albedo over a set of incident directions, and the texels above 1.
+- :func:`energy_violations`: the texels neither the model's analytic albedo bound nor the quadrature clears.
 - :func:`hemisphere_max`: the largest f_r over the hemisphere where lobes peak (fireflies).
 """
 
@@ -174,6 +175,30 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
     max_albedo = per_dir.max(axis=1)
     return EnergyReport(directions=dirs, albedo=albedo, max_albedo=max_albedo, worst_direction=dirs[worst],
                         violations=max_albedo > limit + tolerance, limit=float(limit))
+
+
+def energy_violations(model: BRDFModel, params: Mapping[str, np.ndarray], limit: float = 1.0,
+                      tolerance: float = 2e-3, n_theta: int = 24, n_phi: int = 48) -> np.ndarray:
+    """Texels whose directional albedo may exceed ``limit``, ``(T,)`` bool: the energy bound as the Fit node holds it.
+
+    A texel is cleared by the model's analytic :meth:`~sbrdf_core.brdf.BRDFModel.albedo_bound`
+    (an upper bound, exact whatever the lobe's sharpness) or, where that does
+    not clear it, by :func:`energy_report` on the same grid
+    :func:`~sbrdf_core.constraints.enforce_energy` enforces it on.  Why both:
+    a Lafortune lobe of n ≈ 1400 is 2.6° wide, narrower than a coarse grid's
+    spacing, whose quadrature then reads 1.007 for a lobe the bound proves at
+    0.998; checking the quadrature alone fails texels that conserve energy.
+    """
+    T = _texels(model, params)
+    bound = model.albedo_bound(params)
+    todo = np.arange(T) if bound is None else np.flatnonzero(~(np.asarray(bound) <= limit))
+    out = np.zeros(T, bool)
+    if todo.size:
+        sub = {k: np.asarray(v)[todo] for k, v in params.items()}
+        with np.errstate(all="ignore"):
+            a = energy_report(model, sub, n_theta=n_theta, n_phi=n_phi).max_albedo
+        out[todo] = ~(a <= limit + tolerance)
+    return out
 
 
 def _texels(model: BRDFModel, params: Mapping[str, np.ndarray]) -> int:

@@ -84,6 +84,10 @@ FIT_PARAMS = (
           "(Lafortune: max (C·ω)^n ≤ this; 1 = |C_x|, |C_y| ≤ C_z, which also keeps renderers' bilinearly "
           "interpolated parameters bounded; 0 = unbounded: warns)", bounds=(0.0, None)),
     Param("resolve_sharpness", "bool", True, "bound exponents / roughness to what the angular sampling resolves"),
+    Param("microfacet_peak", "str", "cosine", "what the peak bound holds for microfacet lobes (Cook-Torrance, "
+          "Ward): 'cosine' = f_r cos θ_i cos θ_o, which keeps their 1/cos² rise toward grazing beyond the "
+          "sampled range; 'f_r' = f_r itself, as for Lafortune, which forbids that rise and bends the fit "
+          "where it was measured (docs/accuracy-vs-time.md measures both)", choices=("cosine", "f_r")),
     Param("min_samples", "int", 0, "texels with fewer valid samples are fitted with their neighbours' samples "
           "(0 = the model's parameter count)", bounds=(0, None)),
     Param("overfit_ratio", "float", 3.0, "flag a texel as overfit when its held-out RMS exceeds this times its "
@@ -110,11 +114,13 @@ class FitOptions:
     min_samples: int = DEFAULTS["min_samples"]
     overfit_ratio: float = DEFAULTS["overfit_ratio"]
     grazing_growth: float = DEFAULTS["grazing_growth"]
+    microfacet_peak: str = DEFAULTS["microfacet_peak"]
 
     def limits(self, support: np.ndarray, resolution: np.ndarray, support_cosine: np.ndarray | None = None) -> Limits:
         on = self.peak_factor > 0
         return Limits(peak=self.peak_factor * support if on else None,
-                      peak_cosine=self.peak_factor * support_cosine if on and support_cosine is not None else None,
+                      peak_cosine=self.peak_factor * support_cosine
+                      if on and support_cosine is not None and self.microfacet_peak == "cosine" else None,
                       resolution=resolution if self.resolve_sharpness else None,
                       max_theta=float(np.radians(self.max_theta_deg)),
                       albedo=self.albedo_limit if self.albedo_limit > 0 else None,
@@ -375,7 +381,7 @@ class Fit(NodeKind):
                 "size_mm": samples.attrs["size_mm"],
                 "bounds": {"peak_factor": options.peak_factor, "max_theta_deg": options.max_theta_deg,
                            "albedo_limit": options.albedo_limit, "resolve_sharpness": options.resolve_sharpness,
-                           "grazing_growth": options.grazing_growth},
+                           "grazing_growth": options.grazing_growth, "microfacet_peak": options.microfacet_peak},
                 "holdout": options.holdout,
             },
             finalize=summarize,

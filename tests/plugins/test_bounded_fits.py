@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy.ndimage import maximum_filter
 
-from sbrdf_core.brdf_checks import energy_report, hemisphere_max
+from sbrdf_core.brdf_checks import energy_report, energy_violations, hemisphere_max
 from sbrdf_core.constraints import Limits, angular_resolution, enforce, mirror_peak
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, OVERFIT, FitOptions, fit_tile
@@ -103,7 +103,7 @@ def test_constrain_bounds_every_model_over_the_hemisphere(registry, name, config
     wi, wo = np.broadcast_to(d, (T, 64, 3)), np.broadcast_to(d[::-1] * [-1, 1, 1], (T, 64, 3))
     np.testing.assert_allclose(model.eval(twice, wi, wo), model.eval(once, wi, wo), rtol=1e-6, atol=1e-12)
     assert not moved.any()
-    assert energy_report(model, out, n_theta=24, n_phi=48).max_albedo.max() <= 1.0 + 2e-3
+    assert not energy_violations(model, out).any(), energy_report(model, out, n_theta=24, n_phi=48).max_albedo.max()
 
 
 def test_lafortune_growth_one_is_bounded_under_interpolation(registry):
@@ -128,6 +128,7 @@ def noisy_samples(model, truth, wi, wo, noise, rng):
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**31), noise=st.sampled_from([0.0, 0.003, 0.03]),
        mirror=st.sampled_from([0.0, 0.34, 0.7]))
+@example(seed=2147483647, noise=0.0, mirror=0.34)  # a 1-lobe n ≈ 1371 texel: coarse quadrature reads 1.007
 def test_fitted_texels_stay_within_their_peak_bound(registry, name, config, seed, noise, mirror):
     """End to end through the Fit kernel: every texel's maximum over the hemisphere ≤ its stated bound."""
     rng = np.random.default_rng(seed)
@@ -156,7 +157,30 @@ def test_fitted_texels_stay_within_their_peak_bound(registry, name, config, seed
                                                   mode="nearest").ravel()
     if name in PEAK_BOUNDED:
         assert (top <= bound * (1 + 1e-3) + 1e-9).all(), (top / bound).max()
-    assert energy_report(model, params, n_theta=24, n_phi=48).max_albedo.max() <= 1.0 + 2e-3
+    assert not energy_violations(model, params).any(), energy_report(model, params, n_theta=24, n_phi=48).max_albedo.max()
+
+
+@pytest.mark.parametrize("name,config", [("cook-torrance", {"distribution": "ggx"}), ("ward", {})])
+def test_microfacet_peak_f_r_bounds_the_grazing_rise_too(registry, name, config):
+    """``microfacet_peak: f_r``: f_r itself (not f_r·cos²) stays within peak_factor × the samples to 89°."""
+    rng = np.random.default_rng(5)
+    truth_model = registry.create("brdf-model", "cook-torrance", {"distribution": "ggx"})
+    V = U = 3
+    T, S = V * U, 60
+    truth = {"rho_d": rng.uniform(0.02, 0.2, (T, 3)), "f0": rng.uniform(0.3, 0.9, (T, 3)),
+             "alpha": rng.uniform(0.05, 0.2, (T, 1))}
+    wi, wo = mirror_heavy_pairs(T, S, rng, 0.34, max_theta=60.0)
+    f = noisy_samples(truth_model, truth, wi, wo, 0.003, rng)
+    model = registry.create("brdf-model", name, config)
+    fitter = registry.create("fitter", "lm", {"model": name, "model_params": config, "iterations": 30})
+    tops = {}
+    for mode in ("cosine", "f_r"):
+        opts = FitOptions(holdout=0.0, microfacet_peak=mode)
+        out = _fit_directions(f, wi, wo, fitter, model, opts, (V, U))
+        tops[mode] = mirror_peak(model, model.unpack(out[:, : model.size].astype(np.float64)), np.radians(89.0))
+    bound = 4.0 * maximum_filter(f.max(axis=(1, 2)).reshape(V, U), size=3, mode="nearest").ravel()
+    assert (tops["f_r"] <= bound * (1 + 1e-3)).all(), (tops["f_r"] / bound).max()
+    assert (tops["cosine"] > bound).any()  # the default keeps the rise toward grazing beyond 60°
 
 
 def _fit_directions(f, wi, wo, fitter, model, options, grid):

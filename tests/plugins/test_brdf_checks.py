@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sbrdf_core.brdf_checks import directional_albedo, energy_report, quadrature, reciprocity_error
+from sbrdf_core.brdf_checks import (
+    directional_albedo,
+    energy_report,
+    energy_violations,
+    quadrature,
+    reciprocity_error,
+)
 from sbrdf_core.registry import Registry
 
 REGISTRY = Registry()
@@ -121,3 +127,15 @@ def test_every_model_is_reciprocal(name):
     params = m.random_guess(np.random.default_rng(9), 8)
     err = reciprocity_error(m, params, n_pairs=200, rng=np.random.default_rng(1))
     assert err.shape == (8,) and err.max() < 1e-12
+
+
+def test_energy_violations_trust_the_analytic_bound_where_the_grid_cannot_resolve_a_lobe(registry):
+    """A 2.6°-wide lobe: the coarse grid reads 1.01, the analytic bound proves 0.999; twice as bright violates."""
+    m = registry.create("brdf-model", "lafortune", {"lobes": 1})
+    n = 1371.0
+    rho = np.array([[0.999], [2.0]]) / (2 * np.pi / (n + 1))
+    p = {"rho_d": np.zeros((2, 3)), "rho_s_1": np.repeat(rho, 3, axis=1), "c_xy_1": np.full((2, 1), -1.0),
+         "c_z_1": np.ones((2, 1)), "exponent_1": np.full((2, 1), n)}
+    assert energy_report(m, p, n_theta=24, n_phi=48).max_albedo[0] > 1.002  # the grid alone would fail it
+    assert energy_report(m, p, n_theta=256, n_phi=512).max_albedo[0] <= 1.0  # a resolving grid agrees with the bound
+    assert energy_violations(m, p).tolist() == [False, True]
