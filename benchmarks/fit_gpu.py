@@ -62,7 +62,8 @@ def run(samples_path: Path, out_path: Path, plugin: str, lobes: int) -> dict:
     reg = Registry()
     cfg = {"lobes": lobes}
     model = reg.create("brdf-model", "lafortune", cfg)
-    fitter = reg.create("fitter", plugin, {"model": "lafortune", "model_params": cfg})
+    params = {"model": "lafortune", "model_params": cfg}
+    fitter = reg.create("fitter", plugin, params)
     options = FitOptions()
     art = open_artifact(str(samples_path))
     texels, size_mm = tuple(art.attrs["texels"]), tuple(art.attrs["size_mm"])
@@ -95,7 +96,7 @@ def run(samples_path: Path, out_path: Path, plugin: str, lobes: int) -> dict:
         t["upload_s"], t["compute_s"] = gpu.get("upload_s", 0.0), gpu.get("compute_s", 0.0)
         t["cpu_s"] = t["fit_s"] - t["upload_s"] - t["compute_s"]
         t["cpu_texels"] = gpu.get("cpu_texels", 0.0)
-        t["constrained_texels"] = gpu.get("constrained_texels", 0.0)
+        t["stepwise_texels"] = gpu.get("stepwise_texels", 0.0)
         t["stepwise_s"] = gpu.get("stepwise_s", 0.0)
     t["wall_s"] = t["read_s"] + t["fit_s"] + t["write_s"]
     t["rms"] = float(np.mean(rms))
@@ -126,7 +127,7 @@ def main(argv=None) -> int:
                 r = run(samples, work / f"{plugin}-{lobes}.zarr", plugin, lobes)
                 rows[(plugin, lobes)] = r
                 split = " ".join(f"{k}={v:.2f}" for k, v in r.items() if k.endswith("_s"))
-                extra = (f" constrained_texels={int(r['constrained_texels'])} cpu_texels={int(r['cpu_texels'])}"
+                extra = (f" stepwise_texels={int(r['stepwise_texels'])} cpu_texels={int(r['cpu_texels'])}"
                          if "cpu_texels" in r else "")
                 print(f"{plugin:6s} lobes={lobes}: {split} texels/s={side * side / r['wall_s']:.0f} "
                       f"rms={r['rms']:.5f}{extra}")

@@ -305,6 +305,13 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                             "packed fit-form parameters x (K = `fit_form().size`), for the GPU fitter "
                                             "`lm-gl`; without it `lm-gl` refuses the model, naming it (use `lm`).",
                                             None),
+        "glsl_fit_constrain": OptionalMember("`glsl_fit_constrain() -> str`: GLSL (4.3) defining `void brdf_fit_constrain("
+                                             "inout float x[K], float peak, float resolution, float peak_cosine, float "
+                                             "growth, float max_theta)`, the fit form's `constrain` onto the texel's "
+                                             "limits (a negative value: that bound is off; `sbrdf_core.constraints_glsl`),"
+                                             " so `lm-gl` projects every trial point in its shader; without it `lm-gl` "
+                                             "refits texels that leave their limits stepwise, projecting each trial "
+                                             "point on the CPU.", None),
     },
     "fitter": {**_COMMON},
     "parameterization": {},

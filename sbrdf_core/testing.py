@@ -277,6 +277,104 @@ class BRDFModelTests(PluginTests):
         finally:
             ctx.release()
 
+    def test_glsl_fit_constrain_matches_numpy(self):
+        """The optional ``glsl_fit_constrain`` (the fit form's projection onto the texel's limits) against the fit
+        form's numpy ``constrain``, in a compute shader: random fit-form points with hard cases (exponents to 10⁴,
+        the finest roughness, magnitudes 30× too bright or 0, |C| at its bound) under random per-texel limits that
+        bind (a zero peak, resolutions below the floor and of π/2 among them), each bound on and off (growth None
+        or set, peak_cosine None or set).  Float32: 2·10⁻⁴ + 2·10⁻³
+        relative per parameter (log parameters: the bisection's last bracket, 1.2·10⁻⁴, plus round-off)."""
+        import pytest
+
+        from .constraints import Limits
+        from .contracts import optional
+
+        models = [m for m in self.models() if optional(m, "glsl_fit_constrain", "brdf-model") is not None]
+        if not models:
+            pytest.skip("the model has no glsl_fit_constrain (optional)")
+        moderngl = pytest.importorskip("moderngl")
+        try:
+            ctx = moderngl.create_context(standalone=True, backend="egl", require=430)
+        except Exception as e:  # no EGL driver or no GL 4.3 compute shaders
+            pytest.skip(f"no EGL context with compute shaders: {e}")
+        try:
+            for model in models:
+                form = model.fit_form()
+                rng = np.random.default_rng(17)
+                T = 120
+                x = form.pack(form.random_guess(rng, T))
+                lo, hi = form.bounds()
+                for p in form.parameters:
+                    s = form.slices()[p.name]
+                    if "exponent" in p.name:  # sharp lobes, to n = 10⁴ and beyond
+                        x[::4, s] = np.log(1e4)
+                        x[1::4, s] = rng.uniform(np.log(1e3), np.log(2e4), (len(x[1::4]), p.channels))
+                    elif p.name.startswith("log_"):  # the finest roughness the form allows
+                        x[::5, s] = lo[s]
+                    elif p.magnitude:
+                        x[2::5, s] *= 30.0
+                        x[3::7, s] = 0.0
+                    elif p.name.startswith("c_"):
+                        x[5::8, s] = hi[s] * rng.choice([-1.0, 1.0], (len(x[5::8]), p.channels))
+                x = np.clip(x, lo, hi).astype(np.float32).astype(np.float64)
+                peak = np.exp(rng.uniform(np.log(0.05), np.log(20.0), T))
+                resolution = np.radians(rng.uniform(0.3, 20.0, T))
+                cosine = peak * rng.uniform(0.05, 1.0, T)
+                peak[::11], cosine[::11] = 0.0, 0.0  # a texel with no support: no lobe at all
+                resolution[::13], resolution[1::13] = 1e-5, np.pi / 2  # below the floor, and nothing resolved
+                sets = [Limits(peak=peak, resolution=resolution, max_theta=np.radians(80.0)),
+                        Limits(peak=peak, resolution=resolution, growth=2.0, peak_cosine=cosine),
+                        Limits(growth=1.0, max_theta=np.radians(85.0)),
+                        Limits(peak=peak, peak_cosine=cosine, max_theta=np.radians(60.0)),
+                        Limits(resolution=resolution),
+                        Limits()]
+                for limits in sets:
+                    with np.errstate(all="ignore"):
+                        want, moved = form.constrain(form.unpack(x.copy()), limits)
+                    want = form.pack(want)
+                    got = glsl_fit_constrain_eval(ctx, model, x, limits)
+                    bad = np.abs(got - want) > 2e-4 + 2e-3 * np.abs(want)
+                    assert not bad.any(), (model.name, limits, np.argwhere(bad)[:5], got[bad][:5], want[bad][:5])
+                    if limits.peak is not None:  # the case binds: the projection moves many texels
+                        assert np.mean(moved) > 0.2, (model.name, np.mean(moved))
+        finally:
+            ctx.release()
+
+
+def glsl_fit_constrain_eval(ctx, model, x: np.ndarray, limits) -> np.ndarray:
+    """``model.glsl_fit_constrain()`` on packed fit-form rows ``x`` ``(T, K)`` under per-texel ``limits``, one texel
+    per invocation of a GL 4.3 compute shader: the projected rows ``(T, K)``."""
+    from .constraints_glsl import LIMITS_STRIDE, pack_limits, scalars
+
+    T, K = x.shape
+    cs = ctx.compute_shader(
+        "#version 430\nlayout(local_size_x = 64) in;\n"
+        "layout(std430, binding = 0) buffer X { float xs[]; };\n"
+        "layout(std430, binding = 1) readonly buffer Limits { float lim[]; };\n"
+        f"uniform int u_count;\nuniform float u_growth;\nuniform float u_max_theta;\n{model.glsl_fit_constrain()}\n"
+        "void main() {\n"
+        "    int t = int(gl_GlobalInvocationID.x);\n"
+        "    if (t >= u_count) return;\n"
+        f"    float x[{K}];\n    for (int k = 0; k < {K}; ++k) x[k] = xs[t * {K} + k];\n"
+        f"    int o = t * {LIMITS_STRIDE};\n"
+        "    brdf_fit_constrain(x, lim[o], lim[o + 1], lim[o + 2], u_growth, u_max_theta);\n"
+        f"    for (int k = 0; k < {K}; ++k) xs[t * {K} + k] = x[k];\n"
+        "}\n")
+    growth, max_theta = scalars(limits)
+    cs["u_count"].value = T
+    for name, value in (("u_growth", growth), ("u_max_theta", max_theta)):
+        if name in cs:
+            cs[name].value = value
+    xs = ctx.buffer(np.ascontiguousarray(x, "f4").tobytes())
+    lim = ctx.buffer(pack_limits(limits, T).tobytes())
+    xs.bind_to_storage_buffer(0)
+    lim.bind_to_storage_buffer(1)
+    cs.run((T + 63) // 64)
+    out = np.frombuffer(xs.read(), dtype="f4").reshape(T, K).astype(np.float64)
+    for obj in (cs, xs, lim):
+        obj.release()
+    return out
+
 
 def glsl_eval(ctx, model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """Evaluate ``model.glsl()`` on ``(S, 3)`` pairs by transform feedback, one texel's parameters as uniforms."""

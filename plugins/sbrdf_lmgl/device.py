@@ -21,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from sbrdf_core.constraints_glsl import LIMITS_STRIDE
 from sbrdf_core.errors import SbrdfError
 
 from . import shader
@@ -98,23 +99,29 @@ def _result(out, K):
 
 
 def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, free, iterations: int,
-              tolerance: float, damping: float, tile: int, timings: dict):
+              tolerance: float, damping: float, tile: int, timings: dict, limits=None):
     """LM from ``x0 (T, K)`` on every texel, ``tile`` texels per dispatch; ``(x, cost, converged, iterations)``.
 
     ``weight (T, S)`` already includes the residual scale; ``status`` 1 marks
     texels to leave at ``x0``; ``exact`` is each texel's exact-fit cost.
+    ``limits``, ``(packed (T, 3), growth, max_theta)`` as
+    :mod:`sbrdf_core.constraints_glsl` packs them, has the shader project the
+    start and every trial point (``src`` built with the model's
+    ``glsl_fit_constrain``).
     """
     T, K = x0.shape
     S = f_r.shape[1]
     prog = _program(ctx, src)
+    growth, max_theta = (-1.0, 0.0) if limits is None else limits[1:]
+    chunk = shader.chunk(S, K, limits is not None)
     _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_samples=S, u_iterations=int(iterations),
-              u_tolerance=float(tolerance), u_damping=float(damping), u_mode=0)
+              u_tolerance=float(tolerance), u_damping=float(damping), u_constrain=int(limits is not None),
+              u_growth=float(growth), u_max_theta=float(max_theta), u_chunk=chunk)
     stride = shader.state_stride(K)
     size = min(tile, T)
-    pairs = [(ctx.buffer(reserve=max(S, 1) * size * shader.SAMPLE * 4), ctx.buffer(reserve=size * stride * 4))
+    pairs = [(ctx.buffer(reserve=max(S, 1) * size * shader.SAMPLE * 4), ctx.buffer(reserve=size * stride * 4),
+              ctx.buffer(reserve=size * LIMITS_STRIDE * 4), ctx.buffer(reserve=size * shader.work_stride(K) * 4))
              for _ in range(2 if T > size else 1)]
-    dummy = ctx.buffer(reserve=16)
-    dummy.bind_to_storage_buffer(2)
     out = np.zeros((T, stride), np.float32)
     pending = None
     try:
@@ -122,15 +129,22 @@ def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, 
             t0 = time.perf_counter()
             sl = slice(start, min(start + size, T))
             data, state = _pack(f_r, weight, wi, wo, x0, status, exact, sl)
-            samples_buf, state_buf = pairs[k % len(pairs)]
+            samples_buf, state_buf, limits_buf, work_buf = pairs[k % len(pairs)]
             samples_buf.write(data.tobytes())
             state_buf.write(state.tobytes())
+            if limits is not None:
+                limits_buf.write(np.ascontiguousarray(limits[0][sl], np.float32).tobytes())
             t1 = time.perf_counter()
             samples_buf.bind_to_storage_buffer(0)
             state_buf.bind_to_storage_buffer(1)
+            work_buf.bind_to_storage_buffer(2)
+            limits_buf.bind_to_storage_buffer(3)
             prog["u_texels"].value = state.shape[0]
-            prog.run((state.shape[0] + shader.GROUP - 1) // shader.GROUP)
-            ctx.memory_barrier()
+            groups = (state.shape[0] + shader.GROUP - 1) // shader.GROUP
+            for mode in [1] + [0] * -(-int(iterations) // chunk):  # the start, then the iterations in chunks
+                prog["u_mode"].value = mode
+                prog.run(groups)
+                ctx.memory_barrier()
             t2 = time.perf_counter()
             timings["upload_s"] = timings.get("upload_s", 0.0) + t1 - t0
             timings["compute_s"] = timings.get("compute_s", 0.0) + t2 - t1
@@ -140,10 +154,9 @@ def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, 
         if pending is not None:
             _read(pending, out, timings)
     finally:
-        for a, b in pairs:
-            a.release()
-            b.release()
-        dummy.release()
+        for buffers in pairs:
+            for b in buffers:
+                b.release()
     return _result(out, K)
 
 
@@ -155,13 +168,14 @@ def run_stepwise(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, h
     S = f_r.shape[1]
     prog = _program(ctx, src)
     _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_samples=S, u_iterations=int(iterations),
-              u_tolerance=float(tolerance), u_damping=float(damping), u_texels=T)
+              u_tolerance=float(tolerance), u_damping=float(damping), u_texels=T, u_constrain=0)
     stride, work_stride = shader.state_stride(K), shader.work_stride(K)
     NA = K * (K + 1) // 2
     t0 = time.perf_counter()
     data, state = _pack(f_r, weight, wi, wo, x0, status, exact, slice(0, T))
     samples_buf, state_buf = ctx.buffer(data.tobytes()), ctx.buffer(state.tobytes())
     work_buf = ctx.buffer(reserve=T * work_stride * 4)
+    unused = ctx.buffer(reserve=16)  # the limits binding, not read: the CPU projects
     timings["upload_s"] = timings.get("upload_s", 0.0) + time.perf_counter() - t0
     groups = (T + shader.GROUP - 1) // shader.GROUP
     trial = slice(NA + K, NA + 2 * K)
@@ -170,6 +184,7 @@ def run_stepwise(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, h
         samples_buf.bind_to_storage_buffer(0)
         state_buf.bind_to_storage_buffer(1)
         work_buf.bind_to_storage_buffer(2)
+        unused.bind_to_storage_buffer(3)
         prog["u_mode"].value = 1
         prog.run(groups)
         ctx.memory_barrier()
@@ -189,7 +204,7 @@ def run_stepwise(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, h
         out = np.frombuffer(state_buf.read(), np.float32).reshape(T, stride).copy()
         timings["compute_s"] = timings.get("compute_s", 0.0) + time.perf_counter() - t0
     finally:
-        for b in (samples_buf, state_buf, work_buf):
+        for b in (samples_buf, state_buf, work_buf, unused):
             b.release()
     return _result(out, K)
 

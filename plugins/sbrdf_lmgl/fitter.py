@@ -2,21 +2,27 @@
 
 What stays on the CPU is what ``lm`` does once per texel: the starting
 points (the model's initial guess, Sobol starts scored by cost, exactly as
-:func:`sbrdf_lib.lm.fit_model` chooses them), robust-loss weights between
-IRLS rounds, and the projection onto the plausibility limits.  A first pass
-fits every texel inside the fit form's box bounds in one dispatch; a texel
-whose result leaves its :class:`~sbrdf_core.constraints.Limits` is fitted
-again from ``lm``'s starts *stepwise* (:func:`.device.run_stepwise`: the GPU
-proposes each trial point, the CPU projects it, the GPU evaluates it), which
-is ``lm``'s constrained fit step for step.  With ``loss`` huber / soft-l1
-such texels are refitted by ``lm``'s own solver on the CPU.
+:func:`sbrdf_lib.lm.fit_model` chooses them, projected onto the limits),
+robust-loss weights between IRLS rounds, and a last float64 projection onto
+the plausibility limits.  For a model with the optional
+``glsl_fit_constrain`` the shader projects the start and every trial point
+onto the texel's :class:`~sbrdf_core.constraints.Limits` itself, so the
+constrained fit is ``lm``'s step for step in one shader loop (chunked over a
+few dispatches, :func:`.shader.chunk`).  For a model without it, a first
+pass fits every texel inside the fit form's box bounds; a texel whose result
+leaves its limits is fitted again from ``lm``'s starts *stepwise*
+(:func:`.device.run_stepwise`: the GPU proposes each trial point, the CPU
+projects it, the GPU evaluates it); with ``loss`` huber / soft-l1 such
+texels are refitted by ``lm``'s own solver on the CPU.
 
 Float32: the fit form already fits log exponents / log roughness; residuals
 are divided by each texel's RMS sample value, so costs are O(1) whatever
-the material's brightness.  A texel float32 leaves unconverged after
-``iterations`` is finished in float64 on the CPU (``cpu_finish``) or, with
-``cpu_finish: false``, flagged ``NOT_CONVERGED`` as ``lm`` flags it;
-non-finite results fall back to the starting point, flagged, never NaN.
+the material's brightness.  A texel still unconverged after ``iterations``
+(``lm`` leaves as many so) gets another ``iterations`` on the GPU from where
+it stopped, and what is left is finished in float64 on the CPU
+(``cpu_finish``); with ``cpu_finish: false`` it is flagged
+``NOT_CONVERGED`` as ``lm`` flags it.  Non-finite results fall back to the
+starting point, flagged, never NaN.
 """
 
 from __future__ import annotations
@@ -26,11 +32,23 @@ import time
 
 import numpy as np
 
+from sbrdf_core.constraints_glsl import pack_limits, scalars
 from sbrdf_core.contracts import optional
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable
 from sbrdf_core.params import Param
-from sbrdf_lib.lm import IRLS_ROUNDS, LOSSES, fit_model, keep_better, projector, robust_weights, starting_points
+from sbrdf_lib.lm import (
+    IRLS_ROUNDS,
+    LOSSES,
+    WEIGHTING,
+    WEIGHTINGS,
+    fit_model,
+    keep_better,
+    projector,
+    robust_weights,
+    sample_weights,
+    starting_points,
+)
 
 from . import device, shader
 
@@ -66,24 +84,27 @@ class GLLevenbergMarquardtFitter:
         Param("seed", "int", 0, "seed of the Sobol starting points"),
         Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1 (iteratively reweighted)",
               choices=["linear", "huber", "soft-l1"]),
+        WEIGHTING,
         Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns linear; 0 = 1.4826 x the "
               "texel's median absolute residual", bounds=(0.0, None)),
         Param("tile", "int", 4096, "texels per compute dispatch (samples of two tiles are on the GPU at once)",
               bounds=(64, None)),
-        Param("cpu_finish", "bool", True, "texels float32 leaves unconverged after `iterations` (ill-conditioned "
-              "lobes: damping slows the steps) are finished by the CPU solver in float64 from where the GPU stopped; "
-              "false: they are flagged not converged"),
+        Param("cpu_finish", "bool", True, "texels unconverged after `iterations` (ill-conditioned lobes: damping "
+              "slows the steps) get another `iterations` on the GPU from where they stopped (linear loss, limits "
+              "projected in the shader or none), then the CPU solver in float64 finishes what is left; false: they "
+              "are flagged not converged"),
     )
 
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
                  seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, tile: int = 4096,
-                 cpu_finish: bool = True):
+                 cpu_finish: bool = True, weighting: str = "shot-noise"):
         self.model_name = model
         self.model_config = dict(model_params)
         self.iterations, self.tolerance, self.damping = iterations, tolerance, damping
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
         self.loss, self.loss_scale, self.tile, self.cpu_finish = loss, loss_scale, tile, cpu_finish
+        self.weighting = weighting
         #: Seconds per stage since construction (starts, upload, compute = dispatch and read-back, polish: the CPU
         #: part) and texel counts (texels, cpu_texels: finished or refitted on the CPU).
         self.timings: dict[str, float] = {}
@@ -95,12 +116,13 @@ class GLLevenbergMarquardtFitter:
     def fit(self, model, f_r, valid, wi, wo, limits=None) -> FitResult:
         if self.loss not in LOSSES:
             raise ValueError(f"lm-gl: loss {self.loss!r} is not one of {', '.join(LOSSES)}")
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"lm-gl: weighting {self.weighting!r} is not one of {', '.join(WEIGHTINGS)}")
         glsl = gradient_glsl(model)
         t0 = time.perf_counter()
         f_r, valid = usable(f_r, valid)
         form = model.fit_form()
         T, K = f_r.shape[0], form.size
-        src = shader.source(glsl, K)
         lo, hi = form.bounds()
         free = np.ones(K, bool)
         slices = form.slices()
@@ -111,16 +133,22 @@ class GLLevenbergMarquardtFitter:
             free[slices[name]] = False
         project = projector(form, limits)
         everyone = np.arange(T)
-        x_starts = starting_points(form, form.least_squares(f_r, valid.astype(np.float64), wi, wo), f_r, valid, wi,
+        constrain = optional(model, "glsl_fit_constrain", "brdf-model") if project is not None else None
+        in_shader = constrain is not None  # every trial point projected in the shader: no stepwise refit
+        src = shader.source(glsl, K, constrain() if in_shader else None)
+        packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
+        plain_weight = valid.astype(np.float64)
+        base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model
+        x_starts = starting_points(form, form.least_squares(f_r, base, wi, wo), f_r, valid, wi,
                                    wo, self.starts or model.suggested_starts, self.seed, None, free, project)
         n = valid.sum(axis=1)
         energy = np.einsum("tsc,tsc->t", f_r, f_r)
         scale = np.maximum(np.sqrt(energy / np.maximum(3 * n, 1)), 1e-6)  # residuals in units of the texel's RMS
         self._add("starts_s", time.perf_counter() - t0)
 
-        def gpu(x, weight, iterations, idx=everyone, project=None):
-            """LM on the GPU for texels ``idx`` (stepwise when every trial point is projected); the cost comes
-            back in sr⁻² (unscaled)."""
+        def gpu(x, weight, iterations, idx=everyone, project=None, constrained=in_shader):
+            """LM on the GPU for texels ``idx``: every trial point projected in the shader (``constrained``), or by
+            ``project`` on the CPU (stepwise); the cost comes back in sr⁻² (unscaled)."""
             w = weight[idx] / scale[idx, None]
             status = (~(w > 0).any(axis=1)).astype(np.float32)
             fw = f_r[idx] * w[..., None]
@@ -128,42 +156,42 @@ class GLLevenbergMarquardtFitter:
             opts = dict(lo=lo, hi=hi, free=free, iterations=iterations, tolerance=self.tolerance, damping=self.damping,
                         timings=self.timings)
             if project is None:
+                lim = (packed[0][idx], packed[1], packed[2]) if constrained and packed is not None else None
                 x, cost, converged, _ = device.call(device.run_tiles, src, x, status, exact, f_r[idx], w, wi[idx],
-                                                    wo[idx], tile=self.tile, **opts)
+                                                    wo[idx], tile=self.tile, limits=lim, **opts)
             else:
                 x, cost, converged, _ = device.call(device.run_stepwise, src, x, status, exact, f_r[idx], w,
                                                     wi[idx], wo[idx], project=project, **opts)
             return x, cost * scale[idx] ** 2, converged
 
         best = None
-        plain_weight = valid.astype(np.float64)
         for x0 in x_starts:
-            x, weight = x0, plain_weight
+            x, weight = x0, base
             for _ in range(1 if self.loss == "linear" else IRLS_ROUNDS):
                 x, cost, converged = gpu(x, weight, self.iterations)
                 if self.loss != "linear":
-                    weight = robust_weights(form, x, f_r, valid, wi, wo, self.loss, self.loss_scale)
+                    weight = robust_weights(form, x, f_r, valid, wi, wo, self.loss, self.loss_scale) * base
             if self.loss != "linear":
-                cost = gpu(x, plain_weight, 0)[1]
+                cost = gpu(x, base, 0, constrained=False)[1]
             broken = ~(np.isfinite(x).all(axis=1) & np.isfinite(cost))
             if broken.any():  # float32 could not follow this texel: its start, flagged
                 b = np.flatnonzero(broken)
                 x[b], converged[b] = x0[b], False
-                sub = form.least_squares(f_r[b], plain_weight[b], wi[b], wo[b])
+                sub = form.least_squares(f_r[b], base[b], wi[b], wo[b])
                 cost[b] = np.nan_to_num(sub.normal_equations(x0[b], np.arange(b.size))[2], nan=np.inf)
             best = keep_better(best, x, cost, converged, 1e-6)  # float32 costs: a coarser margin than lm's
         assert best is not None
         x, cost, converged, restarted = best
-        if project is not None and self.loss == "linear":
-            # Texels whose fit left their limits: lm's constrained fit (every trial point projected) on the GPU,
-            # from the same starts.
+        if project is not None and self.loss == "linear" and not in_shader:
+            # A model without glsl_fit_constrain: texels whose fit left their limits get lm's constrained fit
+            # (every trial point projected on the CPU) on the GPU, stepwise, from the same starts.
             t1 = time.perf_counter()
             moved = np.flatnonzero((np.abs(project(x, everyone) - x) > 1e-6 * (1.0 + np.abs(x))).any(axis=1))
             if moved.size:
                 sub_project = projector(form, limits.take(moved))
                 inside = None
                 for x0 in x_starts:
-                    xs, cs, conv = gpu(x0[moved], plain_weight, self.iterations, moved,
+                    xs, cs, conv = gpu(x0[moved], base, self.iterations, moved,
                                        lambda v, i: sub_project(v, i))
                     if inside is None:
                         inside = [xs, cs, conv]
@@ -172,12 +200,21 @@ class GLLevenbergMarquardtFitter:
                         inside[0][b], inside[1][b], inside[2][b] = xs[b], cs[b], conv[b]
                 assert inside is not None
                 x[moved], cost[moved], converged[moved] = inside
-            self._add("constrained_texels", moved.size)
+            self._add("stepwise_texels", moved.size)
             self._add("stepwise_s", time.perf_counter() - t1)
+        if self.cpu_finish and self.loss == "linear" and (project is None or in_shader):
+            # Texels still improving after `iterations` (lm leaves as many unconverged): another `iterations` on the
+            # GPU from where they stopped, as the CPU finish would run them; only what is left goes to the CPU.
+            late = np.flatnonzero(~converged)
+            if late.size:
+                x[late], cost[late], converged[late] = gpu(x[late], base, self.iterations, late)
+            self._add("gpu_finish_texels", late.size)
         x, cost, converged = self._polish(model, form, x, cost, converged, f_r, valid, wi, wo, lo, hi, free, limits,
-                                          project, everyone)
+                                          None if in_shader else project, everyone)
         if project is not None:  # float32 round-off can leave a bound by an ulp: project once more in float64
             x = project(x, everyone)
+        if self.weighting != "absolute" or self.loss != "linear":  # the unweighted cost, whatever was minimised
+            cost = form.least_squares(f_r, plain_weight, wi, wo).normal_equations(x, everyone)[2]
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         rms = np.sqrt(np.maximum(cost, 0.0) / np.maximum(f_r.shape[-1] * n, 1))
         return FitResult(form.to_model(form.unpack(x)), rms, n, flags, restarted=restarted)
@@ -199,7 +236,7 @@ class GLLevenbergMarquardtFitter:
                 params, conv, cs = fit_model(model, f_r[idx], valid[idx], wi[idx], wo[idx], iterations=self.iterations,
                                              tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
                                              starts=self.starts, seed=self.seed, limits=limits.take(idx),
-                                             loss=self.loss, loss_scale=self.loss_scale)
+                                             loss=self.loss, loss_scale=self.loss_scale, weighting=self.weighting)
                 x[idx], cost[idx], converged[idx] = form.pack(form.from_model(params)), cs, conv
         late = np.flatnonzero(~converged & ~moved) if self.cpu_finish else np.zeros(0, int)
         if late.size:
@@ -207,7 +244,7 @@ class GLLevenbergMarquardtFitter:
                                          initial=form.unpack(x[late]), iterations=self.iterations,
                                          tolerance=self.tolerance, damping=self.damping, fixed=self.fixed, starts=1,
                                          limits=None if limits is None else limits.take(late), loss=self.loss,
-                                         loss_scale=self.loss_scale)
+                                         loss_scale=self.loss_scale, weighting=self.weighting)
             x[late], cost[late], converged[late] = form.pack(form.from_model(params)), cs, conv
         cpu = int(moved.sum()) + late.size
         if cpu:

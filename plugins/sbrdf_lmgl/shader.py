@@ -1,4 +1,4 @@
-"""The compute shader: one invocation runs one texel's whole Levenberg–Marquardt fit.
+"""The compute shader: one invocation per texel runs its Levenberg–Marquardt fit, a chunk of iterations a dispatch.
 
 Each invocation reads its texel's samples from a shader storage buffer,
 accumulates the normal equations ``JᵀJ`` (packed lower triangle) and ``Jᵀr``
@@ -20,17 +20,30 @@ Buffers (float32):
 - state ``[T][K + 4]``: x (in: start, out: result), cost, status (in: 0 =
   fit, 1 = leave alone; out: 0 = still running, 1 = converged, 2 = stopped at
   the iteration cap in stepwise mode), exact-fit threshold, iterations;
-- work ``[T][NA + 2K + 2]`` (stepwise mode only): JᵀJ, Jᵀr, trial point, λ, ok.
+- work ``[T][NA + 2K + 2]``: JᵀJ, Jᵀr, trial point (stepwise), λ, ok (stepwise), kept between dispatches;
+- limits ``[T][3]``: peak, resolution, peak_cosine (−1: off), read where
+  ``u_constrain`` is set (:mod:`sbrdf_core.constraints_glsl`).
 
-``u_mode`` 0 runs each texel's whole fit in one dispatch.  Where every
-trial point must be projected onto the texel's plausibility limits (on the
-CPU, by the model's ``constrain``), the fit is stepwise: mode 1 starts it,
+``u_mode`` 1 starts every fit (projects the start, keeps its normal
+equations and λ in the work buffer); mode 0 then runs up to ``u_chunk``
+iterations per dispatch from there, as many dispatches as ``iterations``
+needs.  Chunks, not one dispatch per fit: llvmpipe ends every loop of an
+invocation once 65 535 loop iterations have run in it in all
+(``LP_MAX_TGSI_LOOP_ITERATIONS``), which ~50 LM iterations over 400 samples
+reach, silently truncating the sample sums; a GPU driver's watchdog also
+prefers short dispatches (:func:`chunk`).  With ``u_constrain`` the start
+and every trial point are projected onto the texel's plausibility limits by
+the model's ``glsl_fit_constrain``, as :func:`sbrdf_lib.lm.levenberg_marquardt`
+projects them.  For a model without that member the projection is the CPU's
+(the model's numpy ``constrain``) and the fit is stepwise: mode 1 starts it,
 then per iteration mode 2 proposes a trial point, the CPU projects it, and
 mode 3 evaluates and accepts or rejects it: :func:`sbrdf_lib.lm.levenberg_marquardt`
 step for step.
 """
 
 from __future__ import annotations
+
+from sbrdf_core.constraints_glsl import LIMITS_STRIDE
 
 #: Floats per sample: ω_i (3), ω_o (3), f_r (3), weight.
 SAMPLE = 10
@@ -47,19 +60,38 @@ def work_stride(K: int) -> int:
     return K * (K + 1) // 2 + 2 * K + 2
 
 
-def source(gradient_glsl: str, K: int) -> str:
-    """The compute shader for a model whose ``glsl_fit_gradient()`` is ``gradient_glsl``, ``K`` fit parameters."""
+#: Loop iterations one dispatch's invocation may run (llvmpipe stops every loop after 65 535 in all), with margin.
+LOOP_BUDGET = 40000
+
+
+def chunk(samples: int, K: int, constrained: bool) -> int:
+    """LM iterations per dispatch: each costs about ``samples`` + K³ loop iterations (sample sums, Cholesky),
+    plus the projection's loops (a bisection over mirror pairs: ~2000)."""
+    return max(1, LOOP_BUDGET // (samples + K**3 + 64 * K + (2000 if constrained else 0)))
+
+
+def source(gradient_glsl: str, K: int, constrain_glsl: str | None = None) -> str:
+    """The compute shader for a model whose ``glsl_fit_gradient()`` is ``gradient_glsl``, ``K`` fit parameters;
+    ``constrain_glsl``, the model's ``glsl_fit_constrain()``, projects trial points where ``u_constrain`` is set."""
     NA = K * (K + 1) // 2
     stride, work = state_stride(K), work_stride(K)
+    if constrain_glsl is None:  # never called (u_constrain stays 0): the CPU projects, stepwise
+        constrain_glsl = (f"void brdf_fit_constrain(inout float x[{K}], float peak, float resolution, "
+                          "float peak_cosine, float growth, float max_theta) {}")
     return f"""#version 430
 layout(local_size_x = {GROUP}) in;
 layout(std430, binding = 0) readonly buffer Samples {{ float smp[]; }};
 layout(std430, binding = 1) buffer State {{ float st[]; }};
 layout(std430, binding = 2) buffer Work {{ float wk[]; }};
+layout(std430, binding = 3) readonly buffer Limits {{ float lim[]; }};
 uniform int u_mode;
+uniform int u_constrain;
+uniform float u_growth;
+uniform float u_max_theta;
 uniform int u_texels;
 uniform int u_samples;
 uniform int u_iterations;
+uniform int u_chunk;
 uniform float u_tolerance;
 uniform float u_damping;
 uniform float u_lo[{K}];
@@ -69,6 +101,15 @@ const int K = {K};
 const int NA = {NA};
 
 {gradient_glsl}
+
+{constrain_glsl}
+
+// The trial point onto the texel's plausibility limits, as the model's numpy constrain (fit form) does.
+void project(int t, inout float x[K]) {{
+    if (u_constrain == 0) return;
+    int o = t * {LIMITS_STRIDE};
+    brdf_fit_constrain(x, lim[o], lim[o + 1], lim[o + 2], u_growth, u_max_theta);
+}}
 
 float normal_equations(int t, float x[K], out float A[NA], out float g[K]) {{
     for (int i = 0; i < NA; ++i) A[i] = 0.0;
@@ -157,13 +198,31 @@ void main() {{
     float x[K], xn[K], A[NA], g[K], An[NA], gn[K];
     for (int k = 0; k < K; ++k) x[k] = st[so + k];
     float exact = st[so + K + 2];
-    if (u_mode <= 1) {{  // whole fit (0), or the start of a stepwise one (1)
+    if (u_mode == 1) {{  // the start: projected, its normal equations kept for the iterations
+        project(t, x);
         float cost = normal_equations(t, x, A, g);
         bool running = st[so + K + 1] == 0.0 && cost > 0.0 && finite(cost);
-        float lam = u_damping;
-        int it = 0;
-        for (; u_mode == 0 && it < u_iterations && running; ++it) {{
+        for (int k = 0; k < K; ++k) st[so + k] = x[k];
+        st[so + K] = cost;
+        st[so + K + 1] = running ? 0.0 : 1.0;
+        st[so + K + 3] = 0.0;
+        for (int i = 0; i < NA; ++i) wk[wb + i] = A[i];
+        for (int k = 0; k < K; ++k) wk[wb + NA + k] = g[k];
+        wk[wb + NA + 2 * K] = u_damping;
+        return;
+    }}
+    if (st[so + K + 1] != 0.0) return;  // done
+    for (int i = 0; i < NA; ++i) A[i] = wk[wb + i];
+    for (int k = 0; k < K; ++k) g[k] = wk[wb + NA + k];
+    float lam = wk[wb + NA + 2 * K];
+    if (u_mode == 0) {{  // up to u_chunk iterations from the kept state, every trial point projected
+        float cost = st[so + K];
+        int it = int(st[so + K + 3]);
+        int stop = min(it + u_chunk, u_iterations);
+        bool running = true;
+        for (; it < stop && running; ++it) {{
             bool ok = propose(A, g, x, lam, xn);
+            if (ok) project(t, xn);
             float cn = ok ? normal_equations(t, xn, An, gn) : cost;
             running = settle(ok, xn, cn, An, gn, exact, x, A, g, cost, lam);
         }}
@@ -171,17 +230,11 @@ void main() {{
         st[so + K] = cost;
         st[so + K + 1] = running ? 0.0 : 1.0;
         st[so + K + 3] = float(it);
-        if (u_mode == 1) {{
-            for (int i = 0; i < NA; ++i) wk[wb + i] = A[i];
-            for (int k = 0; k < K; ++k) wk[wb + NA + k] = g[k];
-            wk[wb + NA + 2 * K] = lam;
-        }}
+        for (int i = 0; i < NA; ++i) wk[wb + i] = A[i];
+        for (int k = 0; k < K; ++k) wk[wb + NA + k] = g[k];
+        wk[wb + NA + 2 * K] = lam;
         return;
     }}
-    if (st[so + K + 1] != 0.0) return;  // done
-    for (int i = 0; i < NA; ++i) A[i] = wk[wb + i];
-    for (int k = 0; k < K; ++k) g[k] = wk[wb + NA + k];
-    float lam = wk[wb + NA + 2 * K];
     if (u_mode == 2) {{  // propose a trial point, to be projected onto the texel's limits on the CPU
         bool ok = propose(A, g, x, lam, xn);
         for (int k = 0; k < K; ++k) wk[wb + NA + K + k] = xn[k];

@@ -33,6 +33,7 @@ import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
+from sbrdf_core.constraints_glsl import microfacet_constrain
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
@@ -232,6 +233,13 @@ class CookTorranceModel(BRDFModel):
 
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("alpha",))
+
+    def glsl_fit_constrain(self) -> str:
+        """``brdf_fit_constrain``: :meth:`constrain` on the fit form in GLSL (the bounds, ρ_d ≤ peak, α ≥ the
+        resolvable roughness, α widened by bisection until the mirror peak fits), for ``lm-gl``."""
+        return self.glsl() + microfacet_constrain(self.fit_form(), "brdf_cook_torrance",
+                                                  [("vec3", "rho_d"), ("vec3", "f0"), ("float", "alpha")],
+                                                  ("alpha",), (ALPHA_BOUNDS[1],))
 
     def constrain(self, params, limits):
         """F0 ≤ 1 bounds the lobe's energy; α no narrower than the sampling resolves, and wide enough that

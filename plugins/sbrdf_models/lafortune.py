@@ -33,6 +33,7 @@ import copy
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon, positive_power
+from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
 from sbrdf_lib.lm import diffuse_percentile
@@ -270,6 +271,59 @@ class LafortuneModel(BRDFModel):
         if self.has_beta:
             lines.append(f"    grad[{sl['beta'].start}] = dbeta;")
         lines += ["    return f;", "}", ""]
+        return "\n".join(lines)
+
+    def glsl_fit_constrain(self) -> str:
+        """``brdf_fit_constrain``: the fit form's :meth:`~LafortuneFitForm.constrain` in GLSL (the bounds,
+        ρ_d ≤ peak, then :func:`bound_lobes` per lobe: n ≤ the resolvable exponent, ρ_s within the budget, |C|
+        shrunk until ρ_s·m^n fits and m^n ≤ growth, all ρ_s scaled by the lobes' common share), for ``lm-gl``."""
+        if self.channels != 3:
+            raise ValueError("lafortune: the GLSL fit constraint is for RGB lobes, not a single-channel model")
+        form = self.fit_form()
+        K, sl = form.size, form.slices()
+        f = glsl_float
+        lines = [f"void brdf_fit_constrain(inout float x[{K}], float peak, float resolution, float peak_cosine, "
+                 "float growth, float max_theta) {"]
+        lines += clip_lines(form)
+        if self.lobes:
+            lines += ["    bool finite_budget = peak >= 0.0;",
+                      "    float budget = finite_budget ? max(peak - max(x[0], max(x[1], x[2])), 0.0) : 0.0;",
+                      "    float s2 = sin(max_theta) * sin(max_theta), c2 = cos(max_theta) * cos(max_theta);",
+                      f"    float n_cap = resolution >= 0.0 ? {max_cosine_exponent()} : {BIG};",
+                      "    float total = 0.0;",
+                      f"    float r_scale[{self.lobes}], c_scale[{self.lobes}], n_new[{self.lobes}];"]
+        names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
+        for j in range(1, self.lobes + 1):
+            r, ln = sl[f"rho_s_{j}"].start, sl[f"log_exponent_{j}"].start
+            cs = [sl[f"{nm}_{j}"].start for nm in names]
+            cabs = f"abs(x[{cs[0]}])" if len(cs) == 1 else f"max(abs(x[{cs[0]}]), abs(x[{cs[1]}]))"
+            i = j - 1
+            lines += ["    {",
+                      f"        float nn = clamp(min(exp(x[{ln}]), n_cap), {f(EXPONENT_BOUNDS[0])}, "
+                      f"{f(EXPONENT_BOUNDS[1])});",
+                      f"        float rmax = max(x[{r}], max(x[{r + 1}], x[{r + 2}]));",
+                      "        float rs = finite_budget && rmax > budget ? budget / (rmax > 0.0 ? rmax : 1.0) : 1.0;",
+                      "        float rr = rmax * rs;",
+                      f"        float log_m = rr > 0.0 && finite_budget ? log(budget / rr) / nn : {BIG};",
+                      "        if (growth >= 0.0) log_m = min(log_m, log(max(growth, 1.0)) / nn);",
+                      f"        float c_allowed = s2 > 0.0 ? max((exp(min(log_m, 50.0)) - c2) / s2, 1.0) : {BIG};",
+                      f"        float cabs = {cabs};",
+                      "        float cs = cabs > c_allowed ? c_allowed / (cabs > 0.0 ? cabs : 1.0) : 1.0;",
+                      "        float m = max(1.0, cabs * cs * s2 + c2);",
+                      # numpy caps the exponent at 700; a finite budget already holds rr·m^n ≤ budget, so float32's
+                      # 80 only matters where the budget is off and the share is 1 anyway
+                      "        total += rr > 0.0 ? rr * exp(min(nn * log(m), 80.0)) : 0.0;",
+                      f"        r_scale[{i}] = rs; c_scale[{i}] = cs; n_new[{i}] = nn;",
+                      "    }"]
+        if self.lobes:
+            lines.append("    float share = finite_budget && total > budget ? budget / (total > 0.0 ? total : 1.0) : 1.0;")
+        for j in range(1, self.lobes + 1):
+            r, ln = sl[f"rho_s_{j}"].start, sl[f"log_exponent_{j}"].start
+            i = j - 1
+            lines += [f"    for (int c = 0; c < 3; ++c) x[{r} + c] *= r_scale[{i}] * share;"]
+            lines += [f"    x[{sl[f'{nm}_{j}'].start}] *= c_scale[{i}];" for nm in names]
+            lines += [f"    if (n_new[{i}] != exp(x[{ln}])) x[{ln}] = log(n_new[{i}]);"]
+        lines += ["}", ""]
         return "\n".join(lines)
 
     # -- fitting support ----------------------------------------------------------------------------

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
+from sbrdf_core.constraints_glsl import clip_lines
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
 
@@ -66,6 +67,11 @@ class LambertModel(BRDFModel):
 
     def glsl(self):
         return "vec3 brdf_lambert(vec3 wi, vec3 wo, vec3 rho_d) { return (wi.z > 0.0 && wo.z > 0.0) ? rho_d : vec3(0.0); }"
+
+    def glsl_fit_constrain(self) -> str:
+        """``brdf_fit_constrain``: the bounds and ρ_d ≤ peak (the default :meth:`constrain`), for ``lm-gl``."""
+        return "\n".join(["void brdf_fit_constrain(inout float x[3], float peak, float resolution, float peak_cosine, "
+                          "float growth, float max_theta) {"] + clip_lines(self.fit_form()) + ["}", ""])
 
     def glsl_fit_gradient(self) -> str:
         """``vec3 brdf_fit_gradient(wi, wo, float x[3], out vec3 grad[3])``: ρ_d and its identity gradient."""

@@ -28,6 +28,7 @@ import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints import clip_shape
+from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
 EXPONENT_BOUNDS = (0.1, 20000.0)
@@ -100,6 +101,28 @@ class PhongModel(BRDFModel):
 
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("exponent",))
+
+    def glsl_fit_constrain(self) -> str:
+        """``brdf_fit_constrain``: :meth:`constrain` on the fit form (ρ_d, ρ_s, log n) in GLSL, for ``lm-gl``."""
+        form = self.fit_form()
+        lo, hi = (glsl_float(b) for b in EXPONENT_BOUNDS)
+        return "\n".join(
+            ["void brdf_fit_constrain(inout float x[7], float peak, float resolution, float peak_cosine, "
+             "float growth, float max_theta) {"]
+            + clip_lines(form)
+            + ["    float n = exp(x[6]), n0 = n;",
+               f"    if (resolution >= 0.0) n = min(n, {max_cosine_exponent()});",
+               "    if (peak >= 0.0) {",
+               "        float budget = max(peak - max(x[0], max(x[1], x[2])), 0.0);",
+               "        float rho = max(x[3], max(x[4], x[5]));",
+               f"        float n_peak = rho > 0.0 ? 6.28318530718 * budget / rho - 2.0 : {BIG};",
+               f"        if (n > n_peak * (1.0 + 1e-9)) n = max(n_peak, {lo});",
+               "        float lobe_peak = rho * (n + 2.0) / 6.28318530718;",
+               "        float shrink = lobe_peak > budget ? budget / (lobe_peak > 0.0 ? lobe_peak : 1.0) : 1.0;",
+               "        for (int c = 3; c < 6; ++c) x[c] *= shrink;",
+               "    }",
+               f"    if (n != n0) x[6] = log(clamp(n, {lo}, {hi}));",
+               "}", ""])
 
     def albedo_bound(self, params):
         """π ρ_d + ρ_s per channel: the normalised lobe's albedo is ρ_s at normal incidence and less elsewhere."""

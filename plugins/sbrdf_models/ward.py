@@ -31,6 +31,7 @@ import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
+from sbrdf_core.constraints_glsl import microfacet_constrain
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
@@ -151,6 +152,15 @@ class WardModel(BRDFModel):
 
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",))
+
+    def glsl_fit_constrain(self) -> str:
+        """``brdf_fit_constrain``: :meth:`constrain` on the fit form in GLSL (the bounds, ρ_d ≤ peak, slopes ≥ the
+        resolvable roughness, widened by bisection until the mirror peak fits), for ``lm-gl``."""
+        names = ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",)
+        return self.glsl() + microfacet_constrain(self.fit_form(), "brdf_ward",
+                                                  [("vec3", "rho_d"), ("vec3", "rho_s")] + [("float", n) for n in names],
+                                                  names, (ALPHA_BOUNDS[1],) * len(names),
+                                                  azimuths=2 if self.anisotropic else 1)
 
     def constrain(self, params, limits):
         """ρ_s ≤ 1 bounds the lobe's energy; no slope narrower than the sampling resolves, and wide enough

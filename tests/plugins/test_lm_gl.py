@@ -20,6 +20,7 @@ from sbrdf_core.registry import Registry
 from sbrdf_core.runner import run_graph
 from sbrdf_core.store import open_artifact
 from sbrdf_core.testing import FitterTests
+from sbrdf_models.ward import WardModel
 
 moderngl = pytest.importorskip("moderngl")
 try:
@@ -28,6 +29,10 @@ except Exception as e:  # pragma: no cover - machines without Mesa EGL
     pytest.skip(f"no EGL context with GL 4.3 compute shaders: {e}", allow_module_level=True)
 
 REGISTRY = Registry()
+#: The objective both fitters are compared on where the data is pathological (sharp lobes the starts cannot reach,
+#: β-rotated anisotropic pairs of lobes): the plain least squares, whose basins the float32 solver must find as lm
+#: does.  The default weighting is compared on ordinary data (test_default_weighting_agrees_with_lm).
+LM_SAME: dict = {"weighting": "absolute"}
 
 
 class TestLMGL(FitterTests):
@@ -61,7 +66,7 @@ def both(name, cfg, f, valid, wi, wo, limits=None, **params):
     model = REGISTRY.create("brdf-model", name, cfg)
     out = []
     for fitter in ("lm", "lm-gl"):
-        fit = REGISTRY.create("fitter", fitter, {"model": name, "model_params": cfg, **params})
+        fit = REGISTRY.create("fitter", fitter, {"model": name, "model_params": cfg, **LM_SAME, **params})
         out.append(fit.fit(model, f, valid, wi, wo, limits=limits))
     return model, out[0], out[1]
 
@@ -114,6 +119,16 @@ def test_lm_gl_agrees_with_lm_per_texel(name, cfg):
     model, cpu, gpu = both(name, cfg, f, valid, wi, wo)
     assert_agree(model, cpu, gpu, share=0.85 if cfg.get("beta") else 0.9)
     assert np.array_equal(cpu.samples, gpu.samples)
+
+
+@pytest.mark.parametrize("name,cfg", [("lafortune", {"lobes": 1}), ("lafortune", {"lobes": 2}), ("ward", {}),
+                                      ("cook-torrance", {"distribution": "ggx"}), ("phong", {})])
+def test_default_weighting_agrees_with_lm(name, cfg):
+    """Both fitters' default objective (shot-noise weighting): the same fits per texel as lm's."""
+    model = REGISTRY.create("brdf-model", name, cfg)
+    f, valid, wi, wo = problem(model, T=48, S=120, seed=6)
+    model, cpu, gpu = both(name, cfg, f, valid, wi, wo, weighting="shot-noise")
+    assert_agree(model, cpu, gpu)
 
 
 def test_sharp_lobes_exponents_to_ten_thousand():
@@ -249,3 +264,87 @@ def test_fit_node_runs_lm_gl_from_a_graph(tmp_path):
     others = np.uint8(0xFF ^ NOT_CONVERGED)
     assert np.array_equal(fa & others, fb & others)  # the node's own flags: same data, same bits
     assert ((fb & NOT_CONVERGED) > 0).sum() <= ((fa & NOT_CONVERGED) > 0).sum()
+
+
+TIGHT = [("lafortune", {"lobes": 2}), ("lafortune", {"lobes": 1, "anisotropic": True, "beta": True}),
+         ("cook-torrance", {"distribution": "ggx"}), ("ward", {"anisotropic": True}), ("phong", {})]
+
+
+def tight_limits(T):
+    return Limits(peak=np.full(T, 0.6), resolution=np.full(T, np.radians(8.0)), growth=1.0,
+                  peak_cosine=np.full(T, 0.4), max_theta=np.radians(85.0))
+
+
+def honoured(model, res, limits):
+    """The fit-form point of ``res`` is unchanged by a float64 projection onto ``limits``."""
+    form = model.fit_form()
+    x = form.pack(form.from_model(res.params))
+    again, _ = form.constrain(form.unpack(x.copy()), limits)
+    np.testing.assert_allclose(form.pack(again), x, rtol=1e-6, atol=1e-8)
+
+
+@pytest.mark.parametrize("name,cfg", TIGHT, ids=[f"{n}-{'-'.join(map(str, c.values()))}" for n, c in TIGHT])
+def test_limits_are_projected_in_the_shader(name, cfg):
+    """A model with glsl_fit_constrain: the constrained fit runs in the shader (no stepwise refit), its results
+    honour tight limits, and its RMS is lm's (same constrained fit, float32)."""
+    model = REGISTRY.create("brdf-model", name, cfg)
+    f, valid, wi, wo = problem(model, T=24, S=100, seed=11)
+    limits = tight_limits(24)
+    cpu = REGISTRY.create("fitter", "lm", {"model": name, "model_params": cfg}).fit(model, f, valid, wi, wo, limits)
+    fitter = REGISTRY.create("fitter", "lm-gl", {"model": name, "model_params": cfg})
+    gpu = fitter.fit(model, f, valid, wi, wo, limits=limits)
+    assert fitter.timings.get("stepwise_texels", 0) == 0
+    honoured(model, gpu, limits)
+    assert np.all(np.isfinite(gpu.rms))
+    assert np.mean(gpu.rms <= 1.01 * cpu.rms + 1e-5) >= 0.85, (gpu.rms, cpu.rms)
+    assert np.median(gpu.rms) <= 1.02 * np.median(cpu.rms) + 1e-5
+
+
+class WardProjectedOnTheCPU(WardModel):
+    """Ward without ``glsl_fit_constrain``: lm-gl falls back to the stepwise refit."""
+
+    glsl_fit_constrain = None  # type: ignore[assignment]
+
+
+def test_a_model_without_a_glsl_constraint_is_refitted_stepwise():
+    model = WardProjectedOnTheCPU()
+    f, valid, wi, wo = problem(model, T=16, S=100, seed=12)
+    limits = tight_limits(16)
+    fitter = REGISTRY.create("fitter", "lm-gl", {"model": "ward"})
+    res = fitter.fit(model, f, valid, wi, wo, limits=limits)
+    assert fitter.timings["stepwise_texels"] > 0
+    honoured(model, res, limits)
+
+
+def test_long_fits_keep_every_sample():
+    """Many iterations over many samples in one texel: llvmpipe stops an invocation's loops after 65 535 loop
+    iterations in all, so a fit run in one dispatch lost samples from its sums after ~50 iterations (a cost far
+    below the data's); in chunks of dispatches the reported cost is the parameters' cost."""
+    model = REGISTRY.create("brdf-model", "lafortune", {"lobes": 2})
+    f, valid, wi, wo = problem(model, T=16, S=400, seed=13, noise=0.01)
+    fitter = REGISTRY.create("fitter", "lm-gl", {"model": "lafortune", "model_params": {"lobes": 2},
+                                                 "iterations": 120, "tolerance": 0.0, "cpu_finish": False})
+    res = fitter.fit(model, f, valid, wi, wo)
+    form = model.fit_form()
+    x = form.pack(form.from_model(res.params))
+    cost = form.least_squares(f, valid.astype(np.float64), wi, wo).normal_equations(x, np.arange(16))[2]
+    rms = np.sqrt(cost / (3 * valid.sum(axis=1)))
+    live = np.all([res.params[f"rho_s_{j}"].max(axis=1) > 1e-6 for j in (1, 2)], axis=0)  # no lobe reset dead
+    assert live.sum() >= 8
+    np.testing.assert_allclose(res.rms[live], rms[live], rtol=1e-3)
+    assert np.all(res.rms > 0.5 * 0.01)  # at the noise level, not below it
+
+
+def test_robust_loss_inside_the_limits():
+    """huber with limits: every IRLS round's fit projected in the shader, no CPU refit; lm's RMS."""
+    model = REGISTRY.create("brdf-model", "lafortune", {"lobes": 1})
+    f, valid, wi, wo = problem(model, T=16, S=100, seed=14)
+    f[:, ::17] += 3.0  # dust spikes
+    limits = tight_limits(16)
+    cfg = {"model": "lafortune", "model_params": {"lobes": 1}, "loss": "huber"}
+    cpu = REGISTRY.create("fitter", "lm", cfg).fit(model, f, valid, wi, wo, limits=limits)
+    fitter = REGISTRY.create("fitter", "lm-gl", cfg)
+    gpu = fitter.fit(model, f, valid, wi, wo, limits=limits)
+    assert fitter.timings.get("stepwise_texels", 0) == 0
+    honoured(model, gpu, limits)
+    np.testing.assert_allclose(gpu.rms, cpu.rms, rtol=0.02, atol=1e-4)
