@@ -45,7 +45,7 @@ independently uniform in solid angle over θ ≤ 85°, plus ``PAIRS_MIRROR`` mir
   (Y = Rec. 709 weights of linear RGB; f_true > 0 everywhere since every truth has ρ_d ≥ 0.01 sr⁻¹,
   so no floor is needed).  Texels the fit left at model defaults count: that is what the user gets.
   ``X_p90_sampled`` (extra key) pools only texels with at least one valid sample, ``X_mirror_median``
-  only their mirror pairs.  The relative error of an underestimate saturates at 1: where a fit misses a
+  only their mirror pairs, ``X_p90_random`` only the random pairs (every texel).  The relative error of an underestimate saturates at 1: where a fit misses a
   peak it never sampled (the near-mirror band's mirror pairs) it scores ≈ 1, so mirror pairs are kept
   to one pair in eight lest they pin the p90 at 1.
 - ``fireflies``: texels, summed over all fits with the default bounds, whose maximum luminance over the hemisphere exceeds
@@ -74,7 +74,8 @@ Last line::
 
     fidelity: laf1_median=... laf1_p90=... laf2_median=... laf2_p90=... ct_median=... ct_p90=...
     fireflies=... unsampled=... render_max=... ward_median=... ward_p90=... X_p90_sampled=...
-    X_mirror_median=... X_fireflies=... X_s=...      (X = laf1, laf2, ward, ct, ct_fr; X_s = Fit node wall time, s)
+    X_mirror_median=... X_p90_random=... X_fireflies=... X_s=...
+    (X = laf1, laf2, ward, ct, ct_fr; X_s = Fit node wall time, s)
 
 ``ct_fr`` is ``ct`` fitted with ``microfacet_peak: f_r`` (the peak bound on f_r, as for Lafortune, instead of on
 f_r·cos θ_i·cos θ_o): its keys show what forbidding Cook–Torrance's rise toward grazing costs where it was measured.
@@ -446,7 +447,7 @@ def main(argv=None) -> int:
         figures: dict[str, float] = {}
         unsampled, fireflies, seconds, rows = [], 0, {}, []
         for name, (truth, scan_list, _, _) in FITS.items():
-            rels, sampled_rels, mirror_rels, ff = [], [], [], 0
+            rels, sampled_rels, mirror_rels, random_rels, ff = [], [], [], [], 0
             seconds[name] = 0.0
             train_rms, held_rms = [], []
             for scan in scan_list:
@@ -456,6 +457,7 @@ def main(argv=None) -> int:
                 rels.append(s["rel"].ravel())
                 sampled_rels.append(s["rel"][s["samples"] > 0].ravel())
                 mirror_rels.append(s["rel"][s["samples"] > 0][:, PAIRS_RANDOM:].ravel())
+                random_rels.append(s["rel"][:, :PAIRS_RANDOM].ravel())
                 unsampled.append(float((s["samples"] == 0).mean()))
                 bad = np.flatnonzero(s["firefly"])
                 ff += bad.size
@@ -478,6 +480,7 @@ def main(argv=None) -> int:
             figures[f"{name}_p90_sampled"] = float(np.percentile(srel, 90)) if srel.size else float("nan")
             mrel = np.concatenate(mirror_rels)
             figures[f"{name}_mirror_median"] = float(np.median(mrel)) if mrel.size else float("nan")
+            figures[f"{name}_p90_random"] = float(np.percentile(np.concatenate(random_rels), 90))
             figures[f"{name}_fireflies"] = ff
             fireflies += 0 if name in NODE_PARAMS else ff
             mean = lambda xs: float(np.mean(xs)) if xs and None not in xs else float("nan")  # noqa: E731
@@ -497,6 +500,7 @@ def main(argv=None) -> int:
                           if k in figures]
                          + [f"{k}_p90_sampled={g(figures[f'{k}_p90_sampled'])}" for k in FITS]
                          + [f"{k}_mirror_median={g(figures[f'{k}_mirror_median'])}" for k in FITS]
+                         + [f"{k}_p90_random={g(figures[f'{k}_p90_random'])}" for k in FITS]
                          + [f"{k}_fireflies={figures[f'{k}_fireflies']}" for k in FITS]
                          + [f"{k}_s={seconds[k]:.2f}" for k in FITS])
         line = f"fidelity: {head} fireflies={fireflies} unsampled={g(max(unsampled))} render_max={g(render_max)} {extra}"

@@ -40,10 +40,12 @@ specular spikes) do not pull the lobes.
 from __future__ import annotations
 
 import logging
+import warnings
 
 import numpy as np
 
 from sbrdf_core.nodes.fit import usable
+from sbrdf_core.params import Param
 
 __all__ = [
     "EXACT",
@@ -184,12 +186,48 @@ def robust_weights(form, x, f_r, valid, wi, wo, loss: str, scale: float) -> np.n
 
 
 LOSSES = ("linear", "huber", "soft-l1")
+#: What the least squares weighs, as the power p of each residual's weight 1 / (|f_r| + floor)^p
+#: (:func:`sample_weights`): residuals in sr⁻¹, for shot noise (σ ∝ √f_r), or relative to the value.
+WEIGHTINGS = {"absolute": 0.0, "shot-noise": 0.5, "relative": 1.0}
+#: The weights' floor, as a fraction of the texel's median sample (RGB mean).
+WEIGHT_FLOOR = 0.5
+#: The ``weighting`` parameter of the fitters that minimise :func:`fit_model`'s objective (``lm``, ``lm-gl``).
+WEIGHTING = Param("weighting", "str", "shot-noise", "what the least squares weighs: absolute = residuals in sr^-1, "
+                  "ruled by a lobe's peak samples; shot-noise = divided by sqrt(f_r + a floor), the "
+                  "maximum-likelihood weighting of photographed values; relative = divided by f_r + a floor, the "
+                  "shape in ratio (floor: half the texel's median sample; docs/fitting.md)",
+                  choices=tuple(WEIGHTINGS))
+
+
+def sample_weights(f_r: np.ndarray, valid: np.ndarray, power: float, floor: float = WEIGHT_FLOOR) -> np.ndarray:
+    """Per-sample weights ``(T, S)`` 1 / (|f_r| + floor · the texel's median)^power, the largest 1; 0 where invalid.
+
+    Why: an absolute least squares is ruled by the few samples at a peak, so
+    the fit of a model that cannot follow the data (a Lafortune lobe for a
+    GGX one) gives up the tails, where f_r is small and a render still shows
+    every relative error.  Power ½ is the maximum-likelihood weighting of a
+    photographed value under shot noise (its variance grows with the signal);
+    power 1 fits the shape in ratio.  The floor, relative to the texel's own
+    level so the weights do not depend on the exposure scale, stands for the
+    noise that does not grow with the signal and keeps near-zero samples from
+    taking over.
+    """
+    if power == 0.0:
+        return valid.astype(np.float64)
+    y = np.where(valid, np.abs(f_r).mean(axis=-1), np.nan)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a texel without valid samples: its weights are all 0
+        level = np.nan_to_num(np.nanmedian(y, axis=1, keepdims=True), nan=1.0)
+        w = np.where(valid, (np.nan_to_num(y) + floor * level + 1e-12) ** -power, 0.0)
+    return w / np.maximum(w.max(axis=1, keepdims=True), 1e-300)
+
 #: Reweighting rounds of a robust loss (each an LM run from the last result).
 IRLS_ROUNDS = 4
 
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
-              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None, separable=False):
+              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None, separable=False,
+              weighting="absolute"):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
@@ -206,10 +244,14 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     projection) replaces the general LM where the form marks it exact or
     ``separable`` asks for it (module docstring).  ``stats``, a dict, gets
     ``restarted`` (``(T,)`` mask of texels whose best result came from a start
-    other than their best-scored one).
+    other than their best-scored one).  ``weighting``:
+    a key of :data:`WEIGHTINGS`, residuals weighted by :func:`sample_weights`
+    (starts are scored and kept on that objective; ``cost`` stays unweighted).
     """
     if loss not in LOSSES:
         raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting {weighting!r} is not one of {', '.join(WEIGHTINGS)}")
     starts = starts or model.suggested_starts
     form = model.fit_form()
     T = f_r.shape[0]
@@ -224,9 +266,10 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     project = projector(form, limits)
     everyone = np.arange(T)
     fast = getattr(form, "separable_fit", None)
-    if separable is False and not getattr(form, "separable_exact", False):
+    exact = getattr(form, "separable_exact", False)  # linear in every parameter (Lambert): no shape to weigh
+    if separable is False and not exact:
         fast = None
-    if fast is not None and loss == "linear" and free.all() and starts == 1:
+    if fast is not None and loss == "linear" and (weighting == "absolute" or exact) and free.all() and starts == 1:
         out = fast(f_r, valid, wi, wo, initial=initial, limits=limits, iterations=iterations,
                         tolerance=tolerance, damping=damping)
         if out is not None:
@@ -244,22 +287,27 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
                 stats["restarted"] = np.zeros(T, bool)
             return form.to_model(form.unpack(x)), converged, cost
     plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
-    x_starts = starting_points(form, plain, f_r, valid, wi, wo, starts, seed, initial, free, project)
-    logger.debug("LM fit of %s: %d texels, %d start(s), loss %s", form.name, T, len(x_starts), loss)
+    base = sample_weights(f_r, valid, WEIGHTINGS[weighting])
+    objective = plain if weighting == "absolute" else form.least_squares(f_r, base, wi, wo)
+    x_starts = starting_points(form, objective, f_r, valid, wi, wo, starts, seed, initial, free, project)
+    logger.debug("LM fit of %s: %d texels, %d start(s), loss %s, %s weighting", form.name, T, len(x_starts), loss,
+                 weighting)
     opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free, project=project)
     best = None
     for x in x_starts:
-        weight = valid.astype(np.float64)
+        weight = base
         for _ in range(1 if loss == "linear" else IRLS_ROUNDS):
-            problem = plain if loss == "linear" else form.least_squares(f_r, weight, wi, wo)
+            problem = objective if loss == "linear" else form.least_squares(f_r, weight, wi, wo)
             x, cost, converged = levenberg_marquardt(problem, x, (lo, hi), **opts)
             if loss != "linear":
-                weight = robust_weights(form, x, f_r, valid, wi, wo, loss, loss_scale)
+                weight = robust_weights(form, x, f_r, valid, wi, wo, loss, loss_scale) * base
         if loss != "linear":
-            cost = _cost(plain, x)
+            cost = _cost(objective, x)
         best = keep_better(best, x, cost, converged, 1e-9)
     assert best is not None
     x, cost, converged, restarted = best
+    if weighting != "absolute" or loss != "linear":
+        cost = _cost(plain, x)  # the unweighted cost, whatever was minimised
     if stats is not None:
         stats["restarted"] = restarted
     return form.to_model(form.unpack(x)), converged, cost

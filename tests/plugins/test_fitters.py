@@ -206,14 +206,15 @@ def test_three_lobes_warn_and_multistart_never_worsens(registry, lafortune):
         registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}, "starts": 1})
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the default (starts: 0) takes the model's suggestion, 4 for 3 lobes
-        auto = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}})
+        auto = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3},
+                                                "weighting": "absolute"})  # so the objective is the RMS compared
     model = lafortune(lobes=3)
     assert model.suggested_starts == 4
     _, f, valid, wi, wo = data(lafortune(lobes=2), T=12, noise=1e-3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        one = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}, "starts": 1}).fit(
-            model, f, valid, wi, wo)
+        one = registry.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": 3}, "starts": 1,
+                                               "weighting": "absolute"}).fit(model, f, valid, wi, wo)
     many = auto.fit(model, f, valid, wi, wo)
     assert (many.rms <= one.rms + 1e-12).all()
 
