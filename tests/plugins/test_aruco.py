@@ -505,3 +505,89 @@ def test_building_computes_nothing_marker_detection_is_prepared_by_the_runner(re
     assert [n.status for n in rep.nodes] == ["computed"] * 3
     prepare = [c for c in calls if c[0] == "register prepare"]
     assert prepare and prepare[-1][1] == prepare[-1][2] == 8  # one measured block per pose at 8 poses
+
+
+def test_compiled_texel_mapping_gives_the_numpy_bits():
+    """grid_to_pixels / remap_maps: the numba loop, the in-place NumPy passes and plane_to_pixels agree to the
+    bit, behind the camera and with every distortion term too."""
+    from sbrdf_register.aruco import grid_to_pixels, remap_maps
+
+    rng = np.random.default_rng(3)
+    K = np.array([[900.0, 0.5, 320.0], [0.0, 905.0, 240.0], [0.0, 0.0, 1.0]])
+    xs, ys = np.linspace(-60, 60, 37), np.linspace(-50, 50, 29)
+    for dist in (np.array([-0.08, 0.02, 0.0, 0.0, 0.0]), np.array([-0.2, 0.05, 1e-3, -2e-3, 0.01]), np.zeros(4)):
+        for _ in range(4):
+            H = np.array([[3.0, 0.1, 320.0], [-0.05, 3.1, 240.0], [0.0, 0.0, 1.0]]) + rng.normal(0, 0.01, (3, 3))
+            H[2, :2] = rng.normal(0, 0.01, 2)  # tilted: part of the grid is behind the camera (w <= 0)
+            ref = grid_to_pixels(xs, ys, H, K, dist, compiled=False)
+            assert np.isnan(ref).any() or np.abs(H[2, :2]).max() < 0.017
+            np.testing.assert_array_equal(ref, plane_to_pixels(np.stack(np.meshgrid(xs, ys), axis=-1), H, K, dist))
+            np.testing.assert_array_equal(grid_to_pixels(xs, ys, H, K, dist, compiled=True), ref)
+            for scale in (1.0, 0.25):
+                for a, b in zip(remap_maps(xs, ys, H, K, dist, scale, True), remap_maps(xs, ys, H, K, dist, scale, False)):
+                    assert a.dtype == b.dtype == np.float32
+                    np.testing.assert_array_equal(a, b)
+
+
+def test_resampling_with_the_compiled_mapping_gives_the_same_bits(noisy_scan):
+    """A pose resampled with ``compiled_mapping`` (numba) and without (NumPy), every filter path: clipped edges
+    (renormalise), strict, a pyramid level, invalid and non-finite pixels, and one texel at the sample's centre
+    (no texel clipped)."""
+    from sbrdf_register import aruco
+
+    _, _, store, _ = noisy_scan
+    capture = open_artifact(str(store / "capture"))
+    images, valids = capture.zarr_array("images"), capture.zarr_array("valid")
+    for params in ({}, {"edge": "strict"}, {"texels": [16, 16]}, {"texels": [1, 1]}):
+        plugins = [aruco.ArucoRegistration(**{"texels": [64, 64], **params, "compiled_mapping": c}) for c in (False, True)]
+        regs = [p.register(capture) for p in plugins]  # the filter (footprint) is measured with each mapping
+        for name in ("pyramid_level", "subsamples", "pixels_per_texel"):
+            np.testing.assert_array_equal(regs[0].per_pose[name], regs[1].per_pose[name])
+        reg = regs[0]
+        for pose in (int(p) for p in reg.pose_ids[:2]):
+            image, valid = np.array(images[pose]), np.array(valids[pose])
+            valid[140:150, 190:200] = False  # a saturated patch on the sample
+            image[150, 210] = np.nan
+            (tex_n, ok_n), (tex_c, ok_c) = (p.resample(image, valid, pose, reg) for p in plugins)
+            if params.get("texels") != [1, 1]:  # (the one texel sees the saturated patch)
+                assert ok_n.any() and not ok_n.all()
+            np.testing.assert_array_equal(ok_c, ok_n)
+            np.testing.assert_array_equal(tex_c, tex_n)
+        if params.get("texels") == [16, 16]:
+            assert reg.per_pose["pyramid_level"].max() > 0
+
+
+def test_markers_refined_together_as_one_at_a_time(noisy_scan):
+    """All markers' edges are refined as whole arrays (markers of several sizes, so several profile lengths):
+    each marker's corners are the bits it gets alone, and near the (coarser) detector's."""
+    from sbrdf_register.aruco import refine_corners_by_edges, refine_markers_by_edges, tone_map
+
+    tmp, _, store, _ = noisy_scan
+    capture = open_artifact(str(store / "capture"))
+    K, dist = np.array(capture.attrs["camera"]["K"]), np.array(capture.attrs["camera"]["dist"])
+    fid = capture.attrs["sample"]["fiducials"]
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, fid["dictionary"])))
+    image, valid = np.asarray(capture.zarr_array("images")[0]), np.asarray(capture.zarr_array("valid")[0])
+    corners, ids, _ = detector.detectMarkers(tone_map(image, valid))
+    assert ids is not None and len(ids) >= 4
+    lin = np.where(np.isfinite(image), image, 0).astype(np.float32) @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    # One marker scaled about its centre: a marker of another size (another profile length) in the same batch.
+    c0 = corners[0].reshape(4, 2)
+    markers = [c.reshape(4, 2) for c in corners] + [c0.mean(axis=0) + 1.6 * (c0 - c0.mean(axis=0))]
+    together = refine_markers_by_edges(lin, markers, K, dist)
+    assert len(together) == len(markers) and refine_markers_by_edges(lin, [], K, dist) == []
+    for c, t in zip(markers, together):
+        alone = refine_corners_by_edges(lin, c, K, dist)
+        assert (t is None) == (alone is None)
+        if t is not None:
+            np.testing.assert_array_equal(t, alone)
+    # Against the true corners (the simulator's true pose): sub-pixel.
+    _, R_true, t_true = true_poses(tmp / "scan")[0]  # photograph 0 is pose 0
+    printed = {int(m["id"]): np.asarray(m["corners_mm"], float) for m in fid["markers"]}
+    errs = []
+    for i, t in zip(ids.ravel(), together[:-1]):
+        assert t is not None
+        obj = np.concatenate([printed[int(i)], np.zeros((4, 1))], axis=1)
+        proj, _ = cv2.projectPoints(obj, cv2.Rodrigues(R_true)[0], t_true, K, dist)
+        errs.append(np.linalg.norm(t - cv2.undistortPoints(proj, K, dist, P=K).reshape(-1, 2), axis=-1))
+    assert np.sqrt(np.mean(np.concatenate(errs) ** 2)) < 0.5, errs
