@@ -301,6 +301,8 @@ def hemisphere_max(model, params, wi_s, wo_s) -> np.ndarray:
 
 
 #: Today's main before issue 20 (9a90d69), this script at full size on the 2-core VM, 2026-11-25.
+BEFORE_WEIGHTING = ("laf1 median 0.184 / p90 0.966, laf2 0.153 / 0.950, ward 0.131 / 0.850, ct 0.365 / 1.615; "
+                    "fireflies 3325 (all ct)")
 BASELINE = ("laf1 median 0.164 / p90 1.07, laf2 0.175 / 1.12, ward 0.210 / 1.09, ct 0.421 / 3.98; fireflies 4134 "
             "(laf1 152, laf2 249, ward 98, ct 3635); 9.9 % of texels unsampled; cpu render maximum 4.9e28")
 
@@ -327,7 +329,8 @@ def write_docs(rows, line: str, size: dict, wall_s: float) -> None:
         "*Training RMS* and *held-out RMS* are the Fit node's own (`rms`, `rms_holdout`: 10 % of each texel's samples "
         "held out); *unseen* is the relative luminance error against the truth at 128 seeded direction pairs per "
         "texel that no capture took (θ ≤ 85°, 1 in 8 a mirror pair), the figure the training RMS cannot show; "
-        "fireflies are texels whose maximum over the hemisphere exceeds 10× the truth's there.",
+        "fireflies are texels whose maximum over the hemisphere exceeds 10× the truth's there. `ct_fr` is `ct` with "
+        "`microfacet_peak: f_r` (the peak bound on f_r itself), not counted in the line's `fireflies`.",
         f"Machine: {machine()}. Date: {datetime.date.today()}. Whole script: {wall_s:.0f} s.",
         "",
         *table,
@@ -335,6 +338,9 @@ def write_docs(rows, line: str, size: dict, wall_s: float) -> None:
         f"`{line}`",
         "",
         f"Before issue 20 (same script, same data): {BASELINE}.",
+        "",
+        f"Before `weighting: shot-noise` became `lm`'s default (absolute least squares; same data, same "
+        f"registration): {BEFORE_WEIGHTING}.",
         "<!-- fidelity:end -->",
         "",
     ])
