@@ -226,24 +226,30 @@ class BRDFModelTests(PluginTests):
             fbo.release()
             ctx.release()
 
+    def _compute_models(self, member: str):
+        """The models providing the optional GLSL ``member`` and an EGL context with compute shaders (GL 4.3), or
+        a skip saying which is missing."""
+        import pytest
+
+        from .contracts import optional
+
+        models = [m for m in self.models() if optional(m, member, "brdf-model") is not None]
+        if not models:
+            pytest.skip(f"the model has no {member} (optional)")
+        moderngl = pytest.importorskip("moderngl")
+        try:
+            return models, moderngl.create_context(standalone=True, backend="egl", require=430)
+        except Exception as e:  # no EGL driver or no GL 4.3 compute shaders
+            pytest.skip(f"no EGL context with compute shaders: {e}")
+
     def test_glsl_fit_gradient_matches_numpy(self):
         """The optional ``glsl_fit_gradient`` (value and ∂f/∂x in the fit form) against the fit form's ``eval`` and
         ``jacobian``, in a compute shader (float32: 0.5 % of each value and 0.1 % of the column's largest, as log of a
         near-1 dot product loses digits): random parameters, random directions with a few below the horizon, and
         for shape parameters that are exponents, sharp lobes (n up to 10⁴) probed near their peak."""
-        import pytest
-
-        from .contracts import optional
-
-        models = [m for m in self.models() if optional(m, "glsl_fit_gradient", "brdf-model") is not None]
-        if not models:
-            pytest.skip("the model has no glsl_fit_gradient (optional)")
-        moderngl = pytest.importorskip("moderngl")
-        try:
-            ctx = moderngl.create_context(standalone=True, backend="egl", require=430)
-        except Exception as e:  # no EGL driver or no GL 4.3 compute shaders
-            pytest.skip(f"no EGL context with compute shaders: {e}")
         from .brdf_checks import hemisphere_directions
+
+        models, ctx = self._compute_models("glsl_fit_gradient")
 
         try:
             for model in models:
@@ -284,19 +290,9 @@ class BRDFModelTests(PluginTests):
         bind (a zero peak, resolutions below the floor and of π/2 among them), each bound on and off (growth None
         or set, peak_cosine None or set).  Float32: 2·10⁻⁴ + 2·10⁻³
         relative per parameter (log parameters: the bisection's last bracket, 1.2·10⁻⁴, plus round-off)."""
-        import pytest
-
         from .constraints import Limits
-        from .contracts import optional
 
-        models = [m for m in self.models() if optional(m, "glsl_fit_constrain", "brdf-model") is not None]
-        if not models:
-            pytest.skip("the model has no glsl_fit_constrain (optional)")
-        moderngl = pytest.importorskip("moderngl")
-        try:
-            ctx = moderngl.create_context(standalone=True, backend="egl", require=430)
-        except Exception as e:  # no EGL driver or no GL 4.3 compute shaders
-            pytest.skip(f"no EGL context with compute shaders: {e}")
+        models, ctx = self._compute_models("glsl_fit_constrain")
         try:
             for model in models:
                 form = model.fit_form()
