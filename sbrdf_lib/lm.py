@@ -109,6 +109,7 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
         x_new = np.clip(xa + step, lo, hi)
         if project is not None:
             x_new = project(x_new, idx)
+            x_new = _active_set_step(Aa, ga, diag, lam[idx], free, xa, step, x_new, lo, hi, project, idx)
             step = x_new - xa
         A_new, g_new, cost_new = problem.normal_equations(x_new, idx)
         better = np.isfinite(cost_new) & (cost_new < cost[idx])
@@ -124,6 +125,33 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
         done = (better & (gain < tolerance)) | (~better & negligible) | (lam[idx] > MAX_DAMPING) | (cost[idx] <= exact[idx])
         active[idx[done]] = False
     return x, cost, ~active
+
+
+def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx):
+    """The projected trial point, with the step solved again where the projection pinned a parameter.
+
+    A parameter the projection held where it was (at its bound, the step
+    pointing out) leaves the Gauss–Newton step of the others wrong: they were
+    solved assuming it would move, so LM crawls along the bound, one small
+    projected step per iteration.  Freezing the pinned parameters and solving
+    for the rest (an active set) takes the constrained step directly.
+    """
+    scale = 1e-9 * np.maximum(np.abs(x), 1.0)
+    pinned = (np.abs(x_new - (x + step)) > scale) & (np.abs(x_new - x) <= scale) & free
+    rows = np.flatnonzero(pinned.any(axis=1))
+    if rows.size == 0:
+        return x_new
+    keep = free & ~pinned[rows]  # (R, K)
+    K = x.shape[1]
+    outer = keep[:, :, None] & keep[:, None, :]
+    Ar = np.where(outer, A[rows], 0.0) + (~keep)[:, :, None] * np.eye(K)
+    d = np.where(keep, diag[rows], 1.0)
+    with np.errstate(all="ignore"):
+        s = -np.linalg.solve(Ar + (lam[rows, None] * d)[:, :, None] * np.eye(K), (g[rows] * keep)[..., None])[..., 0]
+    s = np.where(np.isfinite(s) & keep, s, 0.0)
+    out = x_new.copy()
+    out[rows] = project(np.clip(x[rows] + s, lo, hi), idx[rows])
+    return out
 
 
 def projector(form, limits):

@@ -136,18 +136,22 @@ float normal_equations(int t, float x[K], out float A[NA], out float g[K]) {{
 
 bool finite(float v) {{ return !isnan(v) && !isinf(v); }}
 
-// The damped step from x: Cholesky of D^-1/2 A D^-1/2 + lam I; false when a pivot is at round-off.
-bool propose(float A[NA], float g[K], float x[K], float lam, out float xn[K]) {{
+// The damped step from x over the parameters fr marks free: Cholesky of D^-1/2 A D^-1/2 + lam I (a frozen
+// parameter's row and column replaced by the identity's); xn the step clamped to the box, xr unclamped; false when a
+// pivot is at round-off.
+bool propose(float A[NA], float g[K], float x[K], float lam, float fr[K], out float xn[K], out float xr[K]) {{
     float M[NA], d[K], y[K];
     for (int k = 0; k < K; ++k) {{
         xn[k] = x[k];
-        d[k] = u_free[k] > 0.0 ? sqrt(max(A[k * (k + 1) / 2 + k], 1e-12)) : 1.0;
+        xr[k] = x[k];
+        d[k] = fr[k] > 0.0 ? sqrt(max(A[k * (k + 1) / 2 + k], 1e-12)) : 1.0;
     }}
     for (int i = 0; i < K; ++i) {{
         int ri = i * (i + 1) / 2;
         for (int j = 0; j <= i; ++j) {{
             int rj = j * (j + 1) / 2;
-            float v = A[ri + j] / (d[i] * d[j]) + (i == j ? lam : 0.0);
+            float a = fr[i] > 0.0 && fr[j] > 0.0 ? A[ri + j] : (i == j ? 1.0 : 0.0);
+            float v = a / (d[i] * d[j]) + (i == j ? lam : 0.0);
             for (int k = 0; k < j; ++k) v -= M[ri + k] * M[rj + k];
             if (i == j) {{
                 if (!(v > 1e-7 * (1.0 + lam))) return false;
@@ -159,7 +163,7 @@ bool propose(float A[NA], float g[K], float x[K], float lam, out float xn[K]) {{
     }}
     for (int i = 0; i < K; ++i) {{  // L z = -g/d
         int ri = i * (i + 1) / 2;
-        float v = -g[i] / d[i];
+        float v = fr[i] > 0.0 ? -g[i] / d[i] : 0.0;
         for (int k = 0; k < i; ++k) v -= M[ri + k] * y[k];
         y[i] = v / M[ri + i];
     }}
@@ -169,9 +173,31 @@ bool propose(float A[NA], float g[K], float x[K], float lam, out float xn[K]) {{
         y[i] = v / M[i * (i + 1) / 2 + i];
     }}
     for (int k = 0; k < K; ++k) {{
-        float step = u_free[k] > 0.0 ? y[k] / d[k] : 0.0;
-        xn[k] = finite(step) ? clamp(x[k] + step, u_lo[k], u_hi[k]) : x[k];
+        float step = fr[k] > 0.0 ? y[k] / d[k] : 0.0;
+        xr[k] = finite(step) ? x[k] + step : x[k];
+        xn[k] = clamp(xr[k], u_lo[k], u_hi[k]);
     }}
+    return true;
+}}
+
+// The projected trial point of lm's active set (sbrdf_lib.lm._active_set_step): where the projection held a
+// parameter where it was (the step pointing out of its bound), the others' step is solved again with it frozen.
+bool propose_projected(int t, float A[NA], float g[K], float x[K], float lam, out float xn[K]) {{
+    float fr[K], xr[K];
+    for (int k = 0; k < K; ++k) fr[k] = u_free[k];
+    bool ok = propose(A, g, x, lam, fr, xn, xr);
+    if (!ok) return false;
+    project(t, xn);
+    bool pinned = false;
+    for (int k = 0; k < K; ++k) {{
+        float scale = 1e-6 * max(abs(x[k]), 1.0);
+        if (fr[k] > 0.0 && abs(xn[k] - xr[k]) > scale && abs(xn[k] - x[k]) <= scale) {{ fr[k] = 0.0; pinned = true; }}
+    }}
+    if (!pinned) return true;
+    float xs[K];
+    if (!propose(A, g, x, lam, fr, xs, xr)) return true;  // keep the first trial point
+    project(t, xs);
+    xn = xs;
     return true;
 }}
 
@@ -221,8 +247,7 @@ void main() {{
         int stop = min(it + u_chunk, u_iterations);
         bool running = true;
         for (; it < stop && running; ++it) {{
-            bool ok = propose(A, g, x, lam, xn);
-            if (ok) project(t, xn);
+            bool ok = propose_projected(t, A, g, x, lam, xn);
             float cn = ok ? normal_equations(t, xn, An, gn) : cost;
             running = settle(ok, xn, cn, An, gn, exact, x, A, g, cost, lam);
         }}
@@ -236,7 +261,9 @@ void main() {{
         return;
     }}
     if (u_mode == 2) {{  // propose a trial point, to be projected onto the texel's limits on the CPU
-        bool ok = propose(A, g, x, lam, xn);
+        float fr[K], xr[K];
+        for (int k = 0; k < K; ++k) fr[k] = u_free[k];
+        bool ok = propose(A, g, x, lam, fr, xn, xr);
         for (int k = 0; k < K; ++k) wk[wb + NA + K + k] = xn[k];
         wk[wb + NA + 2 * K + 1] = ok ? 1.0 : 0.0;
         return;

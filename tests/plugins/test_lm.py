@@ -130,3 +130,25 @@ def test_shot_noise_weighting_fits_a_foreign_model_closer_where_it_was_not_train
 def test_an_unknown_weighting_is_refused_by_name(registry):
     with pytest.raises(Exception, match="weighting"):
         registry.create("fitter", "lm", {"model": "lafortune", "weighting": "squared"})
+
+
+def test_a_fit_pressed_against_its_bound_converges_instead_of_crawling(registry):
+    """A Lafortune lobe fitted to GGX data presses against grazing_growth 1 (|C_xy| ≤ C_z): with every step
+    projected back, LM crawled along the bound, one small step per iteration, and a third of the texels hit the
+    iteration cap.  The active set (pinned parameters frozen, the step solved again) converges them."""
+    from sbrdf_core.constraints import Limits
+
+    rng = np.random.default_rng(9)
+    T, S = 64, 200
+    truth_model = registry.create("brdf-model", "cook-torrance", {"distribution": "ggx"})
+    truth = {"rho_d": rng.uniform(0.01, 0.05, (T, 3)), "f0": rng.uniform(0.5, 0.9, (T, 3)),
+             "alpha": rng.uniform(0.1, 0.3, (T, 1))}
+    wi, wo = directions(T, S, 80.0, seed=10)
+    f = truth_model.eval(truth, wi, wo)
+    model = registry.create("brdf-model", "lafortune", {"lobes": 1})
+    fitter = registry.create("fitter", "lm", {"model": "lafortune", "iterations": 50})
+    res = fitter.fit(model, f, np.ones((T, S), bool), wi, wo, limits=Limits(growth=1.0, max_theta=np.radians(89.0)))
+    canon = model.canonical(res.params)
+    pressed = np.abs(canon["c_xy_1"][:, 0]) >= 0.999 * canon["c_z_1"][:, 0]
+    assert pressed.mean() > 0.5  # the case this is about
+    assert (res.flags == 0).mean() >= 0.95, (res.flags != 0).sum()
