@@ -32,7 +32,7 @@ import numpy as np
 from sbrdf_core.errors import SbrdfError
 
 from . import CUBE_MAP_PARAMS, sampling
-from .mirror import MirrorEffect, Reflector
+from .mirror import MirrorEffect, Reflector, exclusive_materials
 
 logger = logging.getLogger(__name__)
 
@@ -85,7 +85,6 @@ class CubeMapEffect(MirrorEffect):
         if not idx:
             return ["cube_maps: options are given but no object has cube_map:"]
         out = []
-        owner: dict[str, int] = {}
         for k in idx:
             o = scene.objects[k]
             cm = o.params["cube_map"]
@@ -101,15 +100,10 @@ class CubeMapEffect(MirrorEffect):
                                f"got {p!r}")
             if cm.get("parallax", True) and len(cm.get("planes") or []) == 1:
                 out.append(f"object {k}: cube_map parallax needs at least two planes (e.g. floor and ceiling)")
-            m = o.material
-            if m in owner:
-                out.append(f"objects {owner[m]} and {k} with cube_map: share material {m!r}; give each a material "
-                           "of its own")
-            owner.setdefault(m, k)
-        for k, o in enumerate(scene.objects):
-            if o.material in owner and k not in idx:
-                out.append(f"the cube-mapped material {o.material!r} must not be used by other objects (object {k})")
-        return out
+        return out + exclusive_materials(
+            scene, idx,
+            lambda j, k, m: f"objects {j} and {k} with cube_map: share material {m!r}; give each a material of its own",
+            lambda m, k: f"the cube-mapped material {m!r} must not be used by other objects (object {k})")
 
     def prepare(self, scene, materials=None, gl_context=None) -> None:
         from sbrdf_lib.surface import tessellate

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import cubemap, lobes
-from .glsl import ESTIMATORS, beckmann_footprint_block, cosine_ring_loop, pattern_decls
+from .glsl import ESTIMATORS, atlas_texture, beckmann_footprint_block, cosine_ring_loop, pattern_decls
 from .mirror_glsl import BACKGROUND_VS, background_fragment, scene_pass
 
 
@@ -115,8 +115,8 @@ class CubePass:
                                    depth_attachment=keep(ctx.depth_texture((S, S)))))
         D_tex = env_tex = None
         if env is not None:
-            env_tex = keep(_atlas(ctx, env.levels, moderngl.LINEAR_MIPMAP_NEAREST))
-            D_tex = keep(_atlas(ctx, [env.map("D", env.diffuse_size)], moderngl.LINEAR))
+            env_tex = keep(atlas_texture(ctx, env.levels, moderngl.LINEAR_MIPMAP_NEAREST))
+            D_tex = keep(atlas_texture(ctx, [env.map("D", env.diffuse_size)], moderngl.LINEAR))
         programs, vaos = scene_pass(ctx, drawer, scene, target.index, env.diffuse_size if env is not None else 0,
                                     bool(lightmaps), keep)
         background = None
@@ -185,17 +185,3 @@ class CubePass:
         if self.cube is not None:
             self.cube.release()
             self.cube = None
-
-
-def _atlas(ctx, levels, min_filter):
-    import moderngl
-
-    imgs = cubemap.atlas(levels)
-    tex = ctx.texture((imgs[0].shape[1], imgs[0].shape[0]), 3, imgs[0].tobytes(), dtype="f4")
-    if len(imgs) > 1:
-        tex.build_mipmaps()
-        for L, img in enumerate(imgs[1:], 1):
-            tex.write(img.tobytes(), level=L)
-    tex.filter = (min_filter, moderngl.LINEAR)
-    tex.repeat_x = tex.repeat_y = False
-    return tex

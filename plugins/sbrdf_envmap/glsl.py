@@ -291,6 +291,21 @@ float env_beckmann_pdf(vec3 wi, vec3 wo, float mx, float my) {  // Eq 4.9 for an
 """
 
 
+def atlas_texture(ctx, levels, min_filter):
+    """A cube map's levels as one atlas texture (:func:`cubemap.atlas`), level L in mip level L, clamped."""
+    import moderngl
+
+    imgs = cubemap.atlas(levels)
+    tex = ctx.texture((imgs[0].shape[1], imgs[0].shape[0]), 3, imgs[0].tobytes(), dtype="f4")
+    if len(imgs) > 1:
+        tex.build_mipmaps()
+        for L, img in enumerate(imgs[1:], 1):
+            tex.write(img.tobytes(), level=L)
+    tex.filter = (min_filter, moderngl.LINEAR)
+    tex.repeat_x = tex.repeat_y = False
+    return tex
+
+
 class GLResources:
     """The atlases a method reads, uploaded once; the progressive mode's accumulation copy."""
 
@@ -306,16 +321,7 @@ class GLResources:
                 levels = effect.mip
             else:
                 levels = [effect.map(key, size)]
-            imgs = cubemap.atlas(levels)
-            tex = ctx.texture((imgs[0].shape[1], imgs[0].shape[0]), 3, imgs[0].tobytes(), dtype="f4")
-            if len(imgs) > 1:
-                tex.build_mipmaps()
-                for L, img in enumerate(imgs[1:], 1):
-                    tex.write(img.tobytes(), level=L)
-                tex.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
-            else:
-                tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            tex.repeat_x = tex.repeat_y = False
+            tex = atlas_texture(ctx, levels, moderngl.LINEAR_MIPMAP_NEAREST if len(levels) > 1 else moderngl.LINEAR)
             self.textures.append((uniform, tex))
         self.accum = None
 

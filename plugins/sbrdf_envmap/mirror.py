@@ -70,6 +70,22 @@ class Reflector:
     gl: Any = None  # its MirrorPass
 
 
+def exclusive_materials(scene, idx, shared, elsewhere) -> list[str]:
+    """Problems if the objects ``idx`` do not each have a material of their own: the effect renders per material.
+
+    ``shared(j, k, material)`` words two of them sharing one, ``elsewhere(material, k)`` another object using it.
+    """
+    out = []
+    owner: dict[str, int] = {}
+    for k in idx:
+        m = scene.objects[k].material
+        if m in owner:
+            out.append(shared(owner[m], k, m))
+        owner.setdefault(m, k)
+    out += [elsewhere(o.material, k) for k, o in enumerate(scene.objects) if o.material in owner and k not in idx]
+    return out
+
+
 class MirrorEffect:
     name = "mirror"
 
@@ -99,19 +115,12 @@ class MirrorEffect:
         idx = reflector_indices(scene)
         if not idx:
             return ["mirror: options are given but no plane has reflector: true"]
-        out = []
-        owner: dict[str, int] = {}
-        for k in idx:
-            m = scene.objects[k].material
-            if m in owner:
-                out.append(f"reflector: true planes {owner[m]} and {k} share material {m!r}: one reflector: true "
-                           "plane is supported per material (give each reflector a material of its own)")
-            owner.setdefault(m, k)
-        for k, o in enumerate(scene.objects):
-            if o.material in owner and k not in idx:
-                out.append(f"the reflector's material {o.material!r} must not be used by other objects (object {k}; "
-                           "give the plane a material of its own)")
-        return out
+        return exclusive_materials(
+            scene, idx,
+            lambda j, k, m: (f"reflector: true planes {j} and {k} share material {m!r}: one reflector: true plane "
+                             "is supported per material (give each reflector a material of its own)"),
+            lambda m, k: (f"the reflector's material {m!r} must not be used by other objects (object {k}; give the "
+                          "plane a material of its own)"))
 
     def prepare(self, scene, materials=None, gl_context=None) -> None:
         problems = self.check(scene)

@@ -7,7 +7,7 @@ import numpy as np
 from sbrdf_core.errors import SbrdfError
 
 from . import cubemap, lobes
-from .glsl import ESTIMATORS, beckmann_loop, cosine_ring_loop, pattern_decls
+from .glsl import ESTIMATORS, atlas_texture, beckmann_loop, cosine_ring_loop, pattern_decls
 
 PASS_VS = """#version 330
 uniform mat4 u_mvp;
@@ -328,17 +328,7 @@ class MirrorPass:
         return obj
 
     def _atlas(self, levels, min_filter):
-        import moderngl
-
-        imgs = cubemap.atlas(levels)
-        tex = self._keep(self.ctx.texture((imgs[0].shape[1], imgs[0].shape[0]), 3, imgs[0].tobytes(), dtype="f4"))
-        if len(imgs) > 1:
-            tex.build_mipmaps()
-            for L, img in enumerate(imgs[1:], 1):
-                tex.write(img.tobytes(), level=L)
-        tex.filter = (min_filter, moderngl.LINEAR)
-        tex.repeat_x = tex.repeat_y = False
-        return tex
+        return self._keep(atlas_texture(self.ctx, levels, min_filter))
 
     def render(self, drawer) -> None:
         import moderngl
