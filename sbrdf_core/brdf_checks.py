@@ -177,6 +177,12 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
                         violations=max_albedo > limit + tolerance, limit=float(limit))
 
 
+def uncleared(model: BRDFModel, params: Mapping[str, np.ndarray], limit: float) -> np.ndarray:
+    """Indices of the texels the model's analytic ``albedo_bound`` does not hold within ``limit``: those to integrate."""
+    bound = model.albedo_bound(params)
+    return np.arange(_texels(model, params)) if bound is None else np.flatnonzero(~(np.asarray(bound) <= limit))
+
+
 def energy_violations(model: BRDFModel, params: Mapping[str, np.ndarray], limit: float = 1.0,
                       tolerance: float = 2e-3, n_theta: int = 24, n_phi: int = 48) -> np.ndarray:
     """Texels whose directional albedo may exceed ``limit``, ``(T,)`` bool: the energy bound as the Fit node holds it.
@@ -190,8 +196,7 @@ def energy_violations(model: BRDFModel, params: Mapping[str, np.ndarray], limit:
     0.998; checking the quadrature alone fails texels that conserve energy.
     """
     T = _texels(model, params)
-    bound = model.albedo_bound(params)
-    todo = np.arange(T) if bound is None else np.flatnonzero(~(np.asarray(bound) <= limit))
+    todo = uncleared(model, params, limit)
     out = np.zeros(T, bool)
     if todo.size:
         sub = {k: np.asarray(v)[todo] for k, v in params.items()}

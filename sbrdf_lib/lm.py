@@ -59,7 +59,9 @@ __all__ = [
     "levenberg_marquardt",
     "projector",
     "robust_weights",
+    "sample_weights",
     "starting_points",
+    "total_cost",
 ]
 
 logger = logging.getLogger(__name__)
@@ -330,12 +332,12 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
             if loss != "linear":
                 weight = robust_weights(form, x, f_r, valid, wi, wo, loss, loss_scale) * base
         if loss != "linear":
-            cost = _cost(objective, x)
+            cost = total_cost(objective, x)
         best = keep_better(best, x, cost, converged, 1e-9)
     assert best is not None
     x, cost, converged, restarted = best
-    if weighting != "absolute" or loss != "linear":
-        cost = _cost(plain, x)  # the unweighted cost, whatever was minimised
+    if weighting != "absolute":
+        cost = total_cost(plain, x)  # unweighted, whatever was minimised (a robust loss's cost already is)
     if stats is not None:
         stats["restarted"] = restarted
     return form.to_model(form.unpack(x)), converged, cost
@@ -359,7 +361,7 @@ def starting_points(form, plain, f_r, valid, wi, wo, starts: int, seed: int = 0,
         cands = [project(c, everyone) for c in cands]
     if len(cands) == 1:
         return cands
-    costs = np.stack([_cost(plain, c) for c in cands])  # (C, T)
+    costs = np.stack([total_cost(plain, c) for c in cands])  # (C, T)
     order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
     stack = np.stack(cands)  # (C, T, K)
     return [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
@@ -376,7 +378,8 @@ def keep_better(best, x, cost, converged, margin: float):
     return best
 
 
-def _cost(problem, x):
+def total_cost(problem, x) -> np.ndarray:
+    """Each texel's sum of squared (weighted) residuals at the fit-form points ``x``, ``(T,)``."""
     return problem.normal_equations(x, np.arange(x.shape[0]))[2]
 
 

@@ -48,6 +48,7 @@ from sbrdf_lib.lm import (
     robust_weights,
     sample_weights,
     starting_points,
+    total_cost,
 )
 
 from . import device, shader
@@ -178,7 +179,7 @@ class GLLevenbergMarquardtFitter:
                 b = np.flatnonzero(broken)
                 x[b], converged[b] = x0[b], False
                 sub = form.least_squares(f_r[b], base[b], wi[b], wo[b])
-                cost[b] = np.nan_to_num(sub.normal_equations(x0[b], np.arange(b.size))[2], nan=np.inf)
+                cost[b] = np.nan_to_num(total_cost(sub, x0[b]), nan=np.inf)
             best = keep_better(best, x, cost, converged, 1e-6)  # float32 costs: a coarser margin than lm's
         assert best is not None
         x, cost, converged, restarted = best
@@ -213,8 +214,8 @@ class GLLevenbergMarquardtFitter:
                                           None if in_shader else project, everyone)
         if project is not None:  # float32 round-off can leave a bound by an ulp: project once more in float64
             x = project(x, everyone)
-        if self.weighting != "absolute" or self.loss != "linear":  # the unweighted cost, whatever was minimised
-            cost = form.least_squares(f_r, plain_weight, wi, wo).normal_equations(x, everyone)[2]
+        if self.weighting != "absolute":  # the unweighted cost, whatever was minimised (a robust loss's already is)
+            cost = total_cost(form.least_squares(f_r, plain_weight, wi, wo), x)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         rms = np.sqrt(np.maximum(cost, 0.0) / np.maximum(f_r.shape[-1] * n, 1))
         return FitResult(form.to_model(form.unpack(x)), rms, n, flags, restarted=restarted)
