@@ -389,6 +389,18 @@ def _nnls(G, h, sel, L1, a, free, A, rhs):
 
 
 @njit(cache=True, inline="always")
+def _accumulate(G, H, b, m, w2, f, d, s):
+    """One sample's share of a Gram system: the upper triangle of ``G += w² b bᵀ`` and ``H += w² b f[d, s]ᵀ``
+    over the first ``m`` basis values."""
+    for i in range(m):
+        bi = b[i] * w2
+        for k in range(i, m):
+            G[i, k] += bi * b[k]
+        for k in range(H.shape[1]):
+            H[i, k] += bi * f[d, s, k]
+
+
+@njit(cache=True, inline="always")
 def _gram(pxy, pz, ws, S, lobes, c, n, f, d, G, H, derivatives):
     """One pass over a texel's samples: ``G = Σ w² b bᵀ``, ``H = Σ w² b fᵀ`` for the basis
     ``b = [1, s_1..s_L, (∂s_j/∂c_j, ∂s_j/∂log n_j) per lobe]`` (the derivatives only if asked).
@@ -421,13 +433,7 @@ def _gram(pxy, pz, ws, S, lobes, c, n, f, d, G, H, derivatives):
                 q = 1 + lobes + 2 * j
                 b[q] = n[j] * v * pxy[s] / x if x > 0.0 else 0.0
                 b[q + 1] = n[j] * v * lx
-        w2 = w * w
-        for i in range(m):
-            bi = b[i] * w2
-            for k in range(i, m):
-                G[i, k] += bi * b[k]
-            for k in range(C):
-                H[i, k] += bi * f[d, s, k]
+        _accumulate(G, H, b, m, w * w, f, d, s)
     for i in range(m):
         for k in range(i):
             G[i, k] = G[k, i]
@@ -500,12 +506,7 @@ def _scan(jq, cand_c, cand_k, theta, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi):
                 v[q] = x
                 q += 1
         w2 = wt * wt
-        for i in range(L):
-            bi = b[i] * w2
-            for k2 in range(i, L):
-                base[i, k2] += bi * b[k2]
-            for k2 in range(C):
-                hb[i, k2] += bi * f[t, s, k2]
+        _accumulate(base, hb, b, L, w2, f, t, s)
         for q in range(Q):
             vq = v[q] * w2
             for i in range(L):
