@@ -68,6 +68,14 @@ if TYPE_CHECKING:
 #: thread on a cluster: one running and one queued, so no thread waits for the runner.
 STREAM_GROUPS_PER_THREAD = 2
 
+#: Times a streamed node sends its shared data to the cluster again after a worker
+#: died holding the only copy of it (the scheduler cannot recompute scattered data).
+RESCATTERS = 3
+
+
+class _ChunksLost(RunError):
+    """A chunk task was cancelled or lost on the cluster: its chunks were not written."""
+
 logger = logging.getLogger(__name__)
 
 #: progress(node, done, total) is called after every chunk written.
@@ -285,9 +293,9 @@ class Runner:
         rep.chunks_resumed = n_done
         logger.info("node %r: %s %d of %d chunks -> %s", node.name, "resuming" if n_done else "writing",
                     len(writes.pending), rep.chunks_total, url)
+        rep.chunks_written = len(writes.pending)
         self._execute(node.name, token, writes, rep.chunks_total, n_done, sequential=out.sequential,
                       stream=out.stream)
-        rep.chunks_written = len(writes.pending)
         extra: dict[str, Any] = {}
         if out.finalize is not None:
             extra.update(out.finalize(open_artifact(url, require_complete=False)))
@@ -426,29 +434,19 @@ class Runner:
                 # chunks of one pose are computed together so the pose is taken once.
                 by_pose: dict[int, list] = {}
                 for name, index in writes.pending:
-                    by_pose.setdefault(index[0] if index else 0, []).append((writes.task(name, index), 1))
+                    by_pose.setdefault(index[0] if index else 0, []).append((writes.task(name, index), [(name, index)]))
                 for pose in sorted(by_pose):
                     self._execute_local(by_pose[pose], bar, scheduler="sync")
                 return
             # (task, chunks it writes): a fused task per chunk group when streamed.
-            every = ((writes.task(name, index), 1) for name, index in writes.pending)
+            every = ((writes.task(name, index), [(name, index)]) for name, index in writes.pending)
             if not self._is_distributed():
                 units = chunk_groups(node, token, writes, stream) if stream else every
                 self._execute_local(list(units), bar, self.scheduler)
             elif stream:
-                client, scattered = self._connect(), {}
-
-                def data(key, value):
-                    # Each shared value sent to the cluster once, not with every group; on every
-                    # worker, so one that dies takes no value the other groups need.
-                    if key not in scattered:
-                        scattered[key] = client.scatter(value, hash=False, broadcast=True)
-                    return scattered[key]
-
-                units = chunk_groups(node, token, writes, stream, data)
-                self._execute_distributed(node, units, bar, window=STREAM_GROUPS_PER_THREAD)
+                self._execute_streamed(node, token, writes, stream, bar)
             else:
-                self._execute_distributed(node, every, bar, window=None)
+                self._execute_distributed(node, every, bar, window=None, written=set())
         except SbrdfError:
             raise
         except Exception as e:
@@ -460,7 +458,7 @@ class Runner:
         import dask
         from dask.callbacks import Callback
 
-        chunks = {t.key: n for t, n in units}
+        chunks = {t.key: len(n) for t, n in units}
 
         def posttask(key, result, dsk, state, worker_id):
             if key in chunks:
@@ -484,9 +482,41 @@ class Runner:
                 self._client = self.scheduler
         return self._client
 
-    def _execute_distributed(self, node: str, units: Iterator, bar, window: int | None) -> None:
+    def _execute_streamed(self, node: str, token: str, writes: ChunkWrites, axes: int, bar) -> None:
+        """Chunk groups on the cluster, each shared value scattered once to every worker.
+
+        A worker that joined after the scatter holds no copy, so one that dies
+        may take the last copy with it; the scheduler cannot recompute
+        scattered data and cancels the groups that need it. Those groups' chunks
+        were not written: the rest are sent again, with the data scattered anew.
+        """
+        client = self._connect()
+        for attempt in range(RESCATTERS + 1):
+            scattered: dict = {}
+
+            def data(key, value, scattered=scattered):
+                # Each shared value sent to the cluster once, not with every group.
+                if key not in scattered:
+                    scattered[key] = client.scatter(value, hash=False, broadcast=True)
+                return scattered[key]
+
+            written: set = set()
+            try:
+                units = chunk_groups(node, token, writes, axes, data, attempt)
+                self._execute_distributed(node, units, bar, window=STREAM_GROUPS_PER_THREAD, written=written)
+                return
+            except _ChunksLost as e:
+                if attempt == RESCATTERS or not sum(client.nthreads().values()):
+                    raise
+                logger.warning("%s; scattering its data again (%d of %d)", e, attempt + 1, RESCATTERS)
+                writes.pending = [c for c in writes.pending if c not in written]
+            finally:
+                client.cancel(list(scattered.values()))
+
+    def _execute_distributed(self, node: str, units: Iterator, bar, window: int | None, written: set) -> None:
         """Compute ``(task, chunks)`` units on the cluster: all at once (``window=None``), or
-        at most ``window`` per worker thread in flight, submitted in order as others finish."""
+        at most ``window`` per worker thread in flight, submitted in order as others finish.
+        The chunks of every unit that finished are added to ``written``."""
         from distributed import as_completed
 
         client = self._connect()
@@ -523,9 +553,10 @@ class Runner:
                     raise RunError(f"node {node!r}: a chunk task failed on the cluster: {type(exc).__name__}: {exc}")
                 if f.status != "finished":  # cancelled or lost: its chunks were not written
                     client.cancel(list(pending))
-                    raise RunError(f"node {node!r}: a chunk task was {f.status} on the cluster; "
-                                   f"{len(pending) + 1} tasks unfinished (re-run to resume)")
-                bar(n)
+                    raise _ChunksLost(f"node {node!r}: a chunk task was {f.status} on the cluster; "
+                                      f"{len(pending) + 1} tasks unfinished (re-run to resume)")
+                written.update(n)
+                bar(len(n))
             if batch:
                 refill()
             elif time.monotonic() - checked > 1.0:  # an RPC: not on every idle poll

@@ -46,9 +46,10 @@ def run_group(sub: Subgraph, data_keys: Sequence, *data: Any) -> int:
     return len(sub.keys)
 
 
-def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Callable[[Any, Any], Any] | None = None
-                 ) -> Iterator[tuple[Any, int]]:
-    """Yield ``(task, chunks)``: one fused task per group of ``writes.pending`` chunks.
+def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Callable[[Any, Any], Any] | None = None,
+                 attempt: int = 0) -> Iterator[tuple[Any, list]]:
+    """Yield ``(task, chunks)``: one fused task per group of ``writes.pending`` chunks,
+    and the ``(output, chunk index)`` pairs it writes.
 
     ``writes`` is the runner's :class:`~sbrdf_core.runner.ChunkWrites`: the
     ``(output, chunk index)`` pairs still to write, their outputs' ``numblocks``,
@@ -62,7 +63,9 @@ def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Ca
     ``data(key, value)`` gives what a group depends on for a shared data key.
     By default it is that key in the group's own graph. On a cluster, the
     runner scatters each value once (a future) instead, because a key in a
-    graph is sent again with every submission.
+    graph is sent again with every submission. Groups sent again after that
+    data was lost (``attempt`` > 0) get new keys: the scheduler may still hold
+    the lost ones.
     """
     from dask import delayed
     from dask.delayed import Delayed
@@ -81,6 +84,7 @@ def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Ca
         shared = {k: v for k, v in graph.items() if isinstance(v, DataNode)}
         inner = {k: v for k, v in graph.items() if k not in shared}
         key = f"write-{node}-{names[0]}-{'.'.join(map(str, group[1]))}-{getattr(writes, 'key_id', token)}"
+        key += f"-{attempt}" if attempt else ""
         deps = [resolve(k, v.value) for k, v in shared.items()]
         fused = delayed(run_group, pure=True, traverse=False)
-        yield fused(Subgraph(inner, [t.key for t in tasks]), list(shared), *deps, dask_key_name=key), len(tasks)
+        yield fused(Subgraph(inner, [t.key for t in tasks]), list(shared), *deps, dask_key_name=key), chunks

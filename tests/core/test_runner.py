@@ -104,6 +104,7 @@ def test_distributed_run_is_identical_to_local(write_graph, registry, tmp_path, 
 @pytest.mark.parametrize("victim_node", ["capture", "register"])  # per-chunk tasks; streamed chunk groups
 def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, cluster, victim_node):
     _, client = cluster
+    client.wait_for_workers(2, timeout=60)  # the other case's victim is back
     slow = {"poses": 30, "pose_delay_s": 0.05}
     killed = []
 
@@ -118,6 +119,35 @@ def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, 
     rep = run(write_graph, registry, tmp_path / "dist", "dist.yaml", capture=slow, scheduler=client, progress=progress)
     assert killed, "the worker was never killed"
     assert rep[victim_node].chunks_written == rep[victim_node].chunks_total
+    assert_stores_equal(tmp_path / "local", tmp_path / "dist")
+
+
+def test_a_worker_dying_with_the_only_copy_of_scattered_data_loses_nothing(write_graph, registry, tmp_path, caplog):
+    """Register's shared data is scattered to the workers present; one that joins later has
+    no copy. Kill the one that does: the scheduler cannot recompute scattered data, so the
+    runner scatters it again and sends the groups that were lost."""
+    from distributed import Client, LocalCluster
+
+    slow = {"poses": 30, "pose_delay_s": 0.05}
+    run(write_graph, registry, tmp_path / "local", capture=slow)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as c, \
+            Client(c) as client:
+        killed = []
+
+        def progress(node, done, total):
+            if node == "register" and done >= 4 and not killed:
+                first = list(client.run(os.getpid).values())
+                c.scale(2)
+                client.wait_for_workers(2, timeout=60)
+                os.kill(first[0], signal.SIGKILL)
+                killed.append(first[0])
+
+        with caplog.at_level("WARNING", logger="sbrdf_core.runner"):
+            rep = run(write_graph, registry, tmp_path / "dist", "dist.yaml", capture=slow, scheduler=client,
+                      progress=progress)
+    assert killed
+    assert "scattering its data again" in caplog.text
+    assert rep["register"].chunks_written == rep["register"].chunks_total
     assert_stores_equal(tmp_path / "local", tmp_path / "dist")
 
 
