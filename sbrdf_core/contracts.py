@@ -300,6 +300,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
         "gl_textures": OptionalMember("`gl_textures() -> {uniform: array}`: textures the model's GLSL samples (a "
                                       "tabulated model's table), uploaded by the gl renderer.", None),
         "suggested_starts": OptionalMember("`suggested_starts`: how many starts a multi-start fit should use.", 2),
+        "fit_trapped": OptionalMember("`fit_trapped(x) -> (T,) bool` (on the fit form): packed fit-form rows where LM is "
+                                      "known to stall (a lobe with no magnitude gets no gradient in its shape); `lm` "
+                                      "and `lm-gl` fit them again from the best multi-start candidates and keep the "
+                                      "lower cost (`sbrdf_lib.lm.rescue`).", None),
         "glsl_fit_gradient": OptionalMember("`glsl_fit_gradient() -> str`: GLSL (4.3) defining `vec3 brdf_fit_gradient(vec3 "
                                             "wi, vec3 wo, float x[K], out vec3 grad[K])`, the value and ∂f/∂x at the "
                                             "packed fit-form parameters x (K = `fit_form().size`), for the GPU fitter "

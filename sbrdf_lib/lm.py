@@ -44,6 +44,7 @@ import warnings
 
 import numpy as np
 
+from sbrdf_core.contracts import optional
 from sbrdf_core.nodes.fit import usable
 from sbrdf_core.params import Param
 
@@ -52,13 +53,17 @@ __all__ = [
     "IRLS_ROUNDS",
     "LOSSES",
     "MAX_DAMPING",
+    "STARTS_FROM",
     "candidate_starts",
     "diffuse_percentile",
     "fit_model",
     "keep_better",
     "levenberg_marquardt",
     "projector",
+    "rescue",
     "robust_weights",
+    "separable_start",
+    "start_param",
     "sample_weights",
     "starting_points",
     "total_cost",
@@ -229,6 +234,35 @@ WEIGHTING = Param("weighting", "str", "shot-noise", "what the least squares weig
                   choices=tuple(WEIGHTINGS))
 
 
+#: Where LM starts each texel (:func:`fit_model`'s ``start``).
+STARTS_FROM = ("guess", "separable")
+
+
+def start_param(default: str) -> Param:
+    """The ``start`` parameter of the fitters that run :func:`fit_model`'s LM (``lm``, ``lm-gl``)."""
+    return Param("start", "str", default, "where LM starts each texel: guess = the model's initial guess (Lafortune: "
+                 "a scan over lobe 1's exponent, magnitudes solved); separable = a variable-projection fit first "
+                 "(models with separable_fit: 1-2 isotropic Lafortune lobes), the weighted LM from there: fewer "
+                 "texels in a wrong basin, at about the same time on the CPU (docs/fitting.md)", choices=STARTS_FROM)
+
+
+def separable_start(form, f_r, valid, wi, wo, limits, iterations: int, tolerance: float, damping: float):
+    """The form's variable-projection fit (``separable_fit``) as fit-form parameters to start LM from, or None where
+    the form has none for its configuration.
+
+    Why: the separable iteration moves only the lobe shapes, with the
+    magnitudes solved exactly at every step, so a lobe cannot take over
+    another's role on the way, as the full LM from the guess sometimes lets
+    it (McAllister's data in benchmarks/fit.py: 8 texels of 4096 in a wrong basin
+    against 1).  Its absolute least squares is only the start: the LM that
+    follows minimises the fitter's own objective.
+    """
+    fast = getattr(form, "separable_fit", None)
+    out = None if fast is None else fast(f_r, valid, wi, wo, initial=None, limits=limits, iterations=iterations,
+                                         tolerance=tolerance, damping=damping)
+    return None if out is None else form.unpack(out[0])
+
+
 def sample_weights(f_r: np.ndarray, valid: np.ndarray, power: float, floor: float = WEIGHT_FLOOR) -> np.ndarray:
     """Per-sample weights ``(T, S)`` 1 / (|f_r| + floor · the texel's median)^power, the largest 1; 0 where invalid.
 
@@ -257,7 +291,7 @@ IRLS_ROUNDS = 4
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
               fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None, separable=False,
-              weighting="absolute"):
+              weighting="absolute", start="guess"):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
@@ -277,11 +311,17 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     other than their best-scored one).  ``weighting``:
     a key of :data:`WEIGHTINGS`, residuals weighted by :func:`sample_weights`
     (starts are scored and kept on that objective; ``cost`` stays unweighted).
+    ``start``: ``"separable"`` starts LM (without ``initial`` or ``fixed``)
+    from :func:`separable_start` where the form has one, ``"guess"`` from
+    the form's initial guess.  Texels the form flags as trapped
+    (``fit_trapped``) are fitted again (:func:`rescue`).
     """
     if loss not in LOSSES:
         raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
     if weighting not in WEIGHTINGS:
         raise ValueError(f"weighting {weighting!r} is not one of {', '.join(WEIGHTINGS)}")
+    if start not in STARTS_FROM:
+        raise ValueError(f"start {start!r} is not one of {', '.join(STARTS_FROM)}")
     starts = starts or model.suggested_starts
     form = model.fit_form()
     T = f_r.shape[0]
@@ -316,25 +356,36 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
             if stats is not None:
                 stats["restarted"] = np.zeros(T, bool)
             return form.to_model(form.unpack(x)), converged, cost
+    if start == "separable" and initial is None and free.all():
+        initial = separable_start(form, f_r, valid, wi, wo, limits, iterations, tolerance, damping)
     plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
     base = sample_weights(f_r, valid, WEIGHTINGS[weighting])
     objective = plain if weighting == "absolute" else form.least_squares(f_r, base, wi, wo)
     x_starts = starting_points(form, objective, f_r, valid, wi, wo, starts, seed, initial, free, project)
     logger.debug("LM fit of %s: %d texels, %d start(s), loss %s, %s weighting", form.name, T, len(x_starts), loss,
                  weighting)
-    opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free, project=project)
+    opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free)
+
+    def descend(x, rows=None):
+        """LM (with the robust loss's reweighting) from ``x`` for texels ``rows`` (all by default)."""
+        fr, vd, a, b, w0 = (v if rows is None else v[rows] for v in (f_r, valid, wi, wo, base))
+        obj = objective if rows is None else form.least_squares(fr, w0, a, b)
+        proj = project if rows is None or limits is None else projector(form, limits.take(rows))
+        weight = w0
+        for _ in range(1 if loss == "linear" else IRLS_ROUNDS):
+            problem = obj if loss == "linear" else form.least_squares(fr, weight, a, b)
+            x, cost, converged = levenberg_marquardt(problem, x, (lo, hi), project=proj, **opts)
+            if loss != "linear":
+                weight = robust_weights(form, x, fr, vd, a, b, loss, loss_scale) * w0
+        if loss != "linear":
+            cost = total_cost(obj, x)
+        return x, cost, converged
+
     best = None
     for x in x_starts:
-        weight = base
-        for _ in range(1 if loss == "linear" else IRLS_ROUNDS):
-            problem = objective if loss == "linear" else form.least_squares(f_r, weight, wi, wo)
-            x, cost, converged = levenberg_marquardt(problem, x, (lo, hi), **opts)
-            if loss != "linear":
-                weight = robust_weights(form, x, f_r, valid, wi, wo, loss, loss_scale) * base
-        if loss != "linear":
-            cost = total_cost(objective, x)
-        best = keep_better(best, x, cost, converged, 1e-9)
+        best = keep_better(best, *descend(x), 1e-9)
     assert best is not None
+    best = rescue(form, best, f_r, valid, wi, wo, base, seed, free, limits, descend, 1e-9)
     x, cost, converged, restarted = best
     if weighting != "absolute":
         cost = total_cost(plain, x)  # unweighted, whatever was minimised (a robust loss's cost already is)
@@ -365,6 +416,43 @@ def starting_points(form, plain, f_r, valid, wi, wo, starts: int, seed: int = 0,
     order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
     stack = np.stack(cands)  # (C, T, K)
     return [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
+
+
+#: Multi-start candidates a trapped texel (:func:`rescue`) is fitted again from, its current result among them.
+RESCUE_STARTS = 4
+
+
+def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, margin: float):
+    """Fit again the texels ``form.fit_trapped`` flags in ``best`` (:func:`keep_better`'s list, updated in place).
+
+    A texel's result competes with LM runs from the :data:`RESCUE_STARTS` best
+    of ``8 ·`` that many candidates (:func:`starting_points`, scored on the
+    objective ``weight`` makes), its current result the first candidate; it
+    takes a lower cost. ``descend(x0, rows) -> (x, cost, converged)`` is the
+    fitter's own LM on those texels, so ``lm`` and ``lm-gl`` rescue alike.
+    Why: a few texels of a multi-lobe fit lose a lobe, and a single start
+    gives them a training RMS 2-4× the noise; restarting every texel would
+    cost a whole fit, these few cost ~1% of one.
+    """
+    trapped = optional(form, "fit_trapped", "brdf-model")
+    rows = np.zeros(0, int) if trapped is None else np.flatnonzero(trapped(best[0]))
+    if rows.size == 0:
+        return best
+    sub_project = projector(form, None if limits is None else limits.take(rows))
+    objective = form.least_squares(f_r[rows], weight[rows], wi[rows], wo[rows])
+    starts = starting_points(form, objective, f_r[rows], valid[rows], wi[rows], wo[rows], RESCUE_STARTS, seed,
+                             form.unpack(best[0][rows]), free, sub_project)
+    # All starts in one LM run (each texel repeated per start): its cost is per iteration, not per texel.
+    x, cost, converged = descend(np.concatenate(starts), np.tile(rows, len(starts)))
+    sub = [v[rows].copy() for v in best]
+    for k in range(len(starts)):
+        part = slice(k * rows.size, (k + 1) * rows.size)
+        keep_better(sub, x[part], cost[part], converged[part], margin)
+    logger.debug("%s: %d trapped texels fitted again, %d improved", form.name, rows.size,
+                 int((sub[1] < best[1][rows]).sum()))
+    for v, part in zip(best, sub):
+        v[rows] = part
+    return best
 
 
 def keep_better(best, x, cost, converged, margin: float):

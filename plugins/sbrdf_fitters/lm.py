@@ -25,6 +25,7 @@ from sbrdf_lib.lm import (  # noqa: F401  (re-exported for one release)
     levenberg_marquardt,
     projector,
     robust_weights,
+    start_param,
 )
 
 logger = logging.getLogger(__name__)
@@ -56,6 +57,7 @@ class LevenbergMarquardtFitter:
         Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns from quadratic to linear; "
               "0 = 1.4826 x the texel's median absolute residual", bounds=(0.0, None)),
         WEIGHTING,
+        start_param("separable"),
         Param("variable_projection", "bool", False, "fit 1-2 isotropic Lafortune lobes by variable projection "
               "(magnitudes in closed form inside the LM; with starts 1, linear loss, absolute weighting): 2-4x "
               "faster, but measured a higher error at unseen directions (benchmarks/fidelity.py, 2 lobes: median 0.204 against 0.153)"),
@@ -64,7 +66,7 @@ class LevenbergMarquardtFitter:
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
                  seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, variable_projection: bool = False,
-                 weighting: str = "shot-noise"):
+                 weighting: str = "shot-noise", start: str = "separable"):
         # model_params' default equals the declaration (the registry checks); it is only read, never changed.
         self.model_name = model
         self.model_config = dict(model_params)
@@ -72,7 +74,7 @@ class LevenbergMarquardtFitter:
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
         self.loss, self.loss_scale = loss, loss_scale
         self.variable_projection = variable_projection
-        self.weighting = weighting
+        self.weighting, self.start = weighting, start
         if model == "lafortune" and int(model_params.get("lobes", 1)) >= 3 and 0 < starts < 4:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
@@ -85,7 +87,8 @@ class LevenbergMarquardtFitter:
                                             starts=self.starts, seed=self.seed, limits=limits, loss=self.loss,
                                             loss_scale=self.loss_scale, stats=stats,
                                             separable=self.variable_projection,
-                                            weighting="absolute" if self.variable_projection else self.weighting)
+                                            weighting="absolute" if self.variable_projection else self.weighting,
+                                            start=self.start)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         n = valid.sum(axis=1)
         rms = np.sqrt(cost / np.maximum(f_r.shape[-1] * n, 1))  # the fit's own cost: no second evaluation

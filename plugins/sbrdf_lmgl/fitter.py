@@ -45,8 +45,11 @@ from sbrdf_lib.lm import (
     fit_model,
     keep_better,
     projector,
+    rescue,
     robust_weights,
     sample_weights,
+    separable_start,
+    start_param,
     starting_points,
     total_cost,
 )
@@ -86,6 +89,7 @@ class GLLevenbergMarquardtFitter:
         Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1 (iteratively reweighted)",
               choices=["linear", "huber", "soft-l1"]),
         WEIGHTING,
+        start_param("guess"),
         Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns linear; 0 = 1.4826 x the "
               "texel's median absolute residual", bounds=(0.0, None)),
         Param("tile", "int", 4096, "texels per compute dispatch (samples of two tiles are on the GPU at once)",
@@ -99,13 +103,16 @@ class GLLevenbergMarquardtFitter:
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
                  seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, tile: int = 4096,
-                 cpu_finish: bool = True, weighting: str = "shot-noise"):
+                 cpu_finish: bool = True, weighting: str = "shot-noise", start: str = "guess"):
         self.model_name = model
         self.model_config = dict(model_params)
         self.iterations, self.tolerance, self.damping = iterations, tolerance, damping
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
         self.loss, self.loss_scale, self.tile, self.cpu_finish = loss, loss_scale, tile, cpu_finish
         self.weighting = weighting
+        #: lm's default is "separable"; here the guess, because the separable fit runs on the CPU (it would cost
+        #: about what the GPU fit does on llvmpipe, several times it on a GPU): "separable" gives lm's results.
+        self.start = start
         #: Seconds per stage since construction (starts, upload, compute = dispatch and read-back, polish: the CPU
         #: part) and texel counts (texels, cpu_texels: finished or refitted on the CPU).
         self.timings: dict[str, float] = {}
@@ -140,17 +147,20 @@ class GLLevenbergMarquardtFitter:
         packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
         plain_weight = valid.astype(np.float64)
         base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model
+        initial = None
+        if self.start == "separable" and free.all():
+            initial = separable_start(form, f_r, valid, wi, wo, limits, self.iterations, self.tolerance, self.damping)
         x_starts = starting_points(form, form.least_squares(f_r, base, wi, wo), f_r, valid, wi,
-                                   wo, self.starts or model.suggested_starts, self.seed, None, free, project)
+                                   wo, self.starts or model.suggested_starts, self.seed, initial, free, project)
         n = valid.sum(axis=1)
         energy = np.einsum("tsc,tsc->t", f_r, f_r)
         scale = np.maximum(np.sqrt(energy / np.maximum(3 * n, 1)), 1e-6)  # residuals in units of the texel's RMS
         self._add("starts_s", time.perf_counter() - t0)
 
         def gpu(x, weight, iterations, idx=everyone, project=None, constrained=in_shader):
-            """LM on the GPU for texels ``idx``: every trial point projected in the shader (``constrained``), or by
-            ``project`` on the CPU (stepwise); the cost comes back in sr⁻² (unscaled)."""
-            w = weight[idx] / scale[idx, None]
+            """LM on the GPU for texels ``idx`` (``weight``: their rows): every trial point projected in the shader
+            (``constrained``), or by ``project`` on the CPU (stepwise); the cost comes back in sr⁻² (unscaled)."""
+            w = weight / scale[idx, None]
             status = (~(w > 0).any(axis=1)).astype(np.float32)
             fw = f_r[idx] * w[..., None]
             exact = EXACT32 * np.einsum("tsc,tsc->t", fw, fw)
@@ -165,23 +175,32 @@ class GLLevenbergMarquardtFitter:
                                                     wi[idx], wo[idx], project=project, **opts)
             return x, cost * scale[idx] ** 2, converged
 
-        best = None
-        for x0 in x_starts:
-            x, weight = x0, base
+        def descend(x0, idx=everyone):
+            """The GPU fit of texels ``idx`` from ``x0`` (with the robust loss's reweighting); a texel float32 could
+            not follow keeps its start, flagged."""
+            x, weight = x0, base[idx]
             for _ in range(1 if self.loss == "linear" else IRLS_ROUNDS):
-                x, cost, converged = gpu(x, weight, self.iterations)
+                x, cost, converged = gpu(x, weight, self.iterations, idx)
                 if self.loss != "linear":
-                    weight = robust_weights(form, x, f_r, valid, wi, wo, self.loss, self.loss_scale) * base
+                    weight = robust_weights(form, x, f_r[idx], valid[idx], wi[idx], wo[idx], self.loss,
+                                            self.loss_scale) * base[idx]
             if self.loss != "linear":
-                cost = gpu(x, base, 0, constrained=False)[1]
+                cost = gpu(x, base[idx], 0, idx, constrained=False)[1]
             broken = ~(np.isfinite(x).all(axis=1) & np.isfinite(cost))
-            if broken.any():  # float32 could not follow this texel: its start, flagged
+            if broken.any():
                 b = np.flatnonzero(broken)
                 x[b], converged[b] = x0[b], False
-                sub = form.least_squares(f_r[b], base[b], wi[b], wo[b])
-                cost[b] = np.nan_to_num(total_cost(sub, x0[b]), nan=np.inf)
-            best = keep_better(best, x, cost, converged, 1e-6)  # float32 costs: a coarser margin than lm's
+                t = idx[b]
+                cost[b] = np.nan_to_num(total_cost(form.least_squares(f_r[t], base[t], wi[t], wo[t]), x0[b]),
+                                        nan=np.inf)
+            return x, cost, converged
+
+        best = None
+        for x0 in x_starts:
+            best = keep_better(best, *descend(x0), 1e-6)  # float32 costs: a coarser margin than lm's
         assert best is not None
+        if project is None or in_shader:
+            best = rescue(form, best, f_r, valid, wi, wo, base, self.seed, free, limits, descend, 1e-6)
         x, cost, converged, restarted = best
         if project is not None and self.loss == "linear" and not in_shader:
             # A model without glsl_fit_constrain: texels whose fit left their limits get lm's constrained fit
@@ -192,7 +211,7 @@ class GLLevenbergMarquardtFitter:
                 sub_project = projector(form, limits.take(moved))
                 inside = None
                 for x0 in x_starts:
-                    xs, cs, conv = gpu(x0[moved], base, self.iterations, moved,
+                    xs, cs, conv = gpu(x0[moved], base[moved], self.iterations, moved,
                                        lambda v, i: sub_project(v, i))
                     if inside is None:
                         inside = [xs, cs, conv]
@@ -208,7 +227,7 @@ class GLLevenbergMarquardtFitter:
             # GPU from where they stopped, as the CPU finish would run them; only what is left goes to the CPU.
             late = np.flatnonzero(~converged)
             if late.size:
-                x[late], cost[late], converged[late] = gpu(x[late], base, self.iterations, late)
+                x[late], cost[late], converged[late] = gpu(x[late], base[late], self.iterations, late)
             self._add("gpu_finish_texels", late.size)
         x, cost, converged = self._polish(model, form, x, cost, converged, f_r, valid, wi, wo, lo, hi, free, limits,
                                           None if in_shader else project, everyone)
@@ -237,7 +256,8 @@ class GLLevenbergMarquardtFitter:
                 params, conv, cs = fit_model(model, f_r[idx], valid[idx], wi[idx], wo[idx], iterations=self.iterations,
                                              tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
                                              starts=self.starts, seed=self.seed, limits=limits.take(idx),
-                                             loss=self.loss, loss_scale=self.loss_scale, weighting=self.weighting)
+                                             loss=self.loss, loss_scale=self.loss_scale, weighting=self.weighting,
+                                             start=self.start)
                 x[idx], cost[idx], converged[idx] = form.pack(form.from_model(params)), cs, conv
         late = np.flatnonzero(~converged & ~moved) if self.cpu_finish else np.zeros(0, int)
         if late.size:

@@ -47,6 +47,10 @@ DEAD_LOBE = 1e-9
 NEGLIGIBLE = 1e-3
 #: The neutral shape a dead lobe is reset to: a mirror cosine lobe, n = 1 (bounded under interpolation).
 NEUTRAL_EXPONENT = 1.0
+#: A lobe LM has lost next to a lobe that carries the specular (``fit_trapped``): its peak ρ_s at most the first
+#: fraction of the strongest lobe's (dead), or at most the second with n within the last factor of its bound (a
+#: spike on a sample or two).
+TRAPPED = (1e-3, 0.1, 0.95)
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
 C_BOUNDS = (-10.0, 10.0)
@@ -500,6 +504,20 @@ class LafortuneFitForm(LafortuneModel):
 
     def jacobian(self, params, wi, wo):
         return self._jacobian(params, wi, wo, fit_form=True)
+
+    def fit_trapped(self, x):
+        """Rows where LM lost a lobe (:data:`TRAPPED`): a lobe without magnitude gets no gradient in its shape,
+        and a faint spike at the exponent bound fits a sample or two; the specular the lobe should carry is
+        left to the others (McAllister's data: 9 of the 11 texels lm2 fitted worse than the peer)."""
+        if self.lobes < 2:
+            return np.zeros(x.shape[0], bool)
+        p = self.unpack(x)
+        dead, faint, spike = TRAPPED
+        peak = np.stack([p[f"rho_s_{j}"].max(axis=1) for j in range(1, self.lobes + 1)], axis=1)
+        log_n = np.concatenate([p[f"log_exponent_{j}"] for j in range(1, self.lobes + 1)], axis=1)
+        strongest = peak.max(axis=1, keepdims=True)
+        lost = (peak <= dead * strongest) | ((peak <= faint * strongest) & (log_n >= np.log(spike * EXPONENT_BOUNDS[1])))
+        return lost.any(axis=1) & (strongest[:, 0] > 0)
 
     def fit_form(self):
         return self

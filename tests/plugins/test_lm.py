@@ -152,3 +152,58 @@ def test_a_fit_pressed_against_its_bound_converges_instead_of_crawling(registry)
     pressed = np.abs(canon["c_xy_1"][:, 0]) >= 0.999 * canon["c_z_1"][:, 0]
     assert pressed.mean() > 0.5  # the case this is about
     assert (res.flags == 0).mean() >= 0.95, (res.flags != 0).sum()
+
+
+def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
+    """A 2-lobe fit that parks its forward lobe as a faint spike at the exponent bound leaves the specular to the
+    other lobe, and LM gets no gradient out of there.  The fit form flags it (``fit_trapped``) and the texel is
+    fitted again from multi-start candidates: it reaches the noise level; texels not flagged are not restarted."""
+    from sbrdf_lib.lm import fit_model
+    from sbrdf_models.lafortune import EXPONENT_BOUNDS, LafortuneFitForm
+
+    rng = np.random.default_rng(3)
+    T, S, noise = 24, 240, 0.01
+    model = registry.create("brdf-model", "lafortune", {"lobes": 2})
+    u = lambda lo, hi: rng.uniform(lo, hi, (T, 1))  # noqa: E731
+    truth = {"rho_d": rng.uniform(0.05, 0.2, (T, 3)), "rho_s_1": u(0.5, 2.0) * np.ones(3), "c_xy_1": u(-1.0, -0.9),
+             "c_z_1": np.ones((T, 1)), "exponent_1": u(20.0, 80.0), "rho_s_2": u(0.1, 0.3) * np.ones(3),
+             "c_xy_2": u(0.8, 1.0), "c_z_2": np.ones((T, 1)), "exponent_2": u(2.0, 8.0)}
+    wi, wo = directions(T, S, 80.0, seed=4)
+    f = model.eval(truth, wi, wo) + noise * rng.standard_normal((T, S, 3))
+    valid = np.ones((T, S), bool)
+    form = model.fit_form()
+    # The trap: lobe 1 a faint spike, held there while the rest is fitted (every other texel; the others at the truth).
+    trap = np.arange(T) % 2 == 0
+    start = form.from_model(truth)
+    start["rho_s_1"][trap], start["log_exponent_1"][trap] = 0.01, np.log(EXPONENT_BOUNDS[1])
+    start["rho_s_2"][trap], start["c_xy_2"][trap], start["log_exponent_2"][trap] = 0.3, 0.8, np.log(3.0)
+    held, _, _ = fit_model(model, f, valid, wi, wo, initial=start, fixed=("rho_s_1", "c_xy_1", "log_exponent_1"))
+    start = {k: np.where(trap[:, None], v, start[k]) for k, v in form.from_model(held).items()}
+
+    def fit():
+        stats: dict = {}
+        _, _, cost = fit_model(model, f, valid, wi, wo, initial=start, stats=stats)
+        return np.sqrt(cost / (3 * S)), stats["restarted"]
+
+    with monkeypatch.context() as m:
+        m.delattr(LafortuneFitForm, "fit_trapped")
+        stuck, _ = fit()
+    assert (stuck[trap] > 1.5 * noise).mean() > 0.5, stuck[trap]  # without the rescue, the trap holds
+    rms, restarted = fit()
+    assert (rms < 1.3 * noise).all(), rms
+    assert not restarted[~trap].any() and restarted[trap].mean() > 0.5
+
+
+def test_the_lafortune_fit_form_flags_a_lost_lobe_and_nothing_else(registry):
+    form = registry.create("brdf-model", "lafortune", {"lobes": 2}).fit_form()
+    rows = {"healthy": (1.0, 30.0, 0.2, 5.0), "weak but shaped": (1.0, 30.0, 0.05, 5.0),
+            "dead": (1.0, 30.0, 0.0, 5.0), "faint spike": (0.02, 19500.0, 0.4, 5.0), "bright spike": (1.0, 19500.0, 0.4, 5.0),
+            "matte": (0.0, 10.0, 0.0, 5.0)}
+    p = form.defaults(len(rows))
+    for k, (r1, n1, r2, n2) in enumerate(rows.values()):
+        p["rho_s_1"][k], p["log_exponent_1"][k], p["rho_s_2"][k], p["log_exponent_2"][k] = r1, np.log(n1), r2, np.log(n2)
+    flagged = dict(zip(rows, form.fit_trapped(form.pack(p))))
+    assert flagged == {"healthy": False, "weak but shaped": False, "dead": True, "faint spike": True,
+                       "bright spike": False, "matte": False}
+    one = registry.create("brdf-model", "lafortune", {"lobes": 1}).fit_form()
+    assert not one.fit_trapped(one.pack(one.defaults(3))).any()
