@@ -154,15 +154,13 @@ def test_a_fit_pressed_against_its_bound_converges_instead_of_crawling(registry)
     assert (res.flags == 0).mean() >= 0.95, (res.flags != 0).sum()
 
 
-def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
-    """A 2-lobe fit that parks its forward lobe as a faint spike at the exponent bound leaves the specular to the
-    other lobe, and LM gets no gradient out of there.  The fit form flags it (``fit_trapped``) and the texel is
-    fitted again from multi-start candidates: it reaches the noise level; texels not flagged are not restarted."""
+def lost_lobe_problem(registry, T=24, S=240, noise=0.01):
+    """2-lobe Lafortune samples, and fit-form starts where every other texel (``trap``) has lost its forward lobe:
+    a faint spike at the exponent bound, held there while the rest was fitted.  The others start at the truth."""
     from sbrdf_lib.lm import fit_model
-    from sbrdf_models.lafortune import EXPONENT_BOUNDS, LafortuneFitForm
+    from sbrdf_models.lafortune import EXPONENT_BOUNDS
 
     rng = np.random.default_rng(3)
-    T, S, noise = 24, 240, 0.01
     model = registry.create("brdf-model", "lafortune", {"lobes": 2})
     u = lambda lo, hi: rng.uniform(lo, hi, (T, 1))  # noqa: E731
     truth = {"rho_d": rng.uniform(0.05, 0.2, (T, 3)), "rho_s_1": u(0.5, 2.0) * np.ones(3), "c_xy_1": u(-1.0, -0.9),
@@ -172,18 +170,29 @@ def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
     f = model.eval(truth, wi, wo) + noise * rng.standard_normal((T, S, 3))
     valid = np.ones((T, S), bool)
     form = model.fit_form()
-    # The trap: lobe 1 a faint spike, held there while the rest is fitted (every other texel; the others at the truth).
     trap = np.arange(T) % 2 == 0
     start = form.from_model(truth)
     start["rho_s_1"][trap], start["log_exponent_1"][trap] = 0.01, np.log(EXPONENT_BOUNDS[1])
     start["rho_s_2"][trap], start["c_xy_2"][trap], start["log_exponent_2"][trap] = 0.3, 0.8, np.log(3.0)
     held, _, _ = fit_model(model, f, valid, wi, wo, initial=start, fixed=("rho_s_1", "c_xy_1", "log_exponent_1"))
     start = {k: np.where(trap[:, None], v, start[k]) for k, v in form.from_model(held).items()}
+    return model, f, valid, wi, wo, start, trap
+
+
+def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
+    """A 2-lobe fit that parks its forward lobe as a faint spike at the exponent bound leaves the specular to the
+    other lobe, and LM gets no gradient out of there.  The fit form flags it (``fit_trapped``) and the texel is
+    fitted again from multi-start candidates: it reaches the noise level; texels not flagged are not restarted."""
+    from sbrdf_lib.lm import fit_model
+    from sbrdf_models.lafortune import LafortuneFitForm
+
+    noise = 0.01
+    model, f, valid, wi, wo, start, trap = lost_lobe_problem(registry, noise=noise)
 
     def fit():
         stats: dict = {}
         _, _, cost = fit_model(model, f, valid, wi, wo, initial=start, stats=stats)
-        return np.sqrt(cost / (3 * S)), stats["restarted"]
+        return np.sqrt(cost / (3 * valid.sum(axis=1))), stats["restarted"]
 
     with monkeypatch.context() as m:
         m.delattr(LafortuneFitForm, "fit_trapped")

@@ -154,6 +154,23 @@ def test_sharp_lobes_exponents_to_ten_thousand():
     assert np.median(gpu.rms) <= 1.05 * np.median(cpu.rms) + 1e-5
 
 
+def test_a_texel_that_lost_a_lobe_is_fitted_again_on_the_gpu(monkeypatch):
+    """lm's rescue of texels the fit form flags as trapped, with the GPU fit: every rescue start in one batched
+    run (texels repeated), so the repeated rows must each fit their own copy."""
+    import sbrdf_lmgl.fitter as lmgl
+
+    from .test_lm import lost_lobe_problem
+
+    noise = 0.01
+    model, f, valid, wi, wo, start, trap = lost_lobe_problem(REGISTRY, noise=noise)
+    form = model.fit_form()
+    monkeypatch.setattr(lmgl, "starting_points", lambda *a, **k: [form.pack(start)])  # begin in the trap
+    res = REGISTRY.create("fitter", "lm-gl", {"model": "lafortune", "model_params": {"lobes": 2}}).fit(
+        model, f, valid, wi, wo)
+    assert (res.rms < 1.3 * noise).all(), res.rms
+    assert not res.restarted[~trap].any() and res.restarted[trap].mean() > 0.5
+
+
 def test_grazing_directions():
     model = REGISTRY.create("brdf-model", "lafortune", {"lobes": 1})
     f, valid, wi, wo = problem(model, T=32, S=100, seed=8)
