@@ -213,8 +213,10 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     if sparse.size:  # fitted to the pooled samples: bounded by what the pool resolves
         pf, pw, pi, po = _neighbour_pool(grid, sparse, f_r, train, wi, wo)
         resolution[sparse] = angular_resolution(pi, po, pw)
-    cosines = np.clip(wi[..., 2], 0, 1) * np.clip(wo[..., 2], 0, 1)
-    support_cosine = neighbourhood_max(sample_support(f_r, valid, cosines).reshape(grid)).ravel()
+    support_cosine = None
+    if options.microfacet_peak == "cosine":  # only that bound reads it
+        cosines = np.clip(wi[..., 2], 0, 1) * np.clip(wo[..., 2], 0, 1)
+        support_cosine = neighbourhood_max(sample_support(f_r, valid, cosines).reshape(grid)).ravel()
     limits = options.limits(support, resolution, support_cosine)
     takes_limits = "limits" in inspect.signature(fitter.fit).parameters
 
