@@ -63,7 +63,7 @@ __all__ = [
     "rescue",
     "robust_weights",
     "separable_start",
-    "start_param",
+    "START",
     "sample_weights",
     "starting_points",
     "total_cost",
@@ -238,12 +238,12 @@ WEIGHTING = Param("weighting", "str", "shot-noise", "what the least squares weig
 STARTS_FROM = ("guess", "separable")
 
 
-def start_param(default: str) -> Param:
-    """The ``start`` parameter of the fitters that run :func:`fit_model`'s LM (``lm``, ``lm-gl``)."""
-    return Param("start", "str", default, "where LM starts each texel: guess = the model's initial guess (Lafortune: "
-                 "a scan over lobe 1's exponent, magnitudes solved); separable = a variable-projection fit first "
-                 "(models with separable_fit: 1-2 isotropic Lafortune lobes), the weighted LM from there: fewer "
-                 "texels in a wrong basin, at about the same time on the CPU (docs/fitting.md)", choices=STARTS_FROM)
+#: The ``start`` parameter of the fitters that run :func:`fit_model`'s LM (``lm``, ``lm-gl``).
+START = Param("start", "str", "guess", "where LM starts each texel: guess = the model's initial guess (Lafortune: a "
+              "scan over lobe 1's exponent, magnitudes solved); separable = a variable-projection fit first (models "
+              "with separable_fit: 1-2 isotropic Lafortune lobes; on the CPU), the weighted LM from there: fewer "
+              "wrong basins on Lafortune data, a higher error at unseen directions on GGX data (docs/fitting.md)",
+              choices=STARTS_FROM)
 
 
 def separable_start(form, f_r, valid, wi, wo, limits, iterations: int, tolerance: float, damping: float):
@@ -253,9 +253,9 @@ def separable_start(form, f_r, valid, wi, wo, limits, iterations: int, tolerance
     Why: the separable iteration moves only the lobe shapes, with the
     magnitudes solved exactly at every step, so a lobe cannot take over
     another's role on the way, as the full LM from the guess sometimes lets
-    it (McAllister's data in benchmarks/fit.py: 8 texels of 4096 in a wrong basin
-    against 1).  Its absolute least squares is only the start: the LM that
-    follows minimises the fitter's own objective.
+    it.  Its absolute least squares is only the start: the LM that follows
+    minimises the fitter's own objective.  Not the default: measured better on
+    Lafortune-generated data and worse on GGX-generated data (docs/fitting.md).
     """
     fast = getattr(form, "separable_fit", None)
     out = None if fast is None else fast(f_r, valid, wi, wo, initial=None, limits=limits, iterations=iterations,

@@ -19,13 +19,13 @@ from sbrdf_lib.lm import (  # noqa: F401  (re-exported for one release)
     IRLS_ROUNDS,
     LOSSES,
     MAX_DAMPING,
+    START,
     WEIGHTING,
     candidate_starts,
     fit_model,
     levenberg_marquardt,
     projector,
     robust_weights,
-    start_param,
 )
 
 logger = logging.getLogger(__name__)
@@ -57,7 +57,7 @@ class LevenbergMarquardtFitter:
         Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns from quadratic to linear; "
               "0 = 1.4826 x the texel's median absolute residual", bounds=(0.0, None)),
         WEIGHTING,
-        start_param("separable"),
+        START,
         Param("variable_projection", "bool", False, "fit 1-2 isotropic Lafortune lobes by variable projection "
               "(magnitudes in closed form inside the LM; with starts 1, linear loss, absolute weighting): 2-4x "
               "faster, but measured a higher error at unseen directions (benchmarks/fidelity.py, 2 lobes: median 0.204 against 0.153)"),
@@ -66,7 +66,7 @@ class LevenbergMarquardtFitter:
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
                  seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, variable_projection: bool = False,
-                 weighting: str = "shot-noise", start: str = "separable"):
+                 weighting: str = "shot-noise", start: str = "guess"):
         # model_params' default equals the declaration (the registry checks); it is only read, never changed.
         self.model_name = model
         self.model_config = dict(model_params)

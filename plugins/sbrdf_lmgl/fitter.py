@@ -40,6 +40,7 @@ from sbrdf_core.params import Param
 from sbrdf_lib.lm import (
     IRLS_ROUNDS,
     LOSSES,
+    START,
     WEIGHTING,
     WEIGHTINGS,
     fit_model,
@@ -49,7 +50,6 @@ from sbrdf_lib.lm import (
     robust_weights,
     sample_weights,
     separable_start,
-    start_param,
     starting_points,
     total_cost,
 )
@@ -89,7 +89,7 @@ class GLLevenbergMarquardtFitter:
         Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1 (iteratively reweighted)",
               choices=["linear", "huber", "soft-l1"]),
         WEIGHTING,
-        start_param("guess"),
+        START,
         Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns linear; 0 = 1.4826 x the "
               "texel's median absolute residual", bounds=(0.0, None)),
         Param("tile", "int", 4096, "texels per compute dispatch (samples of two tiles are on the GPU at once)",
@@ -110,8 +110,6 @@ class GLLevenbergMarquardtFitter:
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
         self.loss, self.loss_scale, self.tile, self.cpu_finish = loss, loss_scale, tile, cpu_finish
         self.weighting = weighting
-        #: lm's default is "separable"; here the guess, because the separable fit runs on the CPU (it would cost
-        #: about what the GPU fit does on llvmpipe, several times it on a GPU): "separable" gives lm's results.
         self.start = start
         #: Seconds per stage since construction (starts, upload, compute = dispatch and read-back, polish: the CPU
         #: part) and texel counts (texels, cpu_texels: finished or refitted on the CPU).

@@ -31,9 +31,8 @@ except Exception as e:  # pragma: no cover - machines without Mesa EGL
 REGISTRY = Registry()
 #: The objective both fitters are compared on where the data is pathological (sharp lobes the starts cannot reach,
 #: β-rotated anisotropic pairs of lobes): the plain least squares, whose basins the float32 solver must find as lm
-#: does.  The default weighting is compared on ordinary data (test_default_weighting_agrees_with_lm).  Both start
-#: from the model's guess (lm's default start, the separable fit, runs on the CPU; lm-gl does not use it by default).
-LM_SAME: dict = {"weighting": "absolute", "start": "guess"}
+#: does.  The default weighting is compared on ordinary data (test_default_weighting_agrees_with_lm).
+LM_SAME: dict = {"weighting": "absolute"}
 
 
 class TestLMGL(FitterTests):

@@ -78,18 +78,18 @@ def test_lambert_closed_form_equals_the_general_lm(registry, monkeypatch):
 
 
 def test_variable_projection_is_opt_in_for_lafortune(registry, monkeypatch):
-    """Lafortune's result comes from the general LM unless variable_projection asks otherwise: lm's default only
-    starts from the separable fit (``start: separable``), then minimises its own weighted objective from there;
-    ``start: guess`` and fit_model's default do not run it.  Lambert's exact closed form is always taken."""
+    """Lafortune's result comes from the general LM unless variable_projection asks otherwise: ``start: separable``
+    only starts from the separable fit, then minimises lm's own weighted objective from there; by default it is
+    not run at all."""
     calls = []
     original = LafortuneFitForm.separable_fit
     monkeypatch.setattr(LafortuneFitForm, "separable_fit", lambda self, *a, **k: calls.append(1) or original(self, *a, **k))
     model = registry.create("brdf-model", "lafortune", {"lobes": 1})
     _, f, valid, wi, wo = data(model, T=8, noise=0.01, seed=1)
     fit_model(model, f, valid, wi, wo)
-    registry.create("fitter", "lm", {"model": "lafortune", "start": "guess"}).fit(model, f, valid, wi, wo)
+    registry.create("fitter", "lm", {"model": "lafortune"}).fit(model, f, valid, wi, wo)
     assert calls == []
-    started = registry.create("fitter", "lm", {"model": "lafortune"}).fit(model, f, valid, wi, wo)
+    started = registry.create("fitter", "lm", {"model": "lafortune", "start": "separable"}).fit(model, f, valid, wi, wo)
     assert calls == [1]
     vp = registry.create("fitter", "lm", {"model": "lafortune", "variable_projection": True}).fit(model, f, valid, wi, wo)
     assert calls == [1, 1]
