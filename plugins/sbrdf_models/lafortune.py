@@ -506,18 +506,24 @@ class LafortuneFitForm(LafortuneModel):
         return self._jacobian(params, wi, wo, fit_form=True)
 
     def fit_trapped(self, x):
-        """Rows where LM lost a lobe (:data:`TRAPPED`): a lobe without magnitude gets no gradient in its shape,
-        and a faint spike at the exponent bound fits a sample or two; the specular the lobe should carry is
-        left to the others (McAllister's data: 9 of the 11 texels lm2 fitted worse than the peer)."""
+        """Rows where LM lost a lobe (:data:`TRAPPED`): a faint spike at the exponent bound, fitting a sample or
+        two, or a dead lobe while every live lobe scatters backwards (no forward lobe carries the specular).  A
+        lobe without magnitude gets no gradient in its shape, so LM cannot bring it back.  A dead lobe beside a
+        forward one is not flagged: that is how a 2-lobe fit of one-lobe data ends (GGX data: every texel).
+        McAllister's data (benchmarks/fit.py): 9 of the 11 texels lm2 fitted worse than the peer."""
         if self.lobes < 2:
             return np.zeros(x.shape[0], bool)
         p = self.unpack(x)
         dead, faint, spike = TRAPPED
-        peak = np.stack([p[f"rho_s_{j}"].max(axis=1) for j in range(1, self.lobes + 1)], axis=1)
-        log_n = np.concatenate([p[f"log_exponent_{j}"] for j in range(1, self.lobes + 1)], axis=1)
+        lobes = range(1, self.lobes + 1)
+        peak = np.stack([p[f"rho_s_{j}"].max(axis=1) for j in lobes], axis=1)
+        log_n = np.concatenate([p[f"log_exponent_{j}"] for j in lobes], axis=1)
+        names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
+        backward = np.stack([np.mean([p[f"{nm}_{j}"][:, 0] for nm in names], axis=0) > 0 for j in lobes], axis=1)
         strongest = peak.max(axis=1, keepdims=True)
-        lost = (peak <= dead * strongest) | ((peak <= faint * strongest) & (log_n >= np.log(spike * EXPONENT_BOUNDS[1])))
-        return lost.any(axis=1) & (strongest[:, 0] > 0)
+        gone = peak <= dead * strongest
+        spiked = (peak <= faint * strongest) & (log_n >= np.log(spike * EXPONENT_BOUNDS[1]))
+        return (spiked.any(axis=1) | (gone.any(axis=1) & (backward | gone).all(axis=1))) & (strongest[:, 0] > 0)
 
     def fit_form(self):
         return self

@@ -204,15 +204,20 @@ def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
 
 
 def test_the_lafortune_fit_form_flags_a_lost_lobe_and_nothing_else(registry):
+    """Lobe 1 forward (C_xy −1), lobe 2 back-scattering (C_xy +1), the defaults' shapes."""
     form = registry.create("brdf-model", "lafortune", {"lobes": 2}).fit_form()
     rows = {"healthy": (1.0, 30.0, 0.2, 5.0), "weak but shaped": (1.0, 30.0, 0.05, 5.0),
-            "dead": (1.0, 30.0, 0.0, 5.0), "faint spike": (0.02, 19500.0, 0.4, 5.0), "bright spike": (1.0, 19500.0, 0.4, 5.0),
+            "dead beside a forward lobe (one-lobe data)": (1.0, 30.0, 0.0, 5.0),
+            "forward lobe dead, only back-scatter left": (0.0, 30.0, 0.4, 5.0),
+            "faint spike": (0.02, 19500.0, 0.4, 5.0), "bright spike": (1.0, 19500.0, 0.4, 5.0),
             "matte": (0.0, 10.0, 0.0, 5.0)}
     p = form.defaults(len(rows))
+    assert (p["c_xy_1"] < 0).all() and (p["c_xy_2"] > 0).all()
     for k, (r1, n1, r2, n2) in enumerate(rows.values()):
         p["rho_s_1"][k], p["log_exponent_1"][k], p["rho_s_2"][k], p["log_exponent_2"][k] = r1, np.log(n1), r2, np.log(n2)
     flagged = dict(zip(rows, form.fit_trapped(form.pack(p))))
-    assert flagged == {"healthy": False, "weak but shaped": False, "dead": True, "faint spike": True,
-                       "bright spike": False, "matte": False}
+    assert flagged == {"healthy": False, "weak but shaped": False, "dead beside a forward lobe (one-lobe data)": False,
+                       "forward lobe dead, only back-scatter left": True, "faint spike": True, "bright spike": False,
+                       "matte": False}
     one = registry.create("brdf-model", "lafortune", {"lobes": 1}).fit_form()
     assert not one.fit_trapped(one.pack(one.defaults(3))).any()
