@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 
 from .brdf import BRDFModel
+from .contracts import optional
 from .geometry import polar_direction
 
 #: Upper bound on texels × directions evaluated at once (memory: ~10 float64 temporaries of (T, S, 3)).
@@ -177,6 +178,12 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
                         violations=max_albedo > limit + tolerance, limit=float(limit))
 
 
+def energy_azimuths(model: BRDFModel) -> tuple[float, ...]:
+    """Incident azimuths (radians) the energy bound is checked and enforced at: one for an isotropic model (its
+    albedo does not depend on φ_i), three for an anisotropic one."""
+    return (0.0, np.pi / 4, np.pi / 2) if optional(model, "anisotropic", "brdf-model") else (0.0,)
+
+
 def uncleared(model: BRDFModel, params: Mapping[str, np.ndarray], limit: float) -> np.ndarray:
     """Indices of the texels the model's analytic ``albedo_bound`` does not hold within ``limit``: those to integrate."""
     bound = model.albedo_bound(params)
@@ -201,7 +208,8 @@ def energy_violations(model: BRDFModel, params: Mapping[str, np.ndarray], limit:
     if todo.size:
         sub = {k: np.asarray(v)[todo] for k, v in params.items()}
         with np.errstate(all="ignore"):
-            a = energy_report(model, sub, n_theta=n_theta, n_phi=n_phi).max_albedo
+            a = energy_report(model, sub, incident_phis=energy_azimuths(model), n_theta=n_theta,
+                              n_phi=n_phi).max_albedo
         out[todo] = ~(a <= limit + tolerance)
     return out
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .brdf_checks import energy_report, uncleared
+from .brdf_checks import energy_azimuths, energy_report, uncleared
 from .geometry import polar_direction
 
 #: A cosine lobe cos^n α falls to half its peak at α = √(2 ln 2 / n).
@@ -202,7 +202,7 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
     mags = [p.name for p in model.parameters if p.magnitude]
     if albedo is None or not mags or T == 0:
         return out, changed
-    phis = (0.0, np.pi / 4, np.pi / 2) if model.anisotropic else (0.0,)
+    phis = energy_azimuths(model)
     todo = uncleared(model, out, albedo)  # texels the analytic bound clears need no quadrature
     for _ in range(6):  # F0 is affine, not linear: later passes (on the texels still over) catch what is left
         if todo.size == 0:
