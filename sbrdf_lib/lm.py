@@ -173,6 +173,10 @@ def projector(form, limits):
     return project
 
 
+#: Candidates × texels × samples up to which :func:`candidate_starts` solves every candidate's magnitudes at once.
+BATCHED_CANDIDATE_SAMPLES = 1 << 20
+
+
 def candidate_starts(form, f_r, valid, wi, wo, count: int, seed: int = 0, first=None) -> list[dict[str, np.ndarray]]:
     """``first`` (default: the form's initial guess) and ``count − 1`` Sobol points over the typical ranges,
     magnitudes solved.
@@ -188,6 +192,7 @@ def candidate_starts(form, f_r, valid, wi, wo, count: int, seed: int = 0, first=
     dims = sum(p.channels for p in shape)
     if count > 1 and dims:
         points = qmc.Sobol(dims, scramble=True, seed=seed).random(1 << int(np.ceil(np.log2(count - 1))))[:count - 1]
+        guesses = []
         for point in points:
             guess = form.defaults(T)
             k = 0
@@ -195,7 +200,17 @@ def candidate_starts(form, f_r, valid, wi, wo, count: int, seed: int = 0, first=
                 lo, hi = p.typical
                 guess[p.name] = np.broadcast_to(lo + (hi - lo) * point[k:k + p.channels], (T, p.channels)).copy()
                 k += p.channels
-            out.append(form.refine_linear(guess, f_r, valid, wi, wo))
+            guesses.append(guess)
+        C = len(guesses)
+        if C * T * f_r.shape[1] <= BATCHED_CANDIDATE_SAMPLES:
+            # Few texels (a rescue): every candidate's magnitudes in one solve, texels repeated per candidate,
+            # instead of one solve per candidate that costs its calls, not its texels.
+            tile = lambda a: np.concatenate([a] * C)  # noqa: E731
+            solved = form.refine_linear({k: np.concatenate([g[k] for g in guesses]) for k in guesses[0]},
+                                        tile(f_r), tile(valid), tile(wi), tile(wo))
+            out += [{k: v[c * T:(c + 1) * T] for k, v in solved.items()} for c in range(C)]
+        else:
+            out += [form.refine_linear(guess, f_r, valid, wi, wo) for guess in guesses]
     return out
 
 
