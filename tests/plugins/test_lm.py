@@ -210,14 +210,17 @@ def test_the_lafortune_fit_form_flags_a_lost_lobe_and_nothing_else(registry):
             "dead beside a forward lobe (one-lobe data)": (1.0, 30.0, 0.0, 5.0),
             "forward lobe dead, only back-scatter left": (0.0, 30.0, 0.4, 5.0),
             "faint spike": (0.02, 19500.0, 0.4, 5.0), "bright spike": (1.0, 19500.0, 0.4, 5.0),
-            "matte": (0.0, 10.0, 0.0, 5.0)}
+            "matte": (0.0, 10.0, 0.0, 5.0), "both lobes backward": (1.0, 30.0, 0.4, 5.0)}
     p = form.defaults(len(rows))
     assert (p["c_xy_1"] < 0).all() and (p["c_xy_2"] > 0).all()
     for k, (r1, n1, r2, n2) in enumerate(rows.values()):
         p["rho_s_1"][k], p["log_exponent_1"][k], p["rho_s_2"][k], p["log_exponent_2"][k] = r1, np.log(n1), r2, np.log(n2)
+    p["c_xy_1"][-1] = 0.5
     flagged = dict(zip(rows, form.fit_trapped(form.pack(p))))
     assert flagged == {"healthy": False, "weak but shaped": False, "dead beside a forward lobe (one-lobe data)": False,
                        "forward lobe dead, only back-scatter left": True, "faint spike": True, "bright spike": False,
-                       "matte": False}
+                       "matte": False, "both lobes backward": True}
     one = registry.create("brdf-model", "lafortune", {"lobes": 1}).fit_form()
-    assert not one.fit_trapped(one.pack(one.defaults(3))).any()
+    single = one.defaults(3)
+    single["c_xy_1"][:] = 0.5  # a single backward lobe is not flagged (measured not worth its time)
+    assert not one.fit_trapped(one.pack(single)).any()
