@@ -506,9 +506,9 @@ class LafortuneFitForm(LafortuneModel):
         return self._jacobian(params, wi, wo, fit_form=True)
 
     def fit_trapped(self, x):
-        """Rows of a multi-lobe fit where LM lost the forward lobe (:data:`TRAPPED`): every live lobe scatters
-        backwards (the specular carried by none, a dead lobe beside them or not), or a lobe is a faint spike at the
-        exponent bound, fitting a sample or two.  A lobe without magnitude gets no gradient in its shape, so LM cannot bring it back.  A
+        """Rows of a multi-lobe fit where LM lost the forward lobe (:data:`TRAPPED`): a lobe is dead and every live
+        lobe scatters backwards (the specular carried by none), or a lobe is a faint spike at the exponent bound,
+        fitting a sample or two.  A lobe without magnitude gets no gradient in its shape, so LM cannot bring it back.  A
         dead lobe beside a forward one is not flagged: that is how a 2-lobe fit of one-lobe data ends (GGX data:
         every texel).  McAllister's data (benchmarks/fit.py): 9 of the 11 texels lm2 fitted worse than the peer."""
         if self.lobes < 2:  # one lobe: flagging a backward one cost 25 % of lm's time for 4 texels in 4096
@@ -523,7 +523,7 @@ class LafortuneFitForm(LafortuneModel):
         strongest = peak.max(axis=1, keepdims=True)
         gone = peak <= dead * strongest
         spiked = (peak <= faint * strongest) & (log_n >= np.log(spike * EXPONENT_BOUNDS[1]))
-        return (spiked.any(axis=1) | (backward | gone).all(axis=1)) & (strongest[:, 0] > 0)
+        return (spiked.any(axis=1) | (gone.any(axis=1) & (backward | gone).all(axis=1))) & (strongest[:, 0] > 0)
 
     def fit_form(self):
         return self
