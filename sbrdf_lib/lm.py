@@ -53,6 +53,7 @@ __all__ = [
     "IRLS_ROUNDS",
     "LOSSES",
     "MAX_DAMPING",
+    "START",
     "STARTS_FROM",
     "candidate_starts",
     "diffuse_percentile",
@@ -62,9 +63,8 @@ __all__ = [
     "projector",
     "rescue",
     "robust_weights",
-    "separable_start",
-    "START",
     "sample_weights",
+    "separable_start",
     "starting_points",
     "total_cost",
 ]

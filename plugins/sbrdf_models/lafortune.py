@@ -47,9 +47,8 @@ DEAD_LOBE = 1e-9
 NEGLIGIBLE = 1e-3
 #: The neutral shape a dead lobe is reset to: a mirror cosine lobe, n = 1 (bounded under interpolation).
 NEUTRAL_EXPONENT = 1.0
-#: A lobe LM has lost next to a lobe that carries the specular (``fit_trapped``): its peak ρ_s at most the first
-#: fraction of the strongest lobe's (dead), or at most the second with n within the last factor of its bound (a
-#: spike on a sample or two).
+#: A lobe LM has lost (``fit_trapped``): dead, its peak ρ_s at most the first fraction of the strongest lobe's; or a
+#: spike on a sample or two, at most the second fraction with n within the last factor of its bound.
 TRAPPED = (1e-3, 0.1, 0.95)
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
