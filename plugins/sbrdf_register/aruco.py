@@ -79,6 +79,10 @@ logger = logging.getLogger(__name__)
 BICUBIC_RADIUS = 2
 
 
+#: Most bytes of float32 remap maps ``resample`` holds for all of a pose's sub-samples at once (to
+#: crop the photograph to what they reach); past it, each sub-sample's maps are made in turn, uncropped.
+MAPS_HELD_BYTES = 32 << 20
+
 #: Most poses measured per dask task (see ``register``): one photograph is in memory at a time.
 MEASURE_BLOCK = 32
 
@@ -172,15 +176,18 @@ def remap_maps(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dis
     camera) get -1e6, far off the image.  ``compiled``: as :func:`grid_to_pixels`, the same bits.
     """
     if not compiled:
-        maps = []
-        for p in _grid_xy(np.asarray(xs, np.float64), np.asarray(ys, np.float64), np.asarray(H, np.float64),
-                          np.asarray(K, np.float64), dist):
-            p += 0.5
-            p *= scale
-            p -= 0.5
-            m = p.astype(np.float32)
-            finite = np.isfinite(m)
-            maps.append(m if finite.all() else np.where(finite, m, np.float32(-1e6)))
+        maps = np.empty((2, len(ys), len(xs)), np.float32)
+        for rows, *ps in _grid_blocks(np.asarray(xs, np.float64), np.asarray(ys, np.float64),
+                                      np.asarray(H, np.float64), np.asarray(K, np.float64), dist):
+            for m, p in zip(maps, ps):
+                p += 0.5
+                p *= scale
+                p -= 0.5
+                m = m[rows]
+                m[...] = p  # float64 -> float32, as astype
+                finite = np.isfinite(m)
+                if not finite.all():
+                    m[~finite] = np.float32(-1e6)
         return maps[0], maps[1]
     K = np.asarray(K, np.float64)
     k = np.zeros(5)
@@ -192,13 +199,37 @@ def remap_maps(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dis
     return out[0], out[1]
 
 
-def _grid_xy(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`plane_to_pixels` of a grid, ``(px, py)``, in NumPy: term for term the same arithmetic (the
-    same bits), the homography's terms per row and column, and every pass in place (no temporaries)."""
+#: Texels per block of rows of the NumPy mapping (:func:`_grid_blocks`): a block's dozen float64
+#: temporaries (64 KB each) stay in the core's cache and in malloc's reused heap.  Whole-grid passes
+#: (512 KB arrays at 256² texels) were memory-bound and, being fresh mmap'd allocations, page-faulted
+#: on every call: about 2x the time of the arithmetic.
+GRID_BLOCK = 8192
+
+
+def _grid_blocks(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dist: np.ndarray):
+    """:func:`_grid_xy` a block of rows at a time: yields ``(rows, px, py)``, ``rows`` a slice of ``ys``."""
     k = np.zeros(5)
     k[: min(5, len(dist))] = np.asarray(dist, float)[:5]
-    k1, k2, p1, p2, k3 = k
     Ki = np.linalg.inv(K)
+    step = max(1, GRID_BLOCK // max(1, len(xs)))
+    for i in range(0, len(ys), step):
+        rows = slice(i, min(len(ys), i + step))
+        yield (rows, *_grid_rows(xs, ys[rows], H, K, k, Ki))
+
+
+def _grid_xy(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`plane_to_pixels` of a grid, ``(px, py)``, in NumPy: term for term the same arithmetic (the
+    same bits), the homography's terms per row and column, every pass in place, a block of rows at a time."""
+    px, py = np.empty((len(ys), len(xs))), np.empty((len(ys), len(xs)))
+    for rows, bx, by in _grid_blocks(xs, ys, H, K, dist):
+        px[rows], py[rows] = bx, by
+    return px, py
+
+
+def _grid_rows(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, k: np.ndarray,
+               Ki: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_grid_xy` of the rows ``ys`` (``k``: the five distortion terms, ``Ki``: K⁻¹)."""
+    k1, k2, p1, p2, k3 = k
     X, Y = xs[None, :], ys[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         w = H[2, 0] * X + H[2, 1] * Y
@@ -295,12 +326,19 @@ def _grid_kernel():
 
 def tone_map(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Linear HDR RGB -> 8-bit grey for the marker detector (robust white point, gamma 1/2.2)."""
-    grey = image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
+    grey = image[..., 0] * 0.2126  # (r·0.2126 + g·0.7152) + b·0.0722, two passes in place
+    t = image[..., 1] * 0.7152
+    grey += t
+    np.multiply(image[..., 2], 0.0722, out=t)
+    grey += t
+    del t
     finite = np.isfinite(grey)
     if not finite.all():
         grey = np.where(finite, grey, 0.0)
-    sel = grey[valid] if valid.any() else grey.ravel()
-    white = float(np.percentile(sel, 99.0)) if sel.size else 0.0
+    some = bool(valid.any())
+    sel = grey[valid] if some else grey.ravel()
+    # grey[valid] is a copy: the percentile may partition it in place (the same order statistics).
+    white = float(np.percentile(sel, 99.0, overwrite_input=some)) if sel.size else 0.0
     if not white > 0:
         return np.zeros(grey.shape, np.uint8)
     # Saturated pixels keep their clipped value, which is bright: fine for black/white markers.
@@ -351,6 +389,10 @@ class ArucoRegistration:
               "bits, about 7 ms less CPU a pose (256² texels), about 80 MB more memory in every process that "
               "registers"),
     )
+
+    #: Resample only the window of the photograph the pose's filter reaches (:meth:`_crop_window`; the
+    #: same bits as the whole photograph: tests switch it off to compare).
+    crop = True
 
     def __init__(self, *, texels=(256, 256), max_rms_mm: float = 0.5, min_markers: int = 2,
                  max_pose_deg: float | None = 10.0, pose_from: str = "fiducials", correct_light: bool = True,
@@ -519,18 +561,36 @@ class ArucoRegistration:
         U, V = reg.texels
         sx, sy = reg.size_mm
         h, w = image.shape[:2]
-        image = np.asarray(image, np.float32)
+        strict = self.edge == "strict"
+        level = int(reg.per_pose["pyramid_level"][k])
+        scale = 2.0 ** -level
+        hl, wl = h, w  # the image's size at the pyramid level (cv2.pyrDown's)
+        for _ in range(level):
+            hl, wl = (hl + 1) // 2, (wl + 1) // 2
+        compiled = self.compiled_mapping
+        n_u, n_v = (int(n) for n in reg.per_pose["subsamples"][k])
+        offsets = [((a + 0.5) / n_u - 0.5, (b + 0.5) / n_v - 0.5) for a in range(n_u) for b in range(n_v)]
+        r = BICUBIC_RADIUS + int(math.ceil(self.edge_margin_px))
+
+        def maps_of(ou: float, ov: float) -> tuple[np.ndarray, np.ndarray]:
+            return remap_maps(*_texel_axes((U, V), (sx, sy), ou, ov), H, K, dist, scale, compiled)
+
+        # Every sub-sample's maps first (when they are small): their bounding box is all of the
+        # photograph this pose's filter can reach, and only that region is masked, pre-blurred and
+        # sampled (``_crop_window``: the same bits as the whole photograph).
+        maps = [maps_of(*o) for o in offsets] if len(offsets) * U * V * 8 <= MAPS_HELD_BYTES else None
+        y0, y1, x0, x1 = self._crop_window(maps, level, r, (h, w)) if maps is not None and self.crop else (0, h, 0, w)
+        image = np.asarray(image[y0:y1, x0:x1], np.float32)
         finite = np.isfinite(image)
         if not finite.all():
             image = np.where(finite, image, np.float32(0))
-        strict = self.edge == "strict"
 
         def square(n: int) -> np.ndarray:
             return np.ones((2 * n + 1, 2 * n + 1), np.uint8)
 
-        r = BICUBIC_RADIUS + int(math.ceil(self.edge_margin_px))
-        invalid = (~np.asarray(valid, bool)).astype(np.uint8)
-        off = self._outside_sample_mask(H, K, dist, (sx, sy), (h, w))  # 1: carrier, markers, beyond the sample
+        invalid = (~np.asarray(valid[y0:y1, x0:x1], bool)).astype(np.uint8)
+        # 1: carrier, markers, beyond the sample
+        off = self._outside_sample_mask(H, K, dist, (sx, sy), image.shape[:2], (x0, y0))
         # (Masks stay one channel each: cv2.remap interpolates 2-channel images less precisely.)
         hard_f: np.ndarray | None = None
         if strict:
@@ -549,54 +609,52 @@ class ArucoRegistration:
             # The normalised convolution's numerator (the usable pixels' radiance) and denominator.
             numden = cv2.merge([*(cv2.multiply(c, usable) for c in cv2.split(image)), usable])
 
-        level = int(reg.per_pose["pyramid_level"][k])
         for _ in range(level):
             image = cv2.pyrDown(image)
             if hard_f is not None:
                 hard_f = cv2.pyrDown(hard_f)
             if not strict:  # normalised convolution: the pre-blur of the usable pixels only
                 near_f, numden = cv2.pyrDown(near_f), cv2.pyrDown(numden)
-        scale = 2.0 ** -level
-        hl, wl = image.shape[:2]
-        compiled = self.compiled_mapping
 
-        n_u, n_v = (int(n) for n in reg.per_pose["subsamples"][k])
         acc = np.zeros((V, U, 3), np.float32)
         weight = np.zeros((V, U), np.float32)  # sum over sub-samples of the filter weight on usable pixels
         badness = np.zeros((V, U), np.float32)
-        for a in range(n_u):
-            for b in range(n_v):
-                ou = (a + 0.5) / n_u - 0.5
-                ov = (b + 0.5) / n_v - 0.5
-                mx, my = remap_maps(*_texel_axes((U, V), (sx, sy), ou, ov), H, K, dist, scale, compiled)
-                cubic = cv2.remap(image, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-                # Outside the (possibly reduced) image, with room for the bicubic kernel.
-                out = (mx < 1) | (my < 1) | (mx > wl - 2) | (my > hl - 2)
-                if strict:
-                    assert hard_f is not None
-                    acc += cubic
-                    weight += 1.0
-                    np.maximum(badness, cv2.remap(hard_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                                  borderValue=1.0), out=badness)
-                    badness[out] = 1.0
-                    continue
-                if hard_f is not None:
-                    np.maximum(badness, cv2.remap(hard_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                                  borderValue=0.0), out=badness)
-                near = out | (cv2.remap(near_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                        borderValue=1.0) > 1e-6)
-                # Clipped filter: bilinear interpolation of the usable pixels only, weights renormalised
-                # (normalised convolution); what it reaches of the usable pixels is its weight.  Only
-                # the clipped texels (the outer rings) are interpolated so.
-                clipped = np.flatnonzero(near)
-                reached = np.ones((V, U), np.float32)
-                if clipped.size:  # (cv2.remap refuses empty maps)
-                    nd = cv2.remap(numden, mx.reshape(-1)[clipped, None], my.reshape(-1)[clipped, None],
-                                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(-1, 4)
-                    cubic.reshape(-1, 3)[clipped] = nd[:, :3]
-                    reached.reshape(-1)[clipped] = nd[:, 3]
+        for j, (ou, ov) in enumerate(offsets):
+            if maps is not None:
+                (mx, my), maps[j] = maps[j], None
+            else:
+                mx, my = maps_of(ou, ov)
+            # Outside the (possibly reduced) image, with room for the bicubic kernel.
+            out = (mx < 1) | (my < 1) | (mx > wl - 2) | (my > hl - 2)
+            if x0 or y0:  # to the window's pixels: whole pixels at this level, so exact (see _crop_window)
+                mx -= np.float32(x0 >> level)
+                my -= np.float32(y0 >> level)
+            cubic = cv2.remap(image, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            if strict:
+                assert hard_f is not None
                 acc += cubic
-                weight += reached
+                weight += 1.0
+                np.maximum(badness, cv2.remap(hard_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                              borderValue=1.0), out=badness)
+                badness[out] = 1.0
+                continue
+            if hard_f is not None:
+                np.maximum(badness, cv2.remap(hard_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                              borderValue=0.0), out=badness)
+            near = out | (cv2.remap(near_f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                    borderValue=1.0) > 1e-6)
+            # Clipped filter: bilinear interpolation of the usable pixels only, weights renormalised
+            # (normalised convolution); what it reaches of the usable pixels is its weight.  Only
+            # the clipped texels (the outer rings) are interpolated so.
+            clipped = np.flatnonzero(near)
+            reached = np.ones((V, U), np.float32)
+            if clipped.size:  # (cv2.remap refuses empty maps)
+                nd = cv2.remap(numden, mx.reshape(-1)[clipped, None], my.reshape(-1)[clipped, None],
+                               cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(-1, 4)
+                cubic.reshape(-1, 3)[clipped] = nd[:, :3]
+                reached.reshape(-1)[clipped] = nd[:, 3]
+            acc += cubic
+            weight += reached
         with np.errstate(divide="ignore", invalid="ignore"):
             texels = acc / weight[..., None]
         ok = badness <= 1e-6
@@ -612,8 +670,42 @@ class ArucoRegistration:
         return texels, ok
 
     @staticmethod
-    def _outside_sample_mask(H, K, dist, size_mm, shape) -> np.ndarray:
-        """``(h, w)`` uint8, 1 outside the sample rectangle as seen in the photograph (distortion included)."""
+    def _crop_window(maps, level: int, r: int, shape) -> tuple[int, int, int, int]:
+        """The part ``(y0, y1, x0, x1)`` of the photograph a pose's resampling reads: the sub-samples'
+        ``maps`` (pyramid level ``level``) with room for the filter, or all of it.
+
+        Resampling a window is resampling the photograph, bit for bit, when nothing a sample point
+        reaches differs: the masks are per pixel except their dilations (radius ≤ ``r``), which err only
+        within ``r`` pixels of a window edge inside the photograph, and each ``cv2.pyrDown`` halves that
+        band and adds at most 2 pixels; the window starts at a multiple of 2^level, so its pyramid is the
+        photograph's, shifted by whole pixels (the float32 maps shift exactly: x ≥ shift ≥ 0), and a margin
+        of ⌈r / 2^level⌉ + 8 level pixels past the farthest sample point keeps every bicubic support (2
+        pixels) off the band.  Where the maps reach past the photograph's border, the window reaches it
+        too, so samples there see the same border.  Non-finite points (the sentinel) or a window
+        as large as the photograph: all of it.
+        """
+        h, w = shape
+        f = 1 << level
+        lo_x = min(float(mx.min()) for mx, _ in maps)
+        lo_y = min(float(my.min()) for _, my in maps)
+        if lo_x <= -1e5 or lo_y <= -1e5:  # a texel behind the camera (remap_maps' sentinel)
+            return 0, h, 0, w
+        hi_x = max(float(mx.max()) for mx, _ in maps)
+        hi_y = max(float(my.max()) for _, my in maps)
+        mgn = -(-r // f) + 8
+
+        def span(lo: float, hi: float, n: int) -> tuple[int, int]:
+            a = max(0, math.floor(lo) - mgn) * f
+            b = min(n, (math.ceil(hi) + mgn + 1) * f)
+            return (a, b) if b - a >= 16 * f else (0, n)
+
+        (y0, y1), (x0, x1) = span(lo_y, hi_y, h), span(lo_x, hi_x, w)
+        return y0, y1, x0, x1
+
+    @staticmethod
+    def _outside_sample_mask(H, K, dist, size_mm, shape, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+        """``(h, w)`` uint8, 1 outside the sample rectangle as seen in the photograph (distortion included);
+        ``origin``: the photograph's pixel (x, y) at the mask's (0, 0) (a window, :meth:`_crop_window`)."""
         import cv2
 
         sx, sy = size_mm
@@ -630,6 +722,7 @@ class ArucoRegistration:
         if not np.isfinite(pix).all():
             return mask  # the sample reaches behind the camera: nothing is trusted
         pts = np.round(pix * 16).astype(np.int32).reshape(-1, 1, 2)  # 4 fractional bits
+        pts -= np.array(origin, np.int32) * 16  # whole pixels: the same raster, shifted
         cv2.fillPoly(mask, [pts], 0, lineType=cv2.LINE_8, shift=4)
         return mask
 
@@ -858,19 +951,34 @@ def footprint(H: np.ndarray, K, dist, texels: tuple[int, int], size_mm, max_subs
     """
     K, dist = np.asarray(K, float), np.asarray(dist, float)
     U, V = texels
-    pix = grid_to_pixels(*_texel_axes((U, V), size_mm), H, K, dist, compiled)  # (V, U, 2) at the texel centres
+    xs, ys = _texel_axes((U, V), size_mm)
+    if compiled:
+        pix = grid_to_pixels(xs, ys, H, K, dist, True)  # (V, U, 2) at the texel centres
+        px, py = pix[..., 0], pix[..., 1]
+    else:
+        px, py = _grid_xy(xs, ys, np.asarray(H, np.float64), K, dist)
 
-    def length(g: np.ndarray) -> np.ndarray:  # np.linalg.norm(g, axis=-1), without its slow 2-wide reduction
-        return np.sqrt(g[..., 0] * g[..., 0] + g[..., 1] * g[..., 1])
+    def length(axis: int) -> np.ndarray:  # np.linalg.norm(np.gradient(pix, axis=axis), axis=-1), per component
+        gx, gy = np.gradient(px, axis=axis), np.gradient(py, axis=axis)
+        gx *= gx
+        gy *= gy
+        gx += gy
+        return np.sqrt(gx, out=gx)
 
-    du = length(np.gradient(pix, axis=1)) if U > 1 else np.ones((V, U))
-    dv = length(np.gradient(pix, axis=0)) if V > 1 else np.ones((V, U))
+    du = length(1) if U > 1 else np.ones((V, U))
+    dv = length(0) if V > 1 else np.ones((V, U))
     fin = np.isfinite(du) & np.isfinite(dv)
-    lu = float(np.max(du[fin])) if fin.any() else 1.0
-    lv = float(np.max(dv[fin])) if fin.any() else 1.0
+    every = bool(fin.all())  # the usual case: no masked copies
+    if every:
+        du_f, dv_f = du.ravel(), dv.ravel()
+    else:
+        du_f, dv_f = du[fin], dv[fin]
+    lu = float(np.max(du_f)) if du_f.size else 1.0
+    lv = float(np.max(dv_f)) if dv_f.size else 1.0
     level = max(0, math.ceil(math.log2(max(lu, lv, 1e-9) / max_subsamples))) if max(lu, lv) > max_subsamples else 0
     scale = 2.0 ** -level
     n_u = max(1, math.ceil(lu * scale - 1e-6))
     n_v = max(1, math.ceil(lv * scale - 1e-6))
-    px_per_texel = float(np.sqrt(np.median(du[fin] * dv[fin]))) if fin.any() else 0.0
+    # (du·dv is a fresh array: the median may partition it in place, the same order statistics.)
+    px_per_texel = float(np.sqrt(np.median(du_f * dv_f, overwrite_input=True))) if du_f.size else 0.0
     return level, n_u, n_v, px_per_texel

@@ -557,6 +557,77 @@ def test_resampling_with_the_compiled_mapping_gives_the_same_bits(noisy_scan):
             assert reg.per_pose["pyramid_level"].max() > 0
 
 
+def test_blocked_texel_mapping_gives_the_whole_grid_bits(monkeypatch):
+    """The NumPy mapping a block of rows at a time (``GRID_BLOCK``): the bits of plane_to_pixels on the whole
+    grid, and remap_maps' sentinel for the points behind the camera, whatever the block."""
+    from sbrdf_register import aruco
+
+    K = np.array([[900.0, 0.5, 320.0], [0.0, 905.0, 240.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.2, 0.05, 1e-3, -2e-3, 0.01])
+    xs, ys = np.linspace(-60, 60, 37), np.linspace(-50, 50, 29)
+    H = np.array([[3.0, 0.1, 320.0], [-0.05, 3.1, 240.0], [0.012, -0.011, 1.0]])  # partly behind the camera
+    ref = plane_to_pixels(np.stack(np.meshgrid(xs, ys), axis=-1), H, K, dist)
+    assert np.isnan(ref).any()
+    whole = aruco.remap_maps(xs, ys, H, K, dist, 0.5)
+    for block in (1, 37, 40, 100, 37 * 29 + 1):
+        monkeypatch.setattr(aruco, "GRID_BLOCK", block)
+        np.testing.assert_array_equal(aruco.grid_to_pixels(xs, ys, H, K, dist), ref)
+        for a, b in zip(aruco.remap_maps(xs, ys, H, K, dist, 0.5), whole):
+            np.testing.assert_array_equal(a, b)
+    assert (whole[0] == np.float32(-1e6)).any()
+
+
+def test_resampling_a_window_gives_the_whole_photographs_bits(noisy_scan, monkeypatch):
+    """resample reads only the window of the photograph its sub-samples reach (``_crop_window``): the same
+    texels and validity, to the bit, as the whole photograph, on every filter path: clipped edges, strict,
+    a wide edge margin, pyramid levels 1-3 (forced, with the window's odd offsets), invalid and non-finite
+    pixels, and maps held or made one sub-sample at a time."""
+    from sbrdf_register import aruco
+
+    _, _, store, _ = noisy_scan
+    capture = open_artifact(str(store / "capture"))
+    images, valids = capture.zarr_array("images"), capture.zarr_array("valid")
+    windows = []
+    real = aruco.ArucoRegistration._crop_window
+
+    def spy(*args):
+        windows.append(real(*args))
+        return windows[-1]
+
+    monkeypatch.setattr(aruco.ArucoRegistration, "_crop_window", staticmethod(spy))
+    for params in ({}, {"edge": "strict"}, {"edge_margin_px": 9.0}, {"texels": [16, 16]}, {"texels": [1, 1]}):
+        plugin = aruco.ArucoRegistration(**{"texels": [64, 64], **params})
+        reg = plugin.register(capture)
+        for level in (None, 1, 3):
+            if level is not None:  # a coarser pyramid level than measured (fewer sub-samples: the same texel)
+                reg.per_pose["pyramid_level"][:] = level
+                reg.per_pose["subsamples"][:] = 2
+            for pose in (int(p) for p in reg.pose_ids[:2]):
+                image, valid = np.array(images[pose]), np.array(valids[pose])
+                valid[140:150, 190:200] = False  # a saturated patch on the sample
+                image[150, 210] = np.nan
+                plugin.crop = True
+                tex_w, ok_w = plugin.resample(image, valid, pose, reg)
+                plugin.crop = False
+                tex, ok = plugin.resample(image, valid, pose, reg)
+                np.testing.assert_array_equal(ok_w, ok)
+                np.testing.assert_array_equal(tex_w, tex)
+                if params.get("texels") != [1, 1] and level is None:
+                    assert ok.any() and not ok.all()
+    h, w = images.shape[1:3]
+    assert any(y0 > 0 and x0 > 0 and y1 < h and x1 < w for y0, y1, x0, x1 in windows)  # windows, not the photograph
+    assert any(x0 % 8 == 0 and x0 % 16 for _, _, x0, _ in windows)  # a window off the level-4 grid
+    monkeypatch.setattr(aruco, "MAPS_HELD_BYTES", 0)  # the maps one sub-sample at a time: no window
+    plugin = aruco.ArucoRegistration(texels=[64, 64])
+    reg = plugin.register(capture)
+    pose = int(reg.pose_ids[0])
+    n = len(windows)
+    tex, ok = plugin.resample(np.array(images[pose]), np.array(valids[pose]), pose, reg)
+    assert len(windows) == n
+    plugin.crop = False
+    np.testing.assert_array_equal(plugin.resample(np.array(images[pose]), np.array(valids[pose]), pose, reg)[0], tex)
+
+
 def test_markers_refined_together_as_one_at_a_time(noisy_scan):
     """All markers' edges are refined as whole arrays (markers of several sizes, so several profile lengths):
     each marker's corners are the bits it gets alone, and near the (coarser) detector's."""
