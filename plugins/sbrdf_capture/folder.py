@@ -111,7 +111,6 @@ class FolderCapture:
         self.manifest: Manifest | None = None
         self.curve: ResponseCurve | None = None
         self.linear = False
-        self._float_pose = False
         self._dark: np.ndarray | None = None
 
     # -- protocol ------------------------------------------------------------------
@@ -180,7 +179,7 @@ class FolderCapture:
         if m is None:
             raise CaptureFolderError(f"{self.path / MANIFEST}: read_record before the folder was opened or attached")
         signals, levels, times = [], [], []
-        self._float_pose = False
+        float_pose = False  # local: dask threads read poses of one capture concurrently
         for k, e in enumerate(pose.exposures):
             at = f"{where}.exposures[{k}]"
             img = read_image(resolve_image(self.path, e, at + ".file"), at)
@@ -188,22 +187,23 @@ class FolderCapture:
                 raise CaptureFolderError(f"{self.path / e.file}: image is {img.shape[1]}x{img.shape[0]} but the camera is "
                                          f"{m.camera.width}x{m.camera.height} ({at})")
             signal, level = self._linearize(img, at)
-            self._float_pose = self._float_pose or img.dtype.kind == "f"
+            float_pose = float_pose or img.dtype.kind == "f"
             signals.append(subtract_dark(signal, self._dark, self.dark_time_s or 1.0, e.time_s))
             levels.append(level)
             times.append(e.time_s)
         radiance, valid = merge_exposures(signals, levels, times, self.saturation, self.underexposure)
-        valid = self._negative_radiance(radiance, valid, pose, where, max(times))
+        valid = self._negative_radiance(radiance, valid, pose, where, max(times), float_pose)
         if self.colour_matrix is not None:
             from .colour import apply_matrix
 
             radiance = apply_matrix(radiance, self.colour_matrix)
         return radiance, valid
 
-    def full_scale(self, radiance: np.ndarray, longest_s: float) -> float:
-        """The radiance that fills the longest exposure (see the module docstring)."""
+    def full_scale(self, radiance: np.ndarray, longest_s: float, float_pose: bool) -> float:
+        """The radiance that fills the longest exposure (see the module docstring); ``float_pose``: the pose's
+        images are floating point (then the camera's white level, or the pose's own largest value)."""
         m = self.manifest
-        if self._float_pose:
+        if float_pose:
             if m is not None and m.camera.white_level is not None:
                 level = float(m.camera.white_level)
             else:
@@ -216,12 +216,12 @@ class FolderCapture:
         return level / float(longest_s)
 
     def _negative_radiance(self, radiance: np.ndarray, valid: np.ndarray, pose: PoseRecord, where: str,
-                           longest_s: float) -> np.ndarray:
+                           longest_s: float, float_pose: bool) -> np.ndarray:
         """Apply the negative-radiance rule: invalidate and count, or refuse the pose."""
         below = np.where(np.isfinite(radiance), radiance, 0.0).min(axis=-1)
         if not (below < 0).any():
             return valid
-        tolerance = self.negative_tolerance * self.full_scale(radiance, longest_s)
+        tolerance = self.negative_tolerance * self.full_scale(radiance, longest_s, float_pose)
         negative = below < -tolerance
         n = int(negative.sum())
         if n == 0:

@@ -356,6 +356,43 @@ def test_negative_radiance_beyond_the_noise_tolerance_is_invalid_and_counted(reg
     assert np.array_equal(stored[0], valid) and stored[1].all()
 
 
+def test_a_pose_read_while_another_is_read_keeps_its_own_noise_tolerance(registry, tmp_path, monkeypatch):
+    """Dask threads read poses of one capture at once: one read must not change another's tolerance.
+
+    The tolerance of a float pose is 1 % of its own largest value; it was taken from state the
+    reader shared across poses, so a read of another pose starting in between (here: made to
+    happen, and to fail after it began) gave the first pose the tolerance of integer codes, and the
+    validity mask of a capture depended on thread timing (seen as Register results that differed
+    from run to run).
+    """
+    import sbrdf_capture.folder as folder_mod
+
+    rng = np.random.default_rng(4)
+    img = (50.0 + 40.0 * rng.random((12, 16, 3))).astype(np.float32)  # full scale ≈ 90: tolerance ≈ 0.9
+    img[2, 2:6] = -0.5  # noise within the tolerance: kept
+    folder = _float_folder(tmp_path / "scan", [img, img.copy()])
+    src = registry.create("capture", "folder", {"path": str(folder)})
+    src.describe()
+    _, alone = src.read_pose(0)
+    assert alone[2, 2:6].all()
+
+    real_read, real_subtract = folder_mod.read_image, folder_mod.subtract_dark
+
+    def interrupted(*args, **kwargs):
+        raise OSError("read interrupted")
+
+    def meanwhile(*args, **kwargs):  # pose 0 is between reading its image and judging its negatives
+        monkeypatch.setattr(folder_mod, "read_image", interrupted)
+        with pytest.raises(OSError):
+            src.read_pose(1)
+        monkeypatch.setattr(folder_mod, "read_image", real_read)
+        return real_subtract(*args, **kwargs)
+
+    monkeypatch.setattr(folder_mod, "subtract_dark", meanwhile)
+    _, again = src.read_pose(0)
+    assert np.array_equal(again, alone)
+
+
 @pytest.mark.parametrize("white_level", [1.0, None], ids=["white-level", "no-white-level"])
 def test_a_pose_whose_every_pixel_is_negative_is_an_error_naming_pose_and_file(registry, tmp_path, white_level):
     good = np.full((12, 16, 3), 0.4, np.float32)
