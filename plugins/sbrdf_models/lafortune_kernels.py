@@ -185,8 +185,11 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
 
     For every candidate the lobe magnitudes are solved by least squares (ρ_d
     and the other lobes' shapes held at ``x``), clipped to ≥ 0, and the cost
-    follows in closed form from the same sums: one pass over the samples per
-    candidate.  Returns the updated fit-form rows.
+    follows in closed form from the same sums.  What does not depend on the
+    candidate (log(C·ω) of every lobe, the other lobes' values, the diffuse
+    residuals and their sums) is taken once per texel, so a candidate costs one
+    exp per sample: the same numbers, in the same order, as summing everything
+    per candidate.  Returns the updated fit-form rows.
     """
     T, K = x.shape
     S = wi.shape[1]
@@ -197,36 +200,59 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
         best = np.inf
         cx, cy, n, rho0 = np.empty(lobes), np.empty(lobes), np.empty(lobes), np.empty((lobes, C))
         cb, sb = _unpack(x, t, lobes, aniso, has_beta, C, rho0, cx, cy, n)
-        sv = np.empty(lobes)
-        for q in range(log_exponents.size):
-            n[0] = math.exp(log_exponents[q])
-            G = np.zeros((lobes, lobes))
-            h = np.zeros((lobes, C))
-            e0 = 0.0
-            for s in range(S):
-                ws = w[t, s]
-                if ws == 0.0:
-                    continue
-                iz, oz = wi[t, s, 2], wo[t, s, 2]
-                if iz <= 0.0 or oz <= 0.0:
-                    for c in range(C):
-                        e0 += (f[t, s, c] * ws) ** 2
-                    continue
-                ix, iy, ox, oy = wi[t, s, 0], wi[t, s, 1], wo[t, s, 0], wo[t, s, 1]
-                if has_beta:
-                    ix, iy = cb * ix + sb * iy, -sb * ix + cb * iy
-                    ox, oy = cb * ox + sb * oy, -sb * ox + cb * oy
-                for j in range(lobes):
-                    dot = cx[j] * ix * ox + cy[j] * iy * oy + iz * oz
-                    sv[j] = math.exp(min(n[j] * math.log(dot), LOG_CAP)) * ws if dot > 0.0 else 0.0
+        # Per sample, once: log(C·ω) of lobe 1 (-inf where it is dark), the weight, the other lobes' values
+        # and the weighted diffuse residuals; samples that add nothing to the lobe sums are left out.
+        log_dot = np.empty(S)
+        wt = np.empty(S)
+        sv = np.zeros((S, lobes))
+        r = np.empty((S, C))
+        lit = np.zeros(S, np.bool_)
+        e0 = 0.0
+        G1 = np.zeros((lobes, lobes))  # the candidate-free part of G (lobes 2.. among themselves)
+        h1 = np.zeros((lobes, C))
+        m = 0
+        for s in range(S):
+            ws = w[t, s]
+            if ws == 0.0:
+                continue
+            iz, oz = wi[t, s, 2], wo[t, s, 2]
+            if iz <= 0.0 or oz <= 0.0:
                 for c in range(C):
-                    r0 = (f[t, s, c] - x[t, c]) * ws
-                    e0 += r0 * r0
-                    for j in range(lobes):
-                        h[j, c] += sv[j] * r0
-                for j in range(lobes):
-                    for i in range(lobes):
-                        G[j, i] += sv[j] * sv[i]
+                    e0 += (f[t, s, c] * ws) ** 2
+                continue
+            ix, iy, ox, oy = wi[t, s, 0], wi[t, s, 1], wo[t, s, 0], wo[t, s, 1]
+            if has_beta:
+                ix, iy = cb * ix + sb * iy, -sb * ix + cb * iy
+                ox, oy = cb * ox + sb * oy, -sb * ox + cb * oy
+            dot = cx[0] * ix * ox + cy[0] * iy * oy + iz * oz
+            log_dot[m] = math.log(dot) if dot > 0.0 else 0.0
+            lit[m] = dot > 0.0
+            wt[m] = ws
+            for j in range(1, lobes):
+                dot = cx[j] * ix * ox + cy[j] * iy * oy + iz * oz
+                sv[m, j] = math.exp(min(n[j] * math.log(dot), LOG_CAP)) * ws if dot > 0.0 else 0.0
+            for c in range(C):
+                r0 = (f[t, s, c] - x[t, c]) * ws
+                r[m, c] = r0
+                e0 += r0 * r0
+                for j in range(1, lobes):
+                    h1[j, c] += sv[m, j] * r0
+            for j in range(1, lobes):
+                for i in range(1, lobes):
+                    G1[j, i] += sv[m, j] * sv[m, i]
+            m += 1
+        for q in range(log_exponents.size):
+            n0 = math.exp(log_exponents[q])
+            G = G1.copy()
+            h = h1.copy()
+            for k in range(m):
+                s0 = math.exp(min(n0 * log_dot[k], LOG_CAP)) * wt[k] if lit[k] else 0.0
+                for c in range(C):
+                    h[0, c] += s0 * r[k, c]
+                G[0, 0] += s0 * s0
+                for i in range(1, lobes):
+                    G[0, i] += s0 * sv[k, i]
+                    G[i, 0] += sv[k, i] * s0
             for j in range(lobes):
                 G[j, j] += 1e-12
             rho = np.linalg.solve(G, h)
