@@ -86,12 +86,13 @@ class Limits:
 def sample_support(f_r: np.ndarray, valid: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
     """Largest valid sample value of each texel over poses and channels, ``(T,)`` (0 with none).
 
-    ``weight`` ``(T, S)`` multiplies each sample first (cos θ_i cos θ_o for :attr:`Limits.peak_cosine`).
+    ``weight`` ``(T, S)``, ≥ 0, multiplies each sample first (cos θ_i cos θ_o for :attr:`Limits.peak_cosine`).
     """
-    f = np.nan_to_num(f_r, nan=0.0, posinf=0.0, neginf=0.0)
+    with np.errstate(invalid="ignore"):
+        f = np.where(np.isfinite(f_r), f_r, 0.0).max(axis=-1)  # channels first: one (T, S) array after this
     if weight is not None:
-        f = f * weight[..., None]
-    return np.where(valid[..., None], f, 0.0).max(axis=(1, 2), initial=0.0)
+        f *= weight  # weights are ≥ 0, so the channels' maximum times the weight is the weighted maximum
+    return np.where(valid, f, 0.0).max(axis=1, initial=0.0)
 
 
 def neighbourhood_max(support: np.ndarray) -> np.ndarray:

@@ -106,6 +106,25 @@ def test_sample_weights_are_bounded_scale_free_and_zero_where_invalid(seed, scal
         assert (np.diff(w[1][valid[1]][order]) <= 1e-12).all()
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), samples=st.integers(1, 60), dropped=st.floats(0.0, 1.0))
+def test_valid_median_is_nanmedian_bit_for_bit(seed, samples, dropped):
+    """The weights' level: numpy's nanmedian of the valid entries, from one sort; 1 for a texel with none."""
+    import warnings
+
+    from sbrdf_lib.lm import valid_median
+
+    rng = np.random.default_rng(seed)
+    y = np.exp(rng.normal(-2, 3, (6, samples)))
+    y[0, : samples // 2] = y[0, -1]  # ties
+    valid = rng.random((6, samples)) >= dropped
+    valid[1] = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nan_to_num(np.nanmedian(np.where(valid, y, np.nan), axis=1, keepdims=True), nan=1.0)
+    np.testing.assert_array_equal(valid_median(y, valid), expected)
+
+
 def test_shot_noise_weighting_fits_a_foreign_model_closer_where_it_was_not_trained(registry):
     """A Lafortune lobe cannot follow GGX's tails: weighing residuals by 1/√f_r (the default) keeps the tails
     that an absolute least squares gives up for the peak; the relative error at unseen pairs drops."""
