@@ -32,7 +32,10 @@ the registered stack (Reflectance's input) and ``reflectance_read_ratio`` =
 Reflectance seconds / ``stack_read_s``.
 ``peak_rss_mb_<size>gb`` = the threaded run's peak RSS at two sizes, each in a
 fresh process: 0.5 and 2 GB at full size, ``--gb``/2 and ``--gb`` with
-``--quick`` (the two must agree within 10 %: memory flat in the scan).
+``--quick`` (the two must agree within 10 %: memory flat in the scan).  A single
+run's peak varies about ±15 % from run to run at the same size, so at full size
+each size's threaded run is repeated (``--repeats``, 3) and the medians are
+reported (times too); ``peak_ratio`` = the larger size's median / the smaller's.
 ``registration_rms_texel`` = mean homography RMS (mm) / texel size (mm).
 ``lambert_err`` = max over every valid texel and pose of |f_r·π/a − 1|.
 
@@ -54,7 +57,7 @@ How to run
 ----------
 ::
 
-    python benchmarks/reflectance.py [--gb 2] [--quick] [--tmpdir DIR] [--no-cluster] [--scan DIR]
+    python benchmarks/reflectance.py [--gb 2] [--quick] [--tmpdir DIR] [--no-cluster] [--scan DIR] [--repeats N]
 
 Full size is 2 GB (``--gb 8`` also works: disk ≈ 2x the GB for the folder plus
 the stores); ``--quick`` is 0.1 GB (about a minute on 2 cores).  Progress to
@@ -62,7 +65,8 @@ stderr; the last line of stdout is::
 
     reflectance: gb=<float> mb_per_s=<float> peak_rss_mb=<float> registration_rms_texel=<float> lambert_err=<float>
         register_s=<float> reflectance_s=<float> read_s=<float> read_ratio=<float> stack_read_s=<float>
-        reflectance_read_ratio=<float> peak_rss_mb_<a>gb=<float> peak_rss_mb_<b>gb=<float>
+        reflectance_read_ratio=<float> peak_rss_mb_<a>gb=<float> peak_rss_mb_<b>gb=<float> peak_ratio=<float>
+        repeats=<int>
 
 (one line).
 """
@@ -257,7 +261,7 @@ def summarise(store: Path) -> tuple[float, float, float]:
     return rms_texel, worst, n_valid / max(n, 1)
 
 
-def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None, keep: bool = False) -> dict:
+def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None, keep: bool = False, repeats: int = 1) -> dict:
     folder = scan or tmp / f"scan-{gb:g}"
     P = poses_for(gb)
     if scan is not None and (scan / "capture.json").exists() and len(os.listdir(scan / "images")) == P:
@@ -268,13 +272,23 @@ def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None, keep: boo
     mb = P * W * H * 3 * 4 / 1e6
     out = {"P": P, "mb": mb}
     store = tmp / f"store-{gb:g}-threads"
-    secs, peak, nodes = timed_run(graph(tmp / "g.yaml", folder, store), "threads")
-    out.update(threads_s=secs, threads_peak=peak, register_s=nodes["register_s"], reflectance_s=nodes["reflectance_s"])
+    runs = []
+    for k in range(repeats):  # each a fresh process; the medians are reported (peak RSS varies ±15 % run to run)
+        for node in ("register", "reflectance") if k else ():  # the CaptureSet stays: only the timed nodes again
+            shutil.rmtree(store / node, ignore_errors=True)
+        runs.append(timed_run(graph(tmp / "g.yaml", folder, store), "threads"))
+    med = lambda xs: float(np.median(xs))  # noqa: E731
+    secs, peak = med([r[0] for r in runs]), med([r[1] for r in runs])
+    if repeats > 1:
+        print(f"  {gb:g} GB threads, {repeats} runs: peak RSS {' '.join(f'{r[1]:.0f}' for r in runs)} MB "
+              f"(median {peak:.0f}), seconds {' '.join(f'{r[0]:.1f}' for r in runs)}", file=sys.stderr, flush=True)
+    out.update(threads_s=secs, threads_peak=peak, threads_peaks=[r[1] for r in runs],
+               register_s=med([r[2]["register_s"] for r in runs]), reflectance_s=med([r[2]["reflectance_s"] for r in runs]))
     # The plain reads, right after the run (the same page cache): the capture Register reads, the stack Reflectance reads.
     out["read_s"] = plain_read(store / "capture", ("images", "valid"))
     out["stack_read_s"] = plain_read(store / "register", ("radiance", "valid"))
     print(f"plain read: capture {out['read_s']:.2f} s (ratio {secs / out['read_s']:.2f}), registered stack "
-          f"{out['stack_read_s']:.2f} s (Reflectance ratio {nodes['reflectance_s'] / out['stack_read_s']:.2f})",
+          f"{out['stack_read_s']:.2f} s (Reflectance ratio {out['reflectance_s'] / out['stack_read_s']:.2f})",
           file=sys.stderr, flush=True)
     out["rms_texel"], out["lambert_err"], out["valid"] = summarise(store)
     print(f"threads: {P} poses, {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS {peak:.0f} MB; "
@@ -348,6 +362,8 @@ def main() -> None:
     ap.add_argument("--no-cluster", action="store_true", help="skip the LocalCluster run")
     ap.add_argument("--scan", type=Path, default=None,
                     help="keep the virtual capture in this folder and reuse it on the next run of the same size")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help="threaded runs per size, each in a fresh process; medians reported (default 3; --quick 1)")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--scheduler", help=argparse.SUPPRESS)
     ap.add_argument("--node", action="append", help=argparse.SUPPRESS)
@@ -361,9 +377,10 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="sbrdf-reflectance-", dir=args.tmpdir))
     try:
         small = gb / 2 if args.quick or args.gb is not None else 0.5
-        half = one(tmp, small, cluster=False)
+        repeats = args.repeats if args.repeats is not None else (1 if args.quick else 3)
+        half = one(tmp, small, cluster=False, repeats=repeats)
         print(f"memory check: peak RSS {half['threads_peak']:.0f} MB at {small:g} GB", flush=True)
-        r = one(tmp, gb, cluster=not args.no_cluster, scan=args.scan)
+        r = one(tmp, gb, cluster=not args.no_cluster, scan=args.scan, repeats=repeats)
         peak = max(r["threads_peak"], r.get("cluster_peak", 0.0))
         err = max(r["lambert_err"], r.get("cluster_err", 0.0))
         lf = lafortune(tmp)
@@ -375,7 +392,8 @@ def main() -> None:
               f"reflectance_s={r['reflectance_s']:.2f} read_s={r['read_s']:.2f} "
               f"read_ratio={r['threads_s'] / r['read_s']:.2f} stack_read_s={r['stack_read_s']:.2f} "
               f"reflectance_read_ratio={r['reflectance_s'] / r['stack_read_s']:.2f} "
-              f"{key(small)}={half['threads_peak']:.0f} {key(gb)}={r['threads_peak']:.0f}")
+              f"{key(small)}={half['threads_peak']:.0f} {key(gb)}={r['threads_peak']:.0f} "
+              f"peak_ratio={r['threads_peak'] / half['threads_peak']:.3f} repeats={repeats}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
