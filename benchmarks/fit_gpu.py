@@ -23,14 +23,14 @@ reference RMS and time.
 The big case (lm-gl, 2 lobes, end to end like the rows above) runs at
 ``--big SIDE`` texels per side (default 4096; ``0`` skips it).  Its
 SampleModel store is about SIDE² × 400 pairs × 13 B (f_r float32 RGB and the
-validity byte, uncompressed) plus the truth and parameter maps: at 4096²
-about 90 GB.  Before drawing it the benchmark compares that with the free
-space of the temporary directory's filesystem and skips the case, saying so,
-when it would not fit.  The big case is the Fit node itself, run as ``sbrdf
-run`` runs it (dask's threaded scheduler, one thread per core: tiles fitted in
-parallel, lm-gl's GL calls queued on its one GL thread), lm-gl and then lm, from
-the same store to a parameter-map store.  It prints its own line ``big:
-side=... texels=... wall_lm2_s=... texels_per_s=... lm_wall_lm2_s=...
+validity byte, uncompressed): at 4096² about 90 GB.  The graph's own size
+check (``sbrdf_core.estimate``: the nodes' output bytes against the free space
+of the store's filesystem) refuses it when it would not fit, and the case is
+skipped with that message.  The big case is the Fit node itself, run as
+``sbrdf run`` runs it (dask's threaded scheduler, one thread per core: tiles
+fitted in parallel, lm-gl's GL calls queued on its one GL thread), lm-gl and
+then lm, from the same store to a parameter-map store.  It prints its own line
+``big: side=... texels=... wall_lm2_s=... texels_per_s=... lm_wall_lm2_s=...
 lm_texels_per_s=... threads=...``; ``wall_4096_lm2_s`` is lm-gl's wall time
 only when SIDE is 4096, ``nan`` otherwise (nothing is extrapolated).  The rows
 above it fit one tile at a time on one thread, to split the time.
@@ -46,7 +46,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -71,48 +70,39 @@ def make_samples(workdir: Path, side: int, seed: int = 0):
     return workdir / "store" / "samples"
 
 
-def node_wall(workdir: Path, side: int, plugin: str, lobes: int) -> float:
-    """Seconds of the Fit node (``plugin``, Lafortune ``lobes``) on the samples of :func:`make_samples`, as
-    ``sbrdf run`` runs it: dask's threaded scheduler, one thread per core, tiles fitted in parallel (lm-gl's
-    GL calls queue on its one GL thread; its starting points and the node's own work run in the tasks)."""
-    from sbrdf_core.runner import run_graph
-
-    fit = {"model": "lafortune", "model_params": {"lobes": lobes}}
-    graph = sample_graph(workdir, side) + (f"  fit_{plugin}_{lobes}: {{kind: Fit, plugin: {plugin}, in: {{samples: samples}}, "
-                                           f"params: {json.dumps(fit)}}}\n")
-    return run_graph(graph, progress=False)[f"fit_{plugin}_{lobes}"].wall_s
-
-
-def big_store_bytes(side: int) -> int:
-    """Bytes the big case writes, uncompressed: the SampleModel store's arrays and the fitted maps.
-
-    f_r (side², POSES, 3) float32 and valid (side², POSES) bool: 13 B per texel and pair (what
-    ``sbrdf_core.estimate`` charges a SampledReflectance, and what the graph's own check holds
-    against the free space); the truth maps (one float32 per parameter of the 2-lobe model) and
-    the fit's output (parameters and the Fit node's extra maps, float32); the pose positions.
-    """
-    from sbrdf_core.nodes.fit import EXTRA
-    from sbrdf_core.registry import Registry
-
-    model = Registry().create("brdf-model", "lafortune", {"lobes": 2})
-    per_texel = POSES * 13 + 4 * model.size + 4 * (model.size + len(EXTRA))
-    return side * side * per_texel + POSES * 48
+def big_graph(workdir: Path, side: int) -> str:
+    """:func:`sample_graph` and two Fit nodes on its samples, Lafortune 2 lobes: ``fit_gl`` (lm-gl), ``fit_cpu`` (lm)."""
+    fit = json.dumps({"model": "lafortune", "model_params": {"lobes": 2}})
+    return sample_graph(workdir, side) + "".join(
+        f"  {name}: {{kind: Fit, plugin: {plugin}, in: {{samples: samples}}, params: {fit}}}\n"
+        for name, plugin in (("fit_gl", "lm-gl"), ("fit_cpu", "lm")))
 
 
 def run_big(work: Path, side: int) -> float:
-    """The big case, lm-gl 2 lobes at ``side``² texels; its wall time, ``nan`` when skipped."""
-    need, free = big_store_bytes(side), shutil.disk_usage(work).free
-    if need > 0.95 * free:
-        print(f"big: side={side} skipped: its store would need about {need / 1e9:.1f} GB "
-              f"({side}² texels × {POSES} pairs × ~13 B + maps), and {free / 1e9:.1f} GB are free in {work}")
+    """The big case at ``side``² texels: lm-gl's Fit node wall time, ``nan`` when skipped.
+
+    The Fit nodes run as ``sbrdf run`` runs them: dask's threaded scheduler, one thread per core, tiles fitted in
+    parallel (lm-gl's GL calls queue on its one GL thread; its starting points and the node's own work run in the
+    tasks).  A graph whose store would not fit the disk is refused by the graph's own size check
+    (:mod:`sbrdf_core.estimate`), and the case is skipped with its message.
+    """
+    from sbrdf_core.errors import GraphError
+    from sbrdf_core.graph import load_graph
+    from sbrdf_core.runner import Runner
+
+    runner = Runner(progress=False)
+    try:
+        graph = load_graph(big_graph(work / "big", side), runner.registry)
+    except GraphError as e:
+        print(f"big: side={side} skipped: " + " ".join(str(e).split()))
         return float("nan")
     t0 = time.perf_counter()
-    make_samples(work / "big", side)
+    runner.run(graph, only=["samples"])
     made = time.perf_counter() - t0
-    gl, cpu = (node_wall(work / "big", side, plugin, 2) for plugin in ("lm-gl", "lm"))
+    gl, cpu = (runner.run(graph, only=[name])[name].wall_s for name in ("fit_gl", "fit_cpu"))
     print(f"big: side={side} texels={side * side} wall_lm2_s={gl:.1f} texels_per_s={side * side / gl:.0f} "
           f"lm_wall_lm2_s={cpu:.1f} lm_texels_per_s={side * side / cpu:.0f} threads={os.cpu_count()} "
-          f"make_samples_s={made:.1f} store_gb={need / 1e9:.1f}")
+          f"make_samples_s={made:.1f}")
     return gl
 
 
@@ -174,7 +164,7 @@ def main(argv=None) -> int:
     ap.add_argument("--docs", action="store_true", help="accepted for `sbrdf bench`; this benchmark writes no docs")
     ap.add_argument("--big", type=int, default=4096, metavar="SIDE",
                     help="texels per side of the big lm-gl 2-lobe case on a real GPU (default 4096; 0 skips it); "
-                         "skipped, saying so, when its store would not fit the temporary directory's disk")
+                         "skipped, saying so, when the graph's size check finds its store would not fit the disk")
     args = ap.parse_args(argv)
     from sbrdf_lmgl.device import device_name
 

@@ -282,7 +282,7 @@ def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None, keep: boo
     if repeats > 1:
         print(f"  {gb:g} GB threads, {repeats} runs: peak RSS {' '.join(f'{r[1]:.0f}' for r in runs)} MB "
               f"(median {peak:.0f}), seconds {' '.join(f'{r[0]:.1f}' for r in runs)}", file=sys.stderr, flush=True)
-    out.update(threads_s=secs, threads_peak=peak, threads_peaks=[r[1] for r in runs],
+    out.update(threads_s=secs, threads_peak=peak,
                register_s=med([r[2]["register_s"] for r in runs]), reflectance_s=med([r[2]["reflectance_s"] for r in runs]))
     # The plain reads, right after the run (the same page cache): the capture Register reads, the stack Reflectance reads.
     out["read_s"] = plain_read(store / "capture", ("images", "valid"))
