@@ -304,6 +304,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                       "known to stall (a lobe with no magnitude gets no gradient in its shape); `lm` "
                                       "and `lm-gl` fit them again from the best multi-start candidates and keep the "
                                       "lower cost (`sbrdf_lib.lm.rescue`).", None),
+        "fit_outlier_ratio": OptionalMember("`fit_outlier_ratio` (on the fit form): a texel whose cost per valid sample "
+                                            "is over this multiple of its tile's median is fitted again as a "
+                                            "`fit_trapped` one (LM stalls without a dead lobe to show for it: two "
+                                            "lobes on one feature); None: never.", None),
         "glsl_fit_gradient": OptionalMember("`glsl_fit_gradient() -> str`: GLSL (4.3) defining `vec3 brdf_fit_gradient(vec3 "
                                             "wi, vec3 wo, float x[K], out vec3 grad[K])`, the value and ∂f/∂x at the "
                                             "packed fit-form parameters x (K = `fit_form().size`), for the GPU fitter "

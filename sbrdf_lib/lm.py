@@ -55,6 +55,7 @@ __all__ = [
     "START",
     "STARTS_FROM",
     "candidate_starts",
+    "cost_outliers",
     "diffuse_percentile",
     "fit_model",
     "keep_better",
@@ -453,7 +454,8 @@ RESCUE_STARTS = 4
 
 
 def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, margin: float):
-    """Fit again the texels ``form.fit_trapped`` flags in ``best`` (:func:`keep_better`'s list, updated in place).
+    """Fit again the texels ``form.fit_trapped`` flags in ``best`` (:func:`keep_better`'s list, updated in place),
+    and those whose cost is an outlier in the batch where the form sets ``fit_outlier_ratio`` (:func:`cost_outliers`).
 
     A texel's result competes with LM runs from the :data:`RESCUE_STARTS` best
     of ``8 ·`` that many candidates (:func:`starting_points`, scored on the
@@ -465,7 +467,26 @@ def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, 
     cost a whole fit, these few cost ~1% of one.
     """
     trapped = optional(form, "fit_trapped", "brdf-model")
-    rows = np.zeros(0, int) if trapped is None else np.flatnonzero(trapped(best[0]))
+    stalled = np.zeros(best[1].shape[0], bool) if trapped is None else trapped(best[0])
+    ratio = optional(form, "fit_outlier_ratio", "brdf-model")
+    odd = np.flatnonzero(cost_outliers(best[1], valid, ratio) & ~stalled) if ratio is not None else np.zeros(0, int)
+    if odd.size and free.all():
+        # An outlier has all its lobes, in the wrong roles: one LM run from the form's variable-projection fit
+        # (which moves only the shapes, so a lobe cannot take over another's role) costs a fraction of the
+        # multi-start below; where the form has none, the texel goes to the multi-start.
+        start = separable_start(form, f_r[odd], valid[odd], wi[odd], wo[odd],
+                                None if limits is None else limits.take(odd), 50, 1e-4, 1e-3)
+        if start is not None:
+            x0 = np.clip(form.pack(start), *form.bounds())
+            sub_project = projector(form, None if limits is None else limits.take(odd))
+            if sub_project is not None:
+                x0 = sub_project(x0, np.arange(odd.size))
+            sub = [v[odd].copy() for v in best]
+            keep_better(sub, *descend(x0, odd), margin)
+            for v, part in zip(best, sub):
+                v[odd] = part
+            odd = np.zeros(0, int)
+    rows = np.union1d(np.flatnonzero(stalled), odd)
     if rows.size == 0:
         return best
     sub_project = projector(form, None if limits is None else limits.take(rows))
@@ -483,6 +504,25 @@ def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, 
     for v, part in zip(best, sub):
         v[rows] = part
     return best
+
+
+def cost_outliers(cost: np.ndarray, valid: np.ndarray, factor: float) -> np.ndarray:
+    """Texels whose cost per valid sample is over ``factor`` × the batch's (a tile's) median, ``(T,)``.
+
+    What a form's ``fit_outlier_ratio`` asks :func:`rescue` to fit again: LM
+    from one start can settle with two lobes on one feature or a bright lobe
+    at the exponent bound; no lobe is dead, so ``fit_trapped`` sees nothing,
+    but the texel fits several times worse than its tile's typical texel.  The
+    rescue keeps a new result only where its cost is lower, so a texel flagged
+    for a harder material than its neighbours' costs time, not accuracy.
+    Fewer than 8 texels with samples: no median to trust, nothing flagged.
+    """
+    n = np.asarray(valid, bool).sum(axis=1)
+    has = (n > 0) & np.isfinite(cost)
+    if has.sum() < 8:
+        return np.zeros(cost.shape[0], bool)
+    per = np.where(has, cost / np.maximum(n, 1), 0.0)
+    return has & (per > factor * np.median(per[has]))
 
 
 def keep_better(best, x, cost, converged, margin: float):

@@ -50,6 +50,11 @@ NEUTRAL_EXPONENT = 1.0
 #: A lobe LM has lost (``fit_trapped``): dead, its peak ρ_s at most the first fraction of the strongest lobe's; or a
 #: spike on a sample or two, at most the second fraction with n within the last factor of its bound.
 TRAPPED = (1e-3, 0.1, 0.95)
+#: A multi-lobe texel whose cost per sample is over this multiple of its tile's median is fitted again
+#: (``fit_outlier_ratio``): on benchmarks/fit.py's Lafortune data, 2 lobes, 10 of 1024 texels settled with two lobes
+#: on the mirror peak or one at n ≈ 20000 and fitted 3-8x worse than the peer; one lobe: not worth its time (the
+#: missing lobe's energy varies texel to texel, so a third of a tile are "outliers" a restart cannot improve).
+OUTLIER_RATIO = 2.0
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
 C_BOUNDS = (-10.0, 10.0)
@@ -491,6 +496,7 @@ class LafortuneFitForm(LafortuneModel):
         self.channels = model.channels
         self.model = model
         self.parameters = self._declare(fit_form=True)
+        self.fit_outlier_ratio = OUTLIER_RATIO if self.lobes >= 2 else None
 
     def lobe_list(self, params):
         out = []
