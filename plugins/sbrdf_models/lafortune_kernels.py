@@ -179,6 +179,109 @@ def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta):
     return A, g, cost
 
 
+#: Samples per block of :func:`normal_equations_isotropic`: the block's weighted basis (m × 64 doubles) stays in L1.
+SAMPLE_BLOCK = 64
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _gram_block(Bw, Rw, nb, G, H):
+    """``G += Bw Bwᵀ``, ``H += Bw Rwᵀ`` over a block's ``nb`` samples: each sum runs along a contiguous row, so it
+    is done in SIMD lanes (``reassoc`` lets the sum be split across them; the order of the additions changes,
+    not what is added)."""
+    m, C = Bw.shape[0], Rw.shape[0]
+    for i in range(m):
+        bi = Bw[i]
+        for l in range(i, m):
+            bl = Bw[l]
+            acc = 0.0
+            for k in range(nb):
+                acc += bi[k] * bl[k]
+            G[i, l] += acc
+        for c in range(C):
+            rc = Rw[c]
+            acc = 0.0
+            for k in range(nb):
+                acc += bi[k] * rc[k]
+            H[i, c] += acc
+
+
+@njit(parallel=True, cache=True)
+def normal_equations_isotropic(x, idx, wi, wo, f, w, lobes):
+    """:func:`normal_equations` for isotropic lobes without β (the usual 1-2 lobe fit), in blocks of samples.
+
+    Why: summing the Gram matrix sample by sample is a chain of scalar adds
+    (half the kernel's time, measured); here a block's weighted basis and
+    residuals are laid out row by row (:data:`SAMPLE_BLOCK` samples) and the
+    sums run in SIMD (:func:`_gram_block`), 1.5× faster per sample at 2 lobes.
+    The same terms are summed in another order: equal to about 1e-14 relative.
+    """
+    T, K = x.shape
+    S = wi.shape[1]
+    C = f.shape[2]
+    m = 1 + 3 * lobes
+    A = np.zeros((T, K, K))
+    g = np.zeros((T, K))
+    cost = np.zeros(T)
+    for t in prange(T):
+        d = idx[t]
+        G = np.zeros((m, m))
+        H = np.zeros((m, C))
+        Bw = np.zeros((m, SAMPLE_BLOCK))  # the basis b times the sample's weight, one row per basis function
+        Rw = np.zeros((C, SAMPLE_BLOCK))  # the weighted residual, one row per channel
+        rho_d = x[t, :C].copy()
+        L = max(lobes, 1)
+        rho = np.empty((L, C))
+        cx, cy, n = np.empty(L), np.empty(L), np.empty(L)
+        _unpack(x, t, lobes, 0, False, C, rho, cx, cy, n)
+        pred = np.empty(C)
+        total = 0.0
+        for s0 in range(0, S, SAMPLE_BLOCK):
+            nb = min(SAMPLE_BLOCK, S - s0)
+            for k in range(nb):
+                s = s0 + k
+                ws = w[d, s]
+                iz, oz = wi[d, s, 2], wo[d, s, 2]
+                if ws == 0.0 or iz <= 0.0 or oz <= 0.0:  # no gradient (the model is 0 below the horizon)
+                    for i in range(m):
+                        Bw[i, k] = 0.0
+                    for c in range(C):
+                        r = -f[d, s, c] * ws
+                        total += r * r
+                        Rw[c, k] = 0.0
+                    continue
+                pxy = wi[d, s, 0] * wo[d, s, 0] + wi[d, s, 1] * wo[d, s, 1]
+                pzz = iz * oz
+                for c in range(C):
+                    pred[c] = rho_d[c]
+                Bw[0, k] = ws
+                for j in range(lobes):  # as _basis: s = exp(n log x), its log reused for both derivatives
+                    dot = cx[j] * pxy + pzz
+                    sv = 0.0
+                    dsdx = 0.0
+                    lx = 0.0
+                    if dot > 0.0:
+                        lx = math.log(dot)
+                        sv = math.exp(min(n[j] * lx, LOG_CAP))
+                        dsdx = n[j] * sv / dot
+                    for c in range(C):
+                        pred[c] += rho[j, c] * sv
+                    Bw[1 + j, k] = sv * ws
+                    q = 1 + lobes + 2 * j
+                    Bw[q, k] = dsdx * pxy * ws
+                    Bw[q + 1, k] = sv * lx * n[j] * ws
+                for c in range(C):
+                    r = (pred[c] - f[d, s, c]) * ws
+                    total += r * r
+                    Rw[c, k] = r
+            _gram_block(Bw, Rw, nb, G, H)
+        cost[t] = total
+        for i in range(m):
+            for l in range(i):
+                G[i, l] = G[l, i]
+        _assemble(x, t, G, H, lobes, 0, False, C, K, np.empty((K, m)), A, g)
+    return A, g, cost
+
+
 @njit(parallel=True, cache=True)
 def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     """Starting point: for each texel, the lobe-1 exponent from ``log_exponents`` with the smallest cost.
@@ -311,9 +414,11 @@ class CompiledLafortuneProblem:
         return np.einsum("tsc,tsc->t", wf, wf)
 
     def normal_equations(self, x, idx):
-        return run_parallel(normal_equations, np.ascontiguousarray(x, dtype=np.float64),
-                            np.ascontiguousarray(idx, dtype=np.int64), self.wi, self.wo, self.f_r, self.weight,
-                            *self.flags)
+        x, idx = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(idx, dtype=np.int64)
+        lobes, aniso, has_beta = self.flags
+        if not aniso and not has_beta:
+            return run_parallel(normal_equations_isotropic, x, idx, self.wi, self.wo, self.f_r, self.weight, lobes)
+        return run_parallel(normal_equations, x, idx, self.wi, self.wo, self.f_r, self.weight, *self.flags)
 
 
 # -- variable projection: only the lobe shapes iterate, magnitudes are solved in closed form ---------------
