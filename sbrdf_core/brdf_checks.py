@@ -83,7 +83,7 @@ def _quadrature(n_theta: int, n_phi: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: np.ndarray,
-                       n_theta: int = 64, n_phi: int = 128) -> np.ndarray:
+                       n_theta: int = 64, n_phi: int = 128, mirror: bool = False) -> np.ndarray:
     """Directional albedo a(ω_i) = ∫ f_r(ω_i, ω_o) cos θ_o dω_o per texel and channel, ``(T, 3)``.
 
     ``wi`` is one direction ``(3,)`` for every texel or one per texel ``(T, 3)``.
@@ -96,10 +96,17 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     2π/n_phi · sin θ in φ) must be several times smaller — for n ≈ 10⁴, or a
     Ward/Cook–Torrance α ≈ 0.01, use n_theta ≈ 512 and n_phi ≈ 1024 (cost grows
     as T × n_theta × n_phi evaluations).
+
+    ``mirror``: the integrand is symmetric under φ_o → −φ_o (an isotropic
+    model, ω_i in the xz-plane), so half the φ grid with doubled weights gives
+    the same sum (its midpoints pair up across the plane: n_phi even); half the work.
     """
     T = _texels(model, params)
     wi = np.broadcast_to(np.asarray(wi, dtype=np.float64), (T, 3))
     dirs, weights = quadrature(n_theta, n_phi)
+    if mirror and n_phi % 2 == 0:
+        half = (np.arange(n_theta * n_phi) % n_phi) < n_phi // 2  # φ in (0, π): rows are θ, n_phi φ each
+        dirs, weights = dirs[half], 2.0 * weights[half]
     out = np.zeros((T, 3))
     step = max(1, CHUNK // max(T, 1))
     for start in range(0, len(dirs), step):
@@ -170,7 +177,10 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
     ph = np.asarray(incident_phis, dtype=np.float64)
     th, ph = np.meshgrid(th, ph, indexing="ij")
     dirs = polar_direction(th.ravel(), ph.ravel())
-    albedo = np.stack([directional_albedo(model, params, d, n_theta, n_phi) for d in dirs], axis=1)
+    # An isotropic model's albedo at φ_i = 0 is symmetric in φ_o: half the grid (directional_albedo's mirror).
+    mirror = (dirs[:, 1] == 0.0) & (not optional(model, "anisotropic", "brdf-model"))
+    albedo = np.stack([directional_albedo(model, params, d, n_theta, n_phi, bool(m)) for d, m in zip(dirs, mirror)],
+                      axis=1)
     per_dir = albedo.max(axis=2)  # (T, D)
     worst = per_dir.argmax(axis=1)
     max_albedo = per_dir.max(axis=1)

@@ -139,3 +139,35 @@ def test_energy_violations_trust_the_analytic_bound_where_the_grid_cannot_resolv
     assert energy_report(m, p, n_theta=24, n_phi=48).max_albedo[0] > 1.002  # the grid alone would fail it
     assert energy_report(m, p, n_theta=256, n_phi=512).max_albedo[0] <= 1.0  # a resolving grid agrees with the bound
     assert energy_violations(m, p).tolist() == [False, True]
+
+
+@pytest.mark.parametrize("name, cfg", [("lafortune", {"lobes": 2}), ("cook-torrance", {"distribution": "ggx"}),
+                                       ("ward", {}), ("phong", {})])
+def test_half_grid_of_an_isotropic_model_gives_the_full_grid_albedo(name, cfg):
+    """``mirror``: an isotropic model with ω_i in the xz-plane integrates half the φ grid with doubled weights, the
+    same sum as the whole grid (its midpoints pair up across the plane), at random parameters and grazing ω_i."""
+    m = model(name, **cfg)
+    p = m.random_guess(np.random.default_rng(7), 16)
+    for theta in (0.0, 60.0, 85.0, 180.0 - 30.0):  # 150°: φ_i = π, the plane's other side
+        wi = sph(theta if theta <= 90 else 180.0 - theta, 0.0 if theta <= 90 else 180.0)
+        wi[1] = 0.0
+        full = directional_albedo(m, p, wi, 24, 48)
+        half = directional_albedo(m, p, wi, 24, 48, mirror=True)
+        np.testing.assert_allclose(half, full, rtol=1e-10, atol=1e-14)
+
+
+def test_an_anisotropic_model_is_integrated_on_the_whole_grid(monkeypatch):
+    """``energy_report`` takes the half grid only where the model says it is isotropic (an anisotropic model may
+    turn its lobes off the xz-plane, β), and for an isotropic one at φ_i = 0: checked on the calls it makes."""
+    import sbrdf_core.brdf_checks as checks
+
+    seen = []
+    real = checks.directional_albedo
+    monkeypatch.setattr(checks, "directional_albedo", lambda *a, **k: seen.append(a[-1]) or real(*a, **k))
+    p = lafortune_lobe((-1.0, -0.5, 1.0), [20.0], [[0.5, 0.5, 0.5]])
+    energy_report(model("lafortune", lobes=1, anisotropic=True), p, n_theta=8, n_phi=16)
+    assert seen and not any(seen)
+    seen.clear()
+    energy_report(model("lafortune", lobes=1), {k.replace("c_x_1", "c_xy_1"): v for k, v in p.items()
+                                                 if k != "c_y_1"}, n_theta=8, n_phi=16, incident_phis=(0.0,))
+    assert seen and all(seen)
