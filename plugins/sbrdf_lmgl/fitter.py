@@ -198,7 +198,8 @@ class GLLevenbergMarquardtFitter:
             best = keep_better(best, *descend(x0), 1e-6)  # float32 costs: a coarser margin than lm's
         assert best is not None
         if project is None or in_shader:
-            best = rescue(form, best, f_r, valid, wi, wo, base, self.seed, free, limits, descend, 1e-6)
+            best = rescue(form, best, f_r, valid, wi, wo, base, self.seed, free, limits, descend, 1e-6,
+                          (self.iterations, self.tolerance, self.damping))
         x, cost, converged, restarted = best
         if project is not None and self.loss == "linear" and not in_shader:
             # A model without glsl_fit_constrain: texels whose fit left their limits get lm's constrained fit
