@@ -100,6 +100,8 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     ``mirror``: the integrand is symmetric under φ_o → −φ_o (an isotropic
     model, ω_i in the xz-plane), so half the φ grid with doubled weights gives
     the same sum (its midpoints pair up across the plane: n_phi even); half the work.
+    A model with ``albedo_quadrature`` (Lafortune: a compiled loop) sums the
+    grid itself; the others are evaluated on it with ``eval``.
     """
     T = _texels(model, params)
     wi = np.broadcast_to(np.asarray(wi, dtype=np.float64), (T, 3))
@@ -107,6 +109,9 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     if mirror and n_phi % 2 == 0:
         half = (np.arange(n_theta * n_phi) % n_phi) < n_phi // 2  # φ in (0, π): rows are θ, n_phi φ each
         dirs, weights = dirs[half], 2.0 * weights[half]
+    compiled = optional(model, "albedo_quadrature", "brdf-model")
+    if compiled is not None:
+        return np.asarray(compiled(params, np.ascontiguousarray(wi), dirs, weights), np.float64)
     out = np.zeros((T, 3))
     step = max(1, CHUNK // max(T, 1))
     for start in range(0, len(dirs), step):

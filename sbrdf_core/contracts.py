@@ -295,6 +295,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
     "brdf-model": {
         "anisotropic": OptionalMember("`anisotropic`: the model needs a tangent frame.", True),
         "two_sided": OptionalMember("`two_sided`: the model also shades the back face (transmission).", False),
+        "albedo_quadrature": OptionalMember("`albedo_quadrature(params, wi, dirs, weights) -> (T, C)`: Σ_o w_o f_r(ω_i, "
+                                            "ω_o) over a quadrature's directions for one ω_i per texel, compiled; "
+                                            "the energy bound's integral (`directional_albedo`) without `eval` on "
+                                            "the whole grid.", None),
         "albedo_bound": OptionalMember("`albedo_bound(params)`: a cheap upper bound of directional albedo, so only "
                                  "texels it does not clear are integrated.", None),
         "gl_textures": OptionalMember("`gl_textures() -> {uniform: array}`: textures the model's GLSL samples (a "

@@ -160,6 +160,36 @@ class LafortuneModel(BRDFModel):
             f += lobe["rho_s"][:, None, :] * positive_power(x, lobe["exponent"][:, :1])[..., None]
         return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
 
+    def albedo_quadrature(self, params, wi, dirs, weights):
+        """``Σ_o w_o f_r(ω_i, ω_o)`` per texel and channel, ``(T, C)``, for one ``wi`` per texel ``(T, 3)``: what the
+        energy bound integrates, compiled.  Seen from a fixed ω_i a lobe is C·(ω_i ⊙ ω_o) = a·ω_o with
+        a = (C ⊙ ω_i) (in the β frame), a cosine lobe about a: its sum over the quadrature is a compiled loop
+        (``lafortune_kernels.lobe_quadrature``), the diffuse term ρ_d Σ w_o."""
+        from .lafortune_kernels import lobe_quadrature
+
+        wi = np.asarray(wi, np.float64)
+        T = wi.shape[0]
+        ix, iy, iz = wi[:, 0], wi[:, 1], wi[:, 2]
+        c = s = None
+        if self.has_beta:
+            b = np.asarray(params["beta"], np.float64)[:, 0]
+            c, s = np.cos(b), np.sin(b)
+            ix, iy = c * wi[:, 0] + s * wi[:, 1], -s * wi[:, 0] + c * wi[:, 1]
+        lobes = self.lobe_list(params)
+        a = np.empty((T, len(lobes), 3))
+        n = np.empty((T, len(lobes)))
+        for j, lobe in enumerate(lobes):
+            ax, ay = np.asarray(lobe["c_x"], np.float64)[:, 0] * ix, np.asarray(lobe["c_y"], np.float64)[:, 0] * iy
+            if self.has_beta:  # back from the β frame: ω'_o = R(β) ω_o, so a·ω'_o = (R(β)ᵀ a)·ω_o
+                ax, ay = c * ax - s * ay, s * ax + c * ay
+            a[:, j] = np.stack([ax, ay, np.asarray(lobe["c_z"], np.float64)[:, 0] * iz], axis=-1)
+            n[:, j] = np.asarray(lobe["exponent"], np.float64)[:, 0]
+        sums = lobe_quadrature(a, n, np.ascontiguousarray(dirs, np.float64), np.ascontiguousarray(weights, np.float64))
+        out = np.asarray(params["rho_d"], np.float64) * float(np.sum(weights))
+        for j, lobe in enumerate(lobes):
+            out = out + np.asarray(lobe["rho_s"], np.float64) * sums[:, j:j + 1]
+        return np.where((iz > 0)[:, None] & (np.asarray(dirs)[:, 2] > 0).all(), out, 0.0)
+
     def jacobian(self, params, wi, wo):
         return self._jacobian(params, wi, wo, fit_form=False)
 

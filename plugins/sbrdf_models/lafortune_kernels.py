@@ -389,6 +389,41 @@ def normal_equations_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
     return A, g, cost
 
 
+@njit(parallel=True, cache=True, error_model="numpy")
+def lobe_quadrature(a, n, dirs, weights):
+    """``Σ_o w_o max(0, a_j·ω_o)^n_j`` per texel and lobe, ``(T, L)``: each lobe seen from one ω_i is a cosine
+    lobe about the vector ``a`` (``LafortuneModel.albedo_quadrature``), summed over a quadrature's directions
+    ``(N, 3)`` in SIMD lanes (:func:`simd_log`, :func:`simd_exp`); exponents capped at e^LOG_CAP as
+    ``positive_power``."""
+    T, L = n.shape
+    N = dirs.shape[0]
+    out = np.zeros((T, L))
+    dx, dy, dz = dirs[:, 0].copy(), dirs[:, 1].copy(), dirs[:, 2].copy()
+    for t in prange(T):
+        x_, lx, y, v = np.ones(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK)
+        scratch, expo = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK, np.int64)
+        for j in range(L):
+            ax, ay, az, nj = a[t, j, 0], a[t, j, 1], a[t, j, 2], n[t, j]
+            acc = 0.0
+            for s0 in range(0, N, SAMPLE_BLOCK):
+                nb = min(SAMPLE_BLOCK, N - s0)
+                for k in range(nb):
+                    xk = ax * dx[s0 + k] + ay * dy[s0 + k] + az * dz[s0 + k]
+                    x_[k] = xk if xk > 1e-300 else 1.0
+                simd_log(x_, lx, scratch, expo, nb)
+                for k in range(nb):
+                    yk = nj * lx[k]
+                    y[k] = yk if yk < LOG_CAP else LOG_CAP
+                simd_exp(y, v, scratch, expo, nb)
+                part = 0.0
+                for k in range(nb):
+                    xk = ax * dx[s0 + k] + ay * dy[s0 + k] + az * dz[s0 + k]
+                    part += weights[s0 + k] * (v[k] if xk > 1e-300 else 0.0)
+                acc += part
+            out[t, j] = acc
+    return out
+
+
 @njit(parallel=True, cache=True)
 def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     """Starting point: for each texel, the lobe-1 exponent from ``log_exponents`` with the smallest cost.

@@ -171,3 +171,22 @@ def test_an_anisotropic_model_is_integrated_on_the_whole_grid(monkeypatch):
     energy_report(model("lafortune", lobes=1), {k.replace("c_x_1", "c_xy_1"): v for k, v in p.items()
                                                  if k != "c_y_1"}, n_theta=8, n_phi=16, incident_phis=(0.0,))
     assert seen and all(seen)
+
+
+@pytest.mark.parametrize("cfg", [{"lobes": 2}, {"lobes": 1, "anisotropic": True, "beta": True}, {"lobes": 0}])
+def test_lafortune_compiled_albedo_equals_its_eval_on_the_grid(cfg, monkeypatch):
+    """``albedo_quadrature`` (a lobe seen from ω_i is a cosine lobe about C ⊙ ω_i, summed in a compiled loop) gives
+    the quadrature sum of ``eval`` on the grid, at random parameters, exponents up to 10⁴, β, grazing ω_i."""
+    import sbrdf_models.lafortune as lafortune
+
+    m = model("lafortune", **cfg)
+    p = m.random_guess(np.random.default_rng(3), 24)
+    for j in range(1, cfg["lobes"] + 1):
+        p[f"exponent_{j}"][:4] = [[1e4], [0.5], [300.0], [2.0]]
+    for theta, phi in ((0.0, 0.0), (40.0, 30.0), (85.0, 200.0), (89.9, 90.0)):
+        wi = sph(theta, phi)
+        fast = directional_albedo(m, p, wi, 24, 48)
+        with monkeypatch.context() as mp:
+            mp.delattr(lafortune.LafortuneModel, "albedo_quadrature")
+            slow = directional_albedo(m, p, wi, 24, 48)
+        np.testing.assert_allclose(fast, slow, rtol=1e-10, atol=1e-13)
