@@ -486,12 +486,17 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
                 for i in range(1, lobes):
                     G1[j, i] += sv[m, j] * sv[m, i]
             m += 1
+        y, ev, scratch, expo = np.empty(S), np.empty(S), np.empty(S), np.empty(S, np.int64)
         for q in range(log_exponents.size):
             n0 = math.exp(log_exponents[q])
             G = G1.copy()
             h = h1.copy()
+            for k in range(m):  # the candidate's lobe at every sample: the exps in SIMD lanes, the sums in order
+                yk = n0 * log_dot[k]
+                y[k] = yk if yk < LOG_CAP else LOG_CAP
+            simd_exp(y, ev, scratch, expo, m)
             for k in range(m):
-                s0 = math.exp(min(n0 * log_dot[k], LOG_CAP)) * wt[k] if lit[k] else 0.0
+                s0 = ev[k] * wt[k] if lit[k] else 0.0
                 for c in range(C):
                     h[0, c] += s0 * r[k, c]
                 G[0, 0] += s0 * s0
