@@ -509,7 +509,12 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
     expected = tuple(s.stop - s.start for s in region)
     if block.shape != expected:
         raise ArtifactError(f"{url}/{name}: chunk {index} has shape {block.shape}, expected {expected}")
-    data = np.ascontiguousarray(block.astype(arr.dtype, copy=False))
+    # No contiguous copy of a strided block (radiance is a view of Register's packed (k, V, U, 4)
+    # block, f_r of Reflectance's tile): zarr copies it chunk by chunk as it encodes, and
+    # chunk_crc reads it a slice at a time.  A whole copy (24 MiB a pose block), and the crc's
+    # bytes copy of it, were each the size of the block again in every writing thread, and
+    # such block-sized temporaries are what glibc's arenas kept as freed memory (sbrdf_core.memory).
+    data = block.astype(arr.dtype, copy=False)
     arr[region] = data
     marker = _open_cached(url, _marker_name(name), token)
     marker[tuple(index) or (0,)] = chunk_crc(data)
@@ -517,10 +522,20 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
 
 
 def chunk_crc(data: np.ndarray) -> int:
-    """crc32c of a chunk's values (C order), as its done marker keeps it."""
+    """crc32c of a chunk's values (C order), as its done marker keeps it.
+
+    Read in place when contiguous, else one slice of the first axis at a time
+    (crc32c extends over concatenated bytes: the same value), never as a whole copy.
+    """
     import google_crc32c
 
-    return int(google_crc32c.value(np.ascontiguousarray(data).tobytes()))
+    data = np.asarray(data)
+    if data.ndim == 0 or data.flags.c_contiguous:
+        return int(google_crc32c.value(np.ascontiguousarray(data).reshape(-1).view(np.uint8)))
+    crc = 0
+    for part in data:
+        crc = google_crc32c.extend(crc, np.ascontiguousarray(part).reshape(-1).view(np.uint8))
+    return int(crc)
 
 
 def _open_cached(url: str, name: str, token: str) -> zarr.Array:

@@ -80,3 +80,38 @@ def test_texel_tile_keeps_all_poses_of_a_tile_in_one_chunk(poses, expected):
     assert texel_tile((20, 24), poses) <= 24
     # the chunk, and a worker's memory for it, stays bounded however many poses
     assert expected**2 * poses * 4 * 4 <= 16 * 2**20
+
+
+def test_a_strided_block_is_written_without_a_copy_of_it(tmp_path):
+    """Register writes radiance as a view of its packed (k, V, U, 4) block, Reflectance f_r
+    of its tile: a whole contiguous copy (and the crc's bytes of it) cost the block's size
+    again in every writing thread.  The values, shards and crc are those of the copy."""
+    import tracemalloc
+
+    import zarr
+
+    from sbrdf_core.store import chunk_crc
+
+    url = str(tmp_path / "a")
+    k, V, U = 16, 128, 128
+    lay = {"radiance": ArrayLayout((2 * k, V, U, 3), (k, V, U, 3), "float32", float("nan"), inner=(k, 16, 16, 3))}
+    ArtifactWriter(url, ParamMaps, "t").prepare(lay, {})
+    packed = np.zeros((k, V, U, 4), np.float32)  # zeros: zarr's own encoded buffers stay small
+    view = packed[..., :3]
+    region = (slice(0, k), slice(0, V), slice(0, U), slice(0, 3))
+    write_chunk(view, url, "radiance", "t", (0, 0, 0, 0), region)  # arrays opened and cached
+    tracemalloc.start()
+    try:
+        write_chunk(view, url, "radiance", "t", (0, 0, 0, 0), region)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < view.nbytes / 2, f"{peak} bytes traced writing a {view.nbytes}-byte block"
+    packed[..., :3] = np.random.default_rng(0).random((k, V, U, 3), dtype=np.float32)
+    write_chunk(view, url, "radiance", "t", (1, 0, 0, 0), (slice(k, 2 * k),) + region[1:])
+    z = zarr.open_group(url, mode="r")
+    np.testing.assert_array_equal(z["radiance"][k:], view)
+    crc = int(z[f"{MARKERS}/radiance"][1, 0, 0, 0])
+    import google_crc32c
+
+    assert crc == chunk_crc(view) == int(google_crc32c.value(np.ascontiguousarray(view).tobytes()))
