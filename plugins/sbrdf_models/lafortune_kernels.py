@@ -269,6 +269,34 @@ def _gram_block(Bw, Rw, nb, G, H):
             H[i, c] += acc
 
 
+@njit(cache=True, error_model="numpy")
+def _lobe_rows(cj, nj, P, Z, W, nb, dot, lx, y, sv, scratch, expo, bs, bc, bn, derivatives):
+    """One isotropic lobe (C_xy ``cj``, n ``nj``) over a block of ``nb`` samples: ``sv`` = max(0, x)^n with
+    x = C_xy·pxy + pzz (0 where x ≤ 0), and the weighted basis rows s·w, ∂s/∂C_xy·w = n s pxy / x·w and
+    ∂s/∂log n·w = n s log x·w (zeros without ``derivatives``).  s = exp(n log x): the log is reused for both
+    derivatives; log and exp in SIMD lanes (:func:`simd_log`, :func:`simd_exp`)."""
+    for k in range(nb):
+        xk = cj * P[k] + Z[k]
+        dot[k] = xk if xk > 1e-300 else 1.0
+    simd_log(dot, lx, scratch, expo, nb)
+    for k in range(nb):
+        yk = nj * lx[k]
+        y[k] = yk if yk < LOG_CAP else LOG_CAP
+    simd_exp(y, sv, scratch, expo, nb)
+    for k in range(nb):
+        lit = cj * P[k] + Z[k] > 1e-300
+        s_ = sv[k] if lit else 0.0
+        sv[k] = s_
+        wk = W[k]
+        bs[k] = s_ * wk
+        if derivatives:
+            bc[k] = nj * s_ * P[k] / dot[k] * wk
+            bn[k] = nj * s_ * (lx[k] if lit else 0.0) * wk
+        else:
+            bc[k] = 0.0
+            bn[k] = 0.0
+
+
 @njit(cache=True, inline="always")
 def _assemble_isotropic(x, t, G, H, lobes, C, K, basis_of, coef, A, g):
     """``JᵀJ[p, r] = G[b(p), b(r)] Σ_c a_c(p) a_c(r)``, ``Jᵀr[p] = Σ_c a_c(p) H[b(p), c]``: parameter p's Jacobian
@@ -349,27 +377,10 @@ def normal_equations_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
                     fc, rc, rd = f_t[d, c, s0:s0 + nb], Rw[c], x[t, c]
                     for k in range(nb):
                         rc[k] = rd - fc[k]
-                for j in range(lobes):  # as _basis: s = exp(n log x), the log reused for both derivatives
-                    cj, nj = cx[j], n[j]
-                    for k in range(nb):
-                        dk = cj * P[k] + Z[k]
-                        dot[k] = dk if dk > 1e-300 else 1.0
-                    simd_log(dot, lx, scratch, expo, nb)
-                    for k in range(nb):
-                        yk = nj * lx[k]
-                        y[k] = yk if yk < LOG_CAP else LOG_CAP
-                    simd_exp(y, sv, scratch, expo, nb)
+                for j in range(lobes):
                     q = 1 + lobes + 2 * j
-                    bs, bc, bn = Bw[1 + j], Bw[q], Bw[q + 1]
-                    for k in range(nb):
-                        lit = cj * P[k] + Z[k] > 1e-300
-                        s_ = sv[k] if lit else 0.0
-                        l_ = lx[k] if lit else 0.0
-                        sv[k] = s_
-                        wk = W[k]
-                        bs[k] = s_ * wk
-                        bc[k] = nj * s_ / dot[k] * P[k] * wk
-                        bn[k] = s_ * l_ * nj * wk
+                    _lobe_rows(cx[j], n[j], P, Z, W, nb, dot, lx, y, sv, scratch, expo, Bw[1 + j], Bw[q], Bw[q + 1],
+                               True)
                     for c in range(C):
                         rc, rj = Rw[c], rho[j, c]
                         for k in range(nb):
@@ -717,29 +728,8 @@ def _gram(pxy, pz, ws, S, lobes, c, n, f, d, G, H, derivatives):
             for k in range(nb):
                 fc[k] = f[d, s0 + k, ch] * W[k]
         for j in range(lobes):
-            cj, nj = c[j], n[j]
-            for k in range(nb):
-                xk = cj * P[k] + Z[k]
-                x_[k] = xk if xk > 1e-300 else 1.0
-            simd_log(x_, lx, scratch, expo, nb)
-            for k in range(nb):
-                yk = nj * lx[k]
-                y[k] = yk if yk < LOG_CAP else LOG_CAP
-            simd_exp(y, v, scratch, expo, nb)
-            bs = Bw[1 + j]
             q = 1 + lobes + 2 * j
-            bc, bn = Bw[q], Bw[q + 1]
-            for k in range(nb):
-                lit = cj * P[k] + Z[k] > 1e-300
-                vk = v[k] if lit else 0.0
-                wk = W[k]
-                bs[k] = vk * wk
-                if derivatives:
-                    bc[k] = nj * vk * P[k] / x_[k] * wk
-                    bn[k] = nj * vk * (lx[k] if lit else 0.0) * wk
-                else:
-                    bc[k] = 0.0
-                    bn[k] = 0.0
+            _lobe_rows(c[j], n[j], P, Z, W, nb, x_, lx, y, v, scratch, expo, Bw[1 + j], Bw[q], Bw[q + 1], derivatives)
         _gram_block(Bw, Fw, nb, G, H)
     for i in range(m):
         for k in range(i):
