@@ -59,8 +59,8 @@ class LevenbergMarquardtFitter:
         WEIGHTING,
         START,
         Param("variable_projection", "bool", False, "fit 1-2 isotropic Lafortune lobes by variable projection "
-              "(magnitudes in closed form inside the LM; with starts 1, linear loss, absolute weighting): 2-4x "
-              "faster, but measured a higher error at unseen directions (benchmarks/fidelity.py, 2 lobes: median 0.204 against 0.153)"),
+              "(magnitudes in closed form inside the LM; with starts 1, linear loss, absolute weighting): "
+              "1.3-1.4x faster (benchmarks/fit.py), but measured a higher error at unseen directions (benchmarks/fidelity.py, 2 lobes: median 0.204 against 0.153)"),
     )
 
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
