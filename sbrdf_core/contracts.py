@@ -306,8 +306,9 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
         "suggested_starts": OptionalMember("`suggested_starts`: how many starts a multi-start fit should use.", 2),
         "fit_trapped": OptionalMember("`fit_trapped(x) -> (T,) bool` (on the fit form): packed fit-form rows where LM is "
                                       "known to stall (a lobe with no magnitude gets no gradient in its shape); `lm` "
-                                      "and `lm-gl` fit them again from the best multi-start candidates and keep the "
-                                      "lower cost (`sbrdf_lib.lm.rescue`).", None),
+                                      "and `lm-gl` fit them again (from the form's variable-projection fit where it "
+                                      "has one, else from the best multi-start candidates) and keep the lower cost "
+                                      "(`sbrdf_lib.lm.rescue`).", None),
         "fit_outlier_ratio": OptionalMember("`fit_outlier_ratio` (on the fit form): a texel whose cost per valid sample "
                                             "is over this multiple of its tile's median is fitted again as a "
                                             "`fit_trapped` one (LM stalls without a dead lobe to show for it: two "

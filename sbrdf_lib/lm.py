@@ -479,36 +479,31 @@ def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, 
     rows = np.flatnonzero(flagged)
     if rows.size == 0:
         return best
+    sub_project = projector(form, None if limits is None else limits.take(rows))
+    sub = [v[rows].copy() for v in best]
+    start = None
     if free.all():
         # One LM run from the form's variable-projection fit, which moves only the shapes (a lobe cannot take
         # over another's role on the way) and re-seeds a dead lobe: on benchmarks/fit.py's data it left fewer
         # texels above the noise than the multi-start below (1 against 3 of 4096) in 15 % less time per texel.
         start = separable_start(form, f_r[rows], valid[rows], wi[rows], wo[rows],
                                 None if limits is None else limits.take(rows), *solver)
-        if start is not None:
-            x0 = np.clip(form.pack(start), *form.bounds())
-            sub_project = projector(form, None if limits is None else limits.take(rows))
-            if sub_project is not None:
-                x0 = sub_project(x0, np.arange(rows.size))
-            sub = [v[rows].copy() for v in best]
-            keep_better(sub, *descend(x0, rows), margin)
-            logger.debug("%s: %d trapped texels fitted again from the separable fit, %d improved", form.name,
-                         rows.size, int((sub[1] < best[1][rows]).sum()))
-            for v, part in zip(best, sub):
-                v[rows] = part
-            return best
-    sub_project = projector(form, None if limits is None else limits.take(rows))
-    objective = form.least_squares(f_r[rows], weight[rows], wi[rows], wo[rows])
-    starts = starting_points(form, objective, f_r[rows], valid[rows], wi[rows], wo[rows], RESCUE_STARTS, seed,
-                             form.unpack(best[0][rows]), free, sub_project)
-    # All starts in one LM run (each texel repeated per start): its cost is per iteration, not per texel.
-    x, cost, converged = descend(np.concatenate(starts), np.tile(rows, len(starts)))
-    sub = [v[rows].copy() for v in best]
-    for k in range(len(starts)):
-        part = slice(k * rows.size, (k + 1) * rows.size)
-        keep_better(sub, x[part], cost[part], converged[part], margin)
-    logger.debug("%s: %d trapped texels fitted again, %d improved", form.name, rows.size,
-                 int((sub[1] < best[1][rows]).sum()))
+    if start is not None:
+        x0 = np.clip(form.pack(start), *form.bounds())
+        if sub_project is not None:
+            x0 = sub_project(x0, np.arange(rows.size))
+        keep_better(sub, *descend(x0, rows), margin)
+    else:
+        objective = form.least_squares(f_r[rows], weight[rows], wi[rows], wo[rows])
+        starts = starting_points(form, objective, f_r[rows], valid[rows], wi[rows], wo[rows], RESCUE_STARTS, seed,
+                                 form.unpack(best[0][rows]), free, sub_project)
+        # All starts in one LM run (each texel repeated per start): its cost is per iteration, not per texel.
+        x, cost, converged = descend(np.concatenate(starts), np.tile(rows, len(starts)))
+        for k in range(len(starts)):
+            part = slice(k * rows.size, (k + 1) * rows.size)
+            keep_better(sub, x[part], cost[part], converged[part], margin)
+    logger.debug("%s: %d trapped texels fitted again (%s), %d improved", form.name, rows.size,
+                 "separable start" if start is not None else "multi-start", int((sub[1] < best[1][rows]).sum()))
     for v, part in zip(best, sub):
         v[rows] = part
     return best

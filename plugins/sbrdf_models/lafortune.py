@@ -184,11 +184,13 @@ class LafortuneModel(BRDFModel):
                 ax, ay = c * ax - s * ay, s * ax + c * ay
             a[:, j] = np.stack([ax, ay, np.asarray(lobe["c_z"], np.float64)[:, 0] * iz], axis=-1)
             n[:, j] = np.asarray(lobe["exponent"], np.float64)[:, 0]
-        sums = lobe_quadrature(a, n, np.ascontiguousarray(dirs, np.float64), np.ascontiguousarray(weights, np.float64))
+        up = np.asarray(dirs)[:, 2] > 0  # eval's horizon: directions below it add nothing
+        dirs, weights = np.asarray(dirs, np.float64)[up], np.asarray(weights, np.float64)[up]
+        sums = lobe_quadrature(a, n, np.ascontiguousarray(dirs), np.ascontiguousarray(weights))
         out = np.asarray(params["rho_d"], np.float64) * float(np.sum(weights))
         for j, lobe in enumerate(lobes):
             out = out + np.asarray(lobe["rho_s"], np.float64) * sums[:, j:j + 1]
-        return np.where((iz > 0)[:, None] & (np.asarray(dirs)[:, 2] > 0).all(), out, 0.0)
+        return np.where((iz > 0)[:, None], out, 0.0)
 
     def jacobian(self, params, wi, wo):
         return self._jacobian(params, wi, wo, fit_form=False)

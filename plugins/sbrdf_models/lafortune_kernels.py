@@ -413,23 +413,20 @@ def lobe_quadrature(a, n, dirs, weights):
     for t in prange(T):
         x_, lx, y, v = np.ones(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK)
         scratch, expo = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK, np.int64)
+        dots, zero, rows = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros((3, SAMPLE_BLOCK))
         for j in range(L):
-            ax, ay, az, nj = a[t, j, 0], a[t, j, 1], a[t, j, 2], n[t, j]
+            ax, ay, az = a[t, j, 0], a[t, j, 1], a[t, j, 2]
             acc = 0.0
             for s0 in range(0, N, SAMPLE_BLOCK):
                 nb = min(SAMPLE_BLOCK, N - s0)
                 for k in range(nb):
-                    xk = ax * dx[s0 + k] + ay * dy[s0 + k] + az * dz[s0 + k]
-                    x_[k] = xk if xk > 1e-300 else 1.0
-                simd_log(x_, lx, scratch, expo, nb)
-                for k in range(nb):
-                    yk = nj * lx[k]
-                    y[k] = yk if yk < LOG_CAP else LOG_CAP
-                simd_exp(y, v, scratch, expo, nb)
+                    dots[k] = ax * dx[s0 + k] + ay * dy[s0 + k] + az * dz[s0 + k]
+                # a·ω_o as a lobe with C_xy = 1 on pxy = a·ω_o, pzz = 0: rows[0] = w_o max(0, a·ω_o)^n
+                _lobe_rows(1.0, n[t, j], dots, zero, weights[s0:s0 + nb], nb, x_, lx, y, v, scratch, expo, rows[0],
+                           rows[1], rows[2], False)
                 part = 0.0
                 for k in range(nb):
-                    xk = ax * dx[s0 + k] + ay * dy[s0 + k] + az * dz[s0 + k]
-                    part += weights[s0 + k] * (v[k] if xk > 1e-300 else 0.0)
+                    part += rows[0, k]
                 acc += part
             out[t, j] = acc
     return out
