@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["read_direct"]
+__all__ = ["read_direct", "write_direct"]
 
 #: An empty inner chunk's (offset, nbytes) in a shard index (zarr v3 sharding spec).
 _MISSING = 2**64 - 1
@@ -40,7 +40,8 @@ class _Layout:
     chunk: tuple[int, ...]  # the chunk read as a unit (a shard's inner chunk when sharded)
     per_shard: tuple[int, ...] | None  # inner chunks per shard along each axis; None: not sharded
     dtype: np.dtype
-    blosc: bool
+    blosc: dict | None  # numcodecs Blosc's configuration, as zarr's codec makes it; None: no compressor
+    fill_value: object
 
 
 def _layout(z) -> _Layout | None:
@@ -72,13 +73,18 @@ def _layout(z) -> _Layout | None:
     kinds = [type(c) for c in codecs]
     if kinds not in ([BytesCodec, BloscCodec, Crc32cCodec], [BytesCodec, Crc32cCodec]):
         return None
+    blosc = None
+    if BloscCodec in kinds:
+        b = codecs[1]
+        blosc = {"cname": b.cname.name, "clevel": b.clevel, "blocksize": b.blocksize, "typesize": b.typesize,
+                 "shuffle": {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}[b.shuffle.name]}
     dtype = np.dtype(z.dtype)
     if dtype.kind not in "biuf" or (dtype.itemsize > 1 and codecs[0].endian is not None
                                     and codecs[0].endian.value != "little"):
         return None
     root = os.path.join(str(z.store.root), z.store_path.path) if z.store_path.path else str(z.store.root)
     return _Layout(root, meta.chunk_key_encoding.separator, tuple(z.shape), chunk, per_shard,
-                   dtype.newbyteorder("<"), BloscCodec in kinds)
+                   dtype.newbyteorder("<"), blosc, meta.fill_value)
 
 
 def _ranges(sel, shape: tuple[int, ...]) -> tuple[list[tuple[int, int]], list[int]] | None:
@@ -135,7 +141,7 @@ def read_direct(z, sel) -> np.ndarray | None:
         key = tuple(c // p for c, p in zip(ci, lay.per_shard)) if lay.per_shard else ci
         files.setdefault(key, []).append(ci)
     for key, chunks in files.items():
-        path = os.path.join(lay.root, "c" + lay.separator + lay.separator.join(map(str, key)))
+        path = _path(lay, key)
         try:
             fd = os.open(path, os.O_RDONLY)
         except OSError:
@@ -146,6 +152,11 @@ def read_direct(z, sel) -> np.ndarray | None:
         finally:
             os.close(fd)
     return out.reshape([n for axis, n in enumerate(out.shape) if axis not in squeeze]) if squeeze else out
+
+
+def _path(lay: _Layout, key: tuple[int, ...]) -> str:
+    """The file of chunk (or shard) ``key``: ``c/0/1`` (the default key encoding)."""
+    return os.path.join(lay.root, "c" + lay.separator + lay.separator.join(map(str, key)))
 
 
 def _read_file(fd: int, lay: _Layout, chunks: list[tuple[int, ...]], ranges, out: np.ndarray) -> bool:
@@ -174,7 +185,7 @@ def _read_file(fd: int, lay: _Layout, chunks: list[tuple[int, ...]], ranges, out
         if not _crc_ok(data):
             return False
         try:
-            decoded = blosc.decompress(memoryview(data)[:-4]) if lay.blosc else memoryview(data)[:-4]
+            decoded = blosc.decompress(memoryview(data)[:-4]) if lay.blosc is not None else memoryview(data)[:-4]
         except Exception:
             return False
         if len(decoded) != nbytes_decoded:
@@ -186,4 +197,51 @@ def _read_file(fd: int, lay: _Layout, chunks: list[tuple[int, ...]], ranges, out
             src.append(slice(a - c * k, b - c * k))
             dst.append(slice(a - lo, b - lo))
         out[tuple(dst)] = block[tuple(src)]
+    return True
+
+
+def write_direct(z, region: tuple[slice, ...], data: np.ndarray) -> bool:
+    """Write ``data`` as the one whole chunk ``region`` of an unsharded array, as zarr would (the same
+    file bytes); ``False``, having written nothing, where zarr must write it.
+
+    zarr's write of one chunk (an event-loop round trip, a directory check and
+    buffer copies around the compressor) cost about as much as compressing it.
+    The file is written whole to a ``.partial`` name and renamed, as zarr does,
+    so a killed writer never leaves a torn chunk under the chunk's name.
+    """
+    import uuid
+
+    import google_crc32c
+    from numcodecs import Blosc
+
+    lay = _layout(z)
+    if lay is None or lay.per_shard is not None or len(region) != len(lay.shape):
+        return False
+    key = []
+    for s, c, n in zip(region, lay.chunk, lay.shape):
+        if s.start is None or s.start % c or s.stop != min(s.start + c, n) or s.step not in (None, 1):
+            return False
+        key.append(s.start // c)
+    data = np.asarray(data)
+    if data.shape != tuple(s.stop - s.start for s in region):
+        return False
+    if data.shape == lay.chunk:
+        chunk = np.ascontiguousarray(data, lay.dtype)
+    else:  # an edge chunk is stored whole, the fill value beyond the array (zarr v3)
+        chunk = np.full(lay.chunk, lay.fill_value, lay.dtype)
+        chunk[tuple(slice(0, n) for n in data.shape)] = data
+    payload = chunk.reshape(-1).view(np.uint8)
+    encoded = Blosc.from_config(dict(lay.blosc)).encode(payload) if lay.blosc is not None else payload.tobytes()
+    path = _path(lay, tuple(key))
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    partial = f"{path}.{uuid.uuid4().hex}.partial"
+    try:
+        with open(partial, "wb") as f:
+            f.write(encoded)
+            f.write(google_crc32c.value(encoded).to_bytes(4, "little"))
+        os.replace(partial, path)
+    except BaseException:
+        if os.path.exists(partial):
+            os.remove(partial)
+        raise
     return True

@@ -117,3 +117,38 @@ def test_other_stores_are_left_to_zarr():
                           compressors=_codecs())
     z[...] = 1.0
     assert read_direct(z, (slice(0, 2),)) is None
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(layout=layouts(), seed=st.integers(0, 2**16))
+def test_direct_writes_are_zarrs_bytes(layout, seed):
+    """Every chunk written by write_direct is the file zarr writes for it (edge chunks padded with the fill value)."""
+    from sbrdf_core.chunk_files import write_direct
+
+    shape, chunks, _, dtype = layout
+    with tempfile.TemporaryDirectory() as tmp:
+        want = _array(os.path.join(tmp, "zarr"), shape, chunks, dtype, seed=seed)
+        with zarr.config.set({"array.write_empty_chunks": True}):
+            z = zarr.create_array(store=os.path.join(tmp, "direct"), shape=shape, chunks=chunks, dtype=dtype,
+                                  fill_value=0, compressors=_codecs())
+        values = want[...]
+        for index in np.ndindex(*z.cdata_shape):
+            region = tuple(slice(i * c, min((i + 1) * c, n)) for i, c, n in zip(index, chunks, shape))
+            assert write_direct(z, region, values[region])
+        for index in np.ndindex(*z.cdata_shape):
+            rel = os.path.join("c", *map(str, index))
+            with open(os.path.join(tmp, "zarr", rel), "rb") as a, open(os.path.join(tmp, "direct", rel), "rb") as b:
+                assert a.read() == b.read(), rel
+        assert not [f for _, _, fs in os.walk(tmp) for f in fs if f.endswith(".partial")]
+
+
+def test_writes_zarr_must_make_are_refused(tmp_path):
+    from sbrdf_core.chunk_files import write_direct
+
+    s = _array(str(tmp_path / "s"), (8, 4), (4, 4), "float32", shards=(8, 4))
+    assert not write_direct(s, (slice(0, 8), slice(0, 4)), np.zeros((8, 4), np.float32))  # a shard
+    z = _array(str(tmp_path / "z"), (8, 4), (4, 4), "float32")
+    before = (tmp_path / "z" / "c" / "0" / "0").read_bytes()
+    assert not write_direct(z, (slice(0, 2), slice(0, 4)), np.zeros((2, 4), np.float32))  # part of a chunk
+    assert not write_direct(z, (slice(0, 4), slice(0, 4)), np.zeros((2, 4), np.float32))  # the wrong shape
+    assert (tmp_path / "z" / "c" / "0" / "0").read_bytes() == before
