@@ -184,19 +184,25 @@ def _read_file(fd: int, lay: _Layout, chunks: list[tuple[int, ...]], ranges, out
                 return False
         if not _crc_ok(data):
             return False
-        try:
-            decoded = blosc.decompress(memoryview(data)[:-4]) if lay.blosc is not None else memoryview(data)[:-4]
-        except Exception:
-            return False
-        if len(decoded) != nbytes_decoded:
-            return False
-        block = np.frombuffer(decoded, lay.dtype).reshape(lay.chunk)
         src, dst = [], []
         for c, k, n, (lo, hi) in zip(ci, lay.chunk, lay.shape, ranges):
             a, b = max(c * k, lo), min((c + 1) * k, hi, n)
             src.append(slice(a - c * k, b - c * k))
             dst.append(slice(a - lo, b - lo))
-        out[tuple(dst)] = block[tuple(src)]
+        target = out[tuple(dst)]
+        whole = target.shape == lay.chunk and target.flags.c_contiguous
+        try:
+            if lay.blosc is not None and whole:  # the usual case: decoded in place, no second copy
+                if int.from_bytes(data[4:8], "little") != nbytes_decoded:  # the blosc header's size
+                    return False
+                blosc.decompress(memoryview(data)[:-4], target)
+                continue
+            decoded = blosc.decompress(memoryview(data)[:-4]) if lay.blosc is not None else memoryview(data)[:-4]
+        except Exception:
+            return False
+        if len(decoded) != nbytes_decoded:
+            return False
+        target[...] = np.frombuffer(decoded, lay.dtype).reshape(lay.chunk)[tuple(src)]
     return True
 
 
