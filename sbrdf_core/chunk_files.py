@@ -1,4 +1,4 @@
-"""Chunk-aligned reads of stored arrays straight from their chunk files.
+"""Chunk-aligned reads and whole-chunk writes of stored arrays, straight from and to their chunk files.
 
 zarr-python reads one inner chunk of a shard with two opens of the shard file
 (its index, then the chunk), a round trip through its event-loop thread and
@@ -16,6 +16,9 @@ and blosc decodes.  Anything else (another store, codec or key encoding, an
 unaligned selection, a missing or damaged chunk) returns ``None``, and the
 caller reads through zarr, whose answer (fill values, a checksum error) stands.
 So this module decides only how fast a read is, never what it returns.
+:func:`write_direct` is the same for :func:`sbrdf_core.store.write_chunk`'s
+whole unsharded chunks and done markers: zarr's own file bytes, or ``False``
+and zarr writes them.
 """
 
 from __future__ import annotations
