@@ -57,7 +57,7 @@ def _layout(z) -> _Layout | None:
     if not hasattr(os, "pread") or not isinstance(getattr(z, "store", None), LocalStore) or z.metadata is None:
         return None
     meta = z.metadata
-    if meta.zarr_format != 3:
+    if meta.zarr_format != 3 or len(z.shape) == 0:  # a 0-d array's one chunk is the file "c": left to zarr
         return None
     if not isinstance(meta.chunk_key_encoding, DefaultChunkKeyEncoding):
         return None

@@ -152,3 +152,12 @@ def test_writes_zarr_must_make_are_refused(tmp_path):
     assert not write_direct(z, (slice(0, 2), slice(0, 4)), np.zeros((2, 4), np.float32))  # part of a chunk
     assert not write_direct(z, (slice(0, 4), slice(0, 4)), np.zeros((2, 4), np.float32))  # the wrong shape
     assert (tmp_path / "z" / "c" / "0" / "0").read_bytes() == before
+
+
+def test_zero_dimensional_arrays_are_left_to_zarr(tmp_path):
+    from sbrdf_core.chunk_files import write_direct
+
+    z = _array(str(tmp_path / "z"), (), (), "float32")
+    assert read_direct(z, ()) is None
+    assert not write_direct(z, (), np.float32(1.0))
+    assert not (tmp_path / "z" / "c").is_dir()
