@@ -38,6 +38,11 @@ store, and timed with ``time.perf_counter`` (wall clock):
     The small per-pose metadata arrays (light and camera positions, ...) are
     computed in memory instead of being stored.
 
+    The graph reads and writes whole chunks straight from and to their files
+    (``sbrdf_core.chunk_files``) where plain zarr, as here, goes through its
+    per-chunk machinery, so a ratio below 1 is the project's I/O being faster
+    than a user's zarr calls, not a runner costing nothing.
+
 Both variants must produce bit-identical ``f_r`` and ``valid`` (all tiles with
 ``--quick``, a sample of tiles at full size, all with ``--check-all``); the
 script exits with status 1 if they do not.
