@@ -117,10 +117,15 @@ def _ranges(sel, shape: tuple[int, ...]) -> tuple[list[tuple[int, int]], list[in
     return out, squeeze
 
 
-def _crc_ok(data: bytes) -> bool:
+def _crc32c(payload) -> bytes:
+    """The ``crc32c`` codec's suffix of ``payload``: its checksum, 4 bytes little-endian (zarr v3 spec)."""
     import google_crc32c
 
-    return len(data) >= 4 and google_crc32c.value(data[:-4]) == int.from_bytes(data[-4:], "little")
+    return google_crc32c.value(payload).to_bytes(4, "little")
+
+
+def _crc_ok(data: bytes) -> bool:
+    return len(data) >= 4 and _crc32c(data[:-4]) == data[-4:]
 
 
 def read_direct(z, sel) -> np.ndarray | None:
@@ -220,7 +225,6 @@ def write_direct(z, region: tuple[slice, ...], data: np.ndarray) -> bool:
     """
     import uuid
 
-    import google_crc32c
     from numcodecs import Blosc
 
     lay = _layout(z)
@@ -247,7 +251,7 @@ def write_direct(z, region: tuple[slice, ...], data: np.ndarray) -> bool:
     try:
         with open(partial, "wb") as f:
             f.write(encoded)
-            f.write(google_crc32c.value(encoded).to_bytes(4, "little"))
+            f.write(_crc32c(encoded))
         os.replace(partial, path)
     except BaseException:
         if os.path.exists(partial):

@@ -514,7 +514,8 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
     if block.shape != expected:
         raise ArtifactError(f"{url}/{name}: chunk {index} has shape {block.shape}, expected {expected}")
     # No contiguous copy of a strided block (radiance is a view of Register's packed (k, V, U, 4)
-    # block, f_r of Reflectance's tile): zarr copies it chunk by chunk as it encodes, and
+    # block, f_r of Reflectance's tile): zarr copies a shard chunk by chunk as it encodes,
+    # write_direct copies an unsharded block once (it is one chunk, as zarr's encoding did), and
     # chunk_crc reads it a slice at a time.  A whole copy (24 MiB a pose block), and the crc's
     # bytes copy of it, were each the size of the block again in every writing thread, and
     # such block-sized temporaries are what glibc's arenas kept as freed memory (sbrdf_core.memory).
