@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .brdf_checks import energy_azimuths, energy_report, uncleared
+from .channels import channel_max
 from .geometry import polar_direction
 
 #: A cosine lobe cos^n α falls to half its peak at α = √(2 ln 2 / n).
@@ -89,7 +90,7 @@ def sample_support(f_r: np.ndarray, valid: np.ndarray, weight: np.ndarray | None
     ``weight`` ``(T, S)``, ≥ 0, multiplies each sample first (cos θ_i cos θ_o for :attr:`Limits.peak_cosine`).
     """
     with np.errstate(invalid="ignore"):
-        f = np.where(np.isfinite(f_r), f_r, 0.0).max(axis=-1)  # channels first: one (T, S) array after this
+        f = channel_max(np.where(np.isfinite(f_r), f_r, 0.0))  # channels first: one (T, S) array after this
     if weight is not None:
         f *= weight  # weights are ≥ 0, so the channels' maximum times the weight is the weighted maximum
     return np.where(valid, f, 0.0).max(axis=1, initial=0.0)

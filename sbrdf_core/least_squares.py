@@ -5,7 +5,10 @@ below builds the normal equations from the model's NumPy ``eval`` and
 ``jacobian``: correct for every model, but it materialises ``(T, S, 3, K)``
 Jacobians.  A model with a compiled kernel (the built-in Lafortune model
 has one) returns its own problem object that accumulates ``JᵀJ`` and ``Jᵀr``
-sample by sample instead; fitters cannot tell the difference.
+sample by sample instead; fitters cannot tell the difference.  Such an object
+provides ``data_energy()`` and ``normal_equations(x, idx)``, and ``cost(x,
+idx)`` where it can give the cost alone for less (the solver falls back to
+``normal_equations`` without one).
 
 This is part of the model contract (what ``least_squares`` returns); the
 solver that consumes it is library code, :mod:`sbrdf_lib.lm`.
@@ -38,6 +41,11 @@ class LeastSquaresProblem:
         with np.errstate(all="ignore"):
             pred = m.eval(m.unpack(x), self.wi[idx], self.wo[idx])
         return ((pred - self.f_r[idx]) * self.weight[idx]).reshape(len(idx), -1)
+
+    def cost(self, x: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """``cost (n,)`` at ``x``, as :meth:`normal_equations` gives it, without the Jacobian."""
+        r = self.residual(x, idx)
+        return np.einsum("ti,ti->t", r, r)
 
     def normal_equations(self, x: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(JᵀJ (n, K, K), Jᵀr (n, K), cost (n,))`` at ``x``."""

@@ -43,6 +43,7 @@ import logging
 
 import numpy as np
 
+from sbrdf_core.channels import channel_mean
 from sbrdf_core.contracts import optional
 from sbrdf_core.nodes.fit import usable
 from sbrdf_core.params import Param
@@ -295,7 +296,7 @@ def sample_weights(f_r: np.ndarray, valid: np.ndarray, power: float, floor: floa
     if power == 0.0:
         return valid.astype(np.float64)
     valid = np.asarray(valid, bool)
-    y = np.abs(f_r).mean(axis=-1)
+    y = channel_mean(np.abs(f_r))
     level = valid_median(y, valid)
     with np.errstate(all="ignore"):
         w = np.where(valid, (np.where(valid, y, 0.0) + floor * level + 1e-12) ** -power, 0.0)
@@ -540,8 +541,11 @@ def keep_better(best, x, cost, converged, margin: float):
 
 
 def total_cost(problem, x) -> np.ndarray:
-    """Each texel's sum of squared (weighted) residuals at the fit-form points ``x``, ``(T,)``."""
-    return problem.normal_equations(x, np.arange(x.shape[0]))[2]
+    """Each texel's sum of squared (weighted) residuals at the fit-form points ``x``, ``(T,)``: the problem's
+    ``cost`` where it has one (no Jacobian), else its normal equations' cost."""
+    everyone = np.arange(x.shape[0])
+    cost = getattr(problem, "cost", None)
+    return cost(x, everyone) if cost is not None else problem.normal_equations(x, everyone)[2]
 
 
 def diffuse_percentile(f_r: np.ndarray, valid: np.ndarray, percentile: float) -> np.ndarray:

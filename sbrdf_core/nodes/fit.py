@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance
+from ..channels import all_finite
 from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbourhood_max, sample_support
 from ..geometry import tile_directions
 from ..params import Param
@@ -134,7 +135,7 @@ def usable(f_r: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     broken pixel, garbage from a saturated one) and weights of 0 do not stop
     NaN from propagating through ``0 · NaN``.
     """
-    valid = np.asarray(valid, bool) & np.isfinite(f_r).all(axis=-1)
+    valid = np.asarray(valid, bool) & all_finite(f_r)
     return np.where(valid[..., None], f_r, 0.0), valid
 
 
@@ -201,7 +202,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     T = wi.shape[0]
     f_r = f_r.reshape(T, -1, 3).astype(np.float64)
     valid = valid.reshape(T, -1)
-    finite = np.isfinite(f_r).all(axis=-1)
+    finite = all_finite(f_r)
     flags = np.where((valid & ~finite).any(axis=1), NONFINITE_INPUT, 0).astype(np.uint8)
     f_r, valid = usable(f_r, valid)
     min_samples = options.min_samples or model.size

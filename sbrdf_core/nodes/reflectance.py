@@ -24,6 +24,7 @@ import functools
 import numpy as np
 
 from ..artifacts import RegisteredStack, SampledReflectance
+from ..channels import all_finite
 from ..geometry import directions_to, texel_centres
 from ..params import Param
 from ..store import texel_tile
@@ -50,7 +51,7 @@ def reflectance_block(radiance: np.ndarray, valid: np.ndarray, light_pos: np.nda
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # finite as stored (float32): a sample beyond float32's range is invalid, not an inf marked valid
         f = (radiance * (r2 / (intensity * np.where(ok, cos_i, 1.0)))[..., None]).astype(np.float32)
-    ok &= np.isfinite(f).all(axis=-1)
+    ok &= all_finite(f)
     out = np.empty(radiance.shape[:3] + (4,), np.float32)
     out[..., :3] = np.where(ok[..., None], f, np.float32(0.0))
     out[..., 3] = ok

@@ -237,6 +237,9 @@ def test_compiled_normal_equations_match_numpy(lafortune, lobes, aniso, seed, ma
     fast = form.least_squares(f, w, wi, wo).normal_equations(x, idx)
     for a, b in zip(ref, fast):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))
+    # The cost alone is the normal equations' cost, to the bit (the same sums in the same order).
+    assert np.array_equal(form.least_squares(f, w, wi, wo).cost(x, idx), fast[2])
+    np.testing.assert_allclose(LeastSquaresProblem(form, f, w, wi, wo).cost(x, idx), ref[2], rtol=1e-12, atol=1e-300)
 
 
 @settings(max_examples=50, deadline=None)

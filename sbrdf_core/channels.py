@@ -1,0 +1,44 @@
+"""Reductions over the trailing colour axis (RGB), written as one elementwise operation per channel.
+
+Why: NumPy reduces a short last axis (length 3) one tiny row at a time, so
+``np.isfinite(f_r).all(axis=-1)`` over a Fit tile's ``(1024, 300, 3)`` samples
+took 5.3 ms where the same test channel by channel takes 0.9 ms, and
+``f_r.max(axis=-1)`` 11 ms against 0.7 ms (measured on this project's 2-core VM).
+The Fit node ran several such passes per tile.  The results are the same bits
+as the reductions they replace (a NaN's sign bit aside): the same operations in the same order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["all_finite", "channel_max", "channel_mean"]
+
+
+def all_finite(a: np.ndarray) -> np.ndarray:
+    """``np.isfinite(a).all(axis=-1)``: every channel of each sample finite."""
+    a = np.asarray(a)
+    if a.shape[-1] == 0:
+        return np.ones(a.shape[:-1], bool)
+    out = np.isfinite(a[..., 0])
+    for c in range(1, a.shape[-1]):
+        out &= np.isfinite(a[..., c])
+    return out
+
+
+def channel_max(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=-1)`` (NaN propagates, as there; its sign bit may differ)."""
+    a = np.asarray(a)
+    out = a[..., 0].copy()
+    for c in range(1, a.shape[-1]):
+        np.maximum(out, a[..., c], out=out)
+    return out
+
+
+def channel_mean(a: np.ndarray) -> np.ndarray:
+    """``a.mean(axis=-1)`` for a floating ``a``: the channels summed in order, then divided by their count."""
+    a = np.asarray(a)
+    out = a[..., 0] + 0.0  # a copy; and NumPy's sum of -0.0s is +0.0
+    for c in range(1, a.shape[-1]):
+        out += a[..., c]
+    return out / a.shape[-1]
