@@ -313,6 +313,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                             "is over this multiple of its tile's median is fitted again as a "
                                             "`fit_trapped` one (LM stalls without a dead lobe to show for it: two "
                                             "lobes on one feature); None: never.", None),
+        "constrain_packed": OptionalMember("`constrain_packed(x, limits) -> x` (on the fit form): `constrain` on packed "
+                                           "fit-form rows `(T, K)`, compiled; `lm` projects every trial point with "
+                                           "it. Without it: `constrain` on the unpacked parameters (about 0.5 ms a "
+                                           "call in NumPy, a tenth of a Lafortune Fit tile).", None),
         "glsl_fit_gradient": OptionalMember("`glsl_fit_gradient() -> str`: GLSL (4.3) defining `vec3 brdf_fit_gradient(vec3 "
                                             "wi, vec3 wo, float x[K], out vec3 grad[K])`, the value and ∂f/∂x at the "
                                             "packed fit-form parameters x (K = `fit_form().size`), for the GPU fitter "

@@ -164,11 +164,15 @@ def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx
 
 
 def projector(form, limits):
-    """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows through ``form.constrain``."""
+    """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows through ``form.constrain``, or the form's
+    compiled ``constrain_packed`` where it has one."""
     if limits is None:
         return None
+    packed = optional(form, "constrain_packed", "brdf-model")
 
     def project(x, idx):
+        if packed is not None:
+            return packed(x, limits.take(idx))
         params, _ = form.constrain(form.unpack(x), limits.take(idx))
         return form.pack(params)
 

@@ -529,6 +529,7 @@ class LafortuneFitForm(LafortuneModel):
         self.model = model
         self.parameters = self._declare(fit_form=True)
         self.fit_outlier_ratio = OUTLIER_RATIO if self.lobes >= 2 else None
+        self._layout: tuple | None = None  # constrain_packed's bounds and offsets, made on first use
 
     def lobe_list(self, params):
         out = []
@@ -656,6 +657,31 @@ class LafortuneFitForm(LafortuneModel):
 
     def refine_linear(self, params, f_r, valid, wi, wo):
         return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)
+
+    def constrain_packed(self, x, limits):
+        """:meth:`constrain` on packed rows ``x`` ``(T, K)``, compiled (``lafortune_kernels.constrain_packed``): what
+        LM projects every trial point with.  Falls back to :meth:`constrain` where the horizon bound is 0° (the
+        NumPy path's division by sin² θ = 0 is not reproduced)."""
+        s2, c2 = float(np.sin(limits.max_theta) ** 2), float(np.cos(limits.max_theta) ** 2)
+        if s2 == 0.0 or not self.lobes:
+            return self.pack(self.constrain(self.unpack(x), limits)[0])
+        from .lafortune_kernels import constrain_packed
+
+        T = x.shape[0]
+        if self._layout is None:  # the packed bounds and offsets, once per form
+            sl, lobes = self.slices(), range(1, self.lobes + 1)
+            names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
+            self._layout = (*self.bounds(), *map(float, EXPONENT_BOUNDS),
+                            np.array([sl[f"rho_s_{j}"].start for j in lobes], np.int64),
+                            np.array([[sl[f"{nm}_{j}"].start for nm in names] for j in lobes], np.int64),
+                            np.array([sl[f"log_exponent_{j}"].start for j in lobes], np.int64))
+        lo, hi, n_lo, n_hi, rho_at, c_at, ln_at = self._layout
+        n_cap = np.broadcast_to(np.asarray(limits.max_cosine_exponent(), np.float64).reshape(-1), (T,))
+        peak = np.zeros(T) if limits.peak is None else np.asarray(limits.peak, np.float64).reshape(T)
+        return constrain_packed(np.ascontiguousarray(x, np.float64), lo, hi, np.ascontiguousarray(peak),
+                                limits.peak is not None, np.ascontiguousarray(n_cap),
+                                -1.0 if limits.growth is None else float(limits.growth), s2, c2, n_lo, n_hi,
+                                rho_at, c_at, ln_at, self.channels)
 
     def constrain(self, params, limits):
         """:func:`bound_lobes` directly on the fit form (C_z = 1 already, log n)."""
