@@ -126,6 +126,25 @@ def test_valid_median_is_nanmedian_bit_for_bit(seed, samples, dropped):
     np.testing.assert_array_equal(valid_median(y, valid), expected)
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), samples=st.integers(1, 60), dropped=st.floats(0.0, 1.0),
+       percentile=st.floats(0.0, 100.0))
+def test_diffuse_percentile_is_nanpercentile(seed, samples, dropped, percentile):
+    """McAllister's ρ_d: numpy's nanpercentile (linear) of each texel's valid samples per channel; 0 with none."""
+    import warnings
+
+    from sbrdf_lib.lm import diffuse_percentile
+
+    rng = np.random.default_rng(seed)
+    f = np.round(np.exp(rng.normal(-2, 2, (8, samples, 3))), 3)
+    valid = rng.random((8, samples)) >= dropped
+    valid[0] = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nan_to_num(np.nanpercentile(np.where(valid[..., None], f, np.nan), percentile, axis=1), nan=0.0)
+    np.testing.assert_allclose(diffuse_percentile(f, valid, percentile), expected, rtol=1e-12, atol=0)
+
+
 def test_shot_noise_weighting_fits_a_foreign_model_closer_where_it_was_not_trained(registry):
     """A Lafortune lobe cannot follow GGX's tails: weighing residuals by 1/√f_r (the default) keeps the tails
     that an absolute least squares gives up for the peak; the relative error at unseen pairs drops."""
