@@ -8,7 +8,12 @@ has one) returns its own problem object that accumulates ``JᵀJ`` and ``Jᵀr``
 sample by sample instead; fitters cannot tell the difference.  Such an object
 provides ``data_energy()`` and ``normal_equations(x, idx)``, and ``cost(x,
 idx)`` where it can give the cost alone for less (the solver falls back to
-``normal_equations`` without one).
+``normal_equations`` without one).  It may also solve the whole
+Levenberg–Marquardt iteration itself (``levenberg_marquardt(x0, bounds, *,
+iterations, tolerance, damping, free, limits, exact, max_damping)``, the
+compiled Lafortune problem does for isotropic lobes), returning None where
+it does not apply; :func:`sbrdf_lib.lm.levenberg_marquardt` then runs its
+own.
 
 This is part of the model contract (what ``least_squares`` returns); the
 solver that consumes it is library code, :mod:`sbrdf_lib.lm`.

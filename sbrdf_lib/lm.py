@@ -53,6 +53,7 @@ __all__ = [
     "IRLS_ROUNDS",
     "LOSSES",
     "MAX_DAMPING",
+    "Projection",
     "START",
     "STARTS_FROM",
     "candidate_starts",
@@ -88,11 +89,20 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
     about a third of the work over evaluating the cost first.  ``project(x,
     idx)``, if given, maps each clipped trial point into the feasible set
     (:func:`projector`).  Returns ``(x, cost, converged)``; texels whose
-    weights are all zero stay at ``x0``.
+    weights are all zero stay at ``x0``.  A problem with its own
+    ``levenberg_marquardt`` (the compiled Lafortune one) runs this same
+    iteration per texel in its kernel where the projection is the form's own
+    (:class:`Projection`).
     """
     T, K = x0.shape
     lo, hi = bounds
     free = np.ones(K, bool) if free is None else np.asarray(free, bool)
+    compiled = getattr(problem, "levenberg_marquardt", None)
+    if compiled is not None and (project is None or (isinstance(project, Projection) and project.form is problem.form)):
+        out = compiled(x0, bounds, iterations=iterations, tolerance=tolerance, damping=damping, free=free,
+                       limits=None if project is None else project.limits, exact=EXACT, max_damping=MAX_DAMPING)
+        if out is not None:
+            return out
     outer_free = np.outer(free, free)
     everyone = np.arange(T)
     x = np.clip(x0, lo, hi)
@@ -163,20 +173,25 @@ def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx
     return out
 
 
-def projector(form, limits):
-    """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows through ``form.constrain``, or the form's
-    compiled ``constrain_packed`` where it has one."""
-    if limits is None:
-        return None
-    packed = optional(form, "constrain_packed", "brdf-model")
+class Projection:
+    """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows of texels ``idx`` through
+    ``form.constrain`` onto their ``limits``, or the form's compiled ``constrain_packed`` where it has one.  A
+    problem that solves LM itself (``levenberg_marquardt``) reads ``form`` and ``limits`` to project there."""
 
-    def project(x, idx):
-        if packed is not None:
-            return packed(x, limits.take(idx))
-        params, _ = form.constrain(form.unpack(x), limits.take(idx))
-        return form.pack(params)
+    def __init__(self, form, limits):
+        self.form, self.limits = form, limits
+        self._packed = optional(form, "constrain_packed", "brdf-model")
 
-    return project
+    def __call__(self, x, idx):
+        if self._packed is not None:
+            return self._packed(x, self.limits.take(idx))
+        params, _ = self.form.constrain(self.form.unpack(x), self.limits.take(idx))
+        return self.form.pack(params)
+
+
+def projector(form, limits) -> Projection | None:
+    """The :class:`Projection` onto ``limits`` (None: no limits, no projection)."""
+    return None if limits is None else Projection(form, limits)
 
 
 #: Candidates × texels × samples up to which :func:`candidate_starts` solves every candidate's magnitudes at once.

@@ -662,12 +662,25 @@ class LafortuneFitForm(LafortuneModel):
         """:meth:`constrain` on packed rows ``x`` ``(T, K)``, compiled (``lafortune_kernels.constrain_packed``): what
         LM projects every trial point with.  Falls back to :meth:`constrain` where the horizon bound is 0° (the
         NumPy path's division by sin² θ = 0 is not reproduced)."""
-        s2, c2 = float(np.sin(limits.max_theta) ** 2), float(np.cos(limits.max_theta) ** 2)
-        if s2 == 0.0 or not self.lobes:
+        args = self.packed_limits(limits, x.shape[0])
+        if args is None:
             return self.pack(self.constrain(self.unpack(x), limits)[0])
         from .lafortune_kernels import constrain_packed
 
-        T = x.shape[0]
+        lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at = args
+        return constrain_packed(np.ascontiguousarray(x, np.float64), lo, hi, peak, has_peak, n_cap, growth, s2, c2,
+                                n_lo, n_hi, rho_at, c_at, ln_at, self.channels)
+
+    def packed_limits(self, limits, T: int) -> tuple | None:
+        """What the compiled projection (``lafortune_kernels._project_row``) reads for ``T`` texels: ``(lo, hi,
+        peak (T,), has_peak, n_cap (T,), growth (< 0: off), sin² θ_max, cos² θ_max, n bounds, and the packed
+        offsets of each lobe's ρ_s, C and log n)``; ``limits`` None: every bound off.  None where the compiled
+        projection does not apply: no lobes, or a horizon bound of 0° (the NumPy path's division by sin² θ = 0
+        is not reproduced)."""
+        max_theta = np.pi / 2 if limits is None else limits.max_theta
+        s2, c2 = float(np.sin(max_theta) ** 2), float(np.cos(max_theta) ** 2)
+        if s2 == 0.0 or not self.lobes:
+            return None
         if self._layout is None:  # the packed bounds and offsets, once per form
             sl, lobes = self.slices(), range(1, self.lobes + 1)
             names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
@@ -676,12 +689,12 @@ class LafortuneFitForm(LafortuneModel):
                             np.array([[sl[f"{nm}_{j}"].start for nm in names] for j in lobes], np.int64),
                             np.array([sl[f"log_exponent_{j}"].start for j in lobes], np.int64))
         lo, hi, n_lo, n_hi, rho_at, c_at, ln_at = self._layout
+        if limits is None:
+            return lo, hi, np.zeros(T), False, np.full(T, np.inf), -1.0, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at
         n_cap = np.broadcast_to(np.asarray(limits.max_cosine_exponent(), np.float64).reshape(-1), (T,))
         peak = np.zeros(T) if limits.peak is None else np.asarray(limits.peak, np.float64).reshape(T)
-        return constrain_packed(np.ascontiguousarray(x, np.float64), lo, hi, np.ascontiguousarray(peak),
-                                limits.peak is not None, np.ascontiguousarray(n_cap),
-                                -1.0 if limits.growth is None else float(limits.growth), s2, c2, n_lo, n_hi,
-                                rho_at, c_at, ln_at, self.channels)
+        return (lo, hi, np.ascontiguousarray(peak), limits.peak is not None, np.ascontiguousarray(n_cap),
+                -1.0 if limits.growth is None else float(limits.growth), s2, c2, n_lo, n_hi, rho_at, c_at, ln_at)
 
     def constrain(self, params, limits):
         """:func:`bound_lobes` directly on the fit form (C_z = 1 already, log n)."""

@@ -365,54 +365,66 @@ def normal_equations_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
     sample kernel to about 1e-13 relative (the same terms, summed in another order).
     """
     T, K = x.shape
-    S = pxy.shape[1]
     C = f_t.shape[1]
-    m = 1 + 3 * lobes
     A = np.zeros((T, K, K))
     g = np.zeros((T, K))
     cost = np.zeros(T)
     for chunk in prange((T + TEXEL_CHUNK - 1) // TEXEL_CHUNK):
-        G, H = np.zeros((m, m)), np.zeros((m, C))
-        Bw = np.zeros((m, SAMPLE_BLOCK))  # the basis b times the sample's weight, a row per basis function
-        Rw = np.zeros((C, SAMPLE_BLOCK))  # the prediction, then the weighted residual, a row per channel
-        dot, lx, y, sv = np.ones(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK)
-        scratch, expo = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK, np.int64)
-        basis_of, coef = np.zeros(K, np.int64), np.zeros((C, K))
-        L = max(lobes, 1)
-        rho = np.empty((L, C))
-        cx, cy, n = np.empty(L), np.empty(L), np.empty(L)
+        work = _ne_scratch(K, C, lobes)
         for t in range(chunk * TEXEL_CHUNK, min(T, (chunk + 1) * TEXEL_CHUNK)):
-            d = idx[t]
-            G[:] = 0.0
-            H[:] = 0.0
-            _unpack(x, t, lobes, 0, False, C, rho, cx, cy, n)
-            total = e_unlit[d]
-            for s0 in range(0, S, SAMPLE_BLOCK):
-                nb = min(SAMPLE_BLOCK, S - s0)
-                P, Z, W = pxy[d, s0:s0 + nb], pzz[d, s0:s0 + nb], w_lit[d, s0:s0 + nb]
-                b0 = Bw[0]
-                for k in range(nb):
-                    b0[k] = W[k]
-                for c in range(C):
-                    fc, rc, rd = f_t[d, c, s0:s0 + nb], Rw[c], x[t, c]
-                    for k in range(nb):
-                        rc[k] = rd - fc[k]
-                for j in range(lobes):
-                    q = 1 + lobes + 2 * j
-                    _lobe_rows(cx[j], n[j], P, Z, W, nb, dot, lx, y, sv, scratch, expo, Bw[1 + j], Bw[q], Bw[q + 1],
-                               True)
-                    for c in range(C):
-                        rc, rj = Rw[c], rho[j, c]
-                        for k in range(nb):
-                            rc[k] += rj * sv[k]
-                total += _weigh_residuals(Rw, W, nb, True)
-                _gram_block(Bw, Rw, nb, G, H)
-            cost[t] = total
-            for i in range(m):
-                for l in range(i):
-                    G[i, l] = G[l, i]
-            _assemble_isotropic(x, t, G, H, lobes, C, K, basis_of, coef, A, g)
+            cost[t] = _texel_normal_equations(x, t, idx[t], pxy, pzz, w_lit, f_t, e_unlit, lobes, A, g, *work)
     return A, g, cost
+
+
+@njit(cache=True)
+def _ne_scratch(K, C, lobes):
+    """The working arrays of :func:`_texel_normal_equations`, made once per task and reused texel after texel."""
+    m = 1 + 3 * lobes
+    L = max(lobes, 1)
+    return (np.zeros((m, m)), np.zeros((m, C)), np.zeros((m, SAMPLE_BLOCK)), np.zeros((C, SAMPLE_BLOCK)),
+            np.ones(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK),
+            np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK, np.int64), np.zeros(K, np.int64), np.zeros((C, K)),
+            np.empty((L, C)), np.empty(L), np.empty(L), np.empty(L))
+
+
+@njit(cache=True, error_model="numpy")
+def _texel_normal_equations(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, A, g, G, H, Bw, Rw, dot, lx, y, sv,
+                            scratch, expo, basis_of, coef, rho, cx, cy, n):
+    """Row ``t`` of :func:`normal_equations_isotropic` (parameters ``x[t]``, the data of texel ``d``): writes
+    ``A[t]``, ``g[t]``, returns the cost.  ``Bw`` holds the basis b times the sample's weight, a row per basis
+    function; ``Rw`` the prediction, then the weighted residual, a row per channel."""
+    S = pxy.shape[1]
+    C = f_t.shape[1]
+    K = x.shape[1]
+    m = G.shape[0]
+    G[:] = 0.0
+    H[:] = 0.0
+    _unpack(x, t, lobes, 0, False, C, rho, cx, cy, n)
+    total = e_unlit[d]
+    for s0 in range(0, S, SAMPLE_BLOCK):
+        nb = min(SAMPLE_BLOCK, S - s0)
+        P, Z, W = pxy[d, s0:s0 + nb], pzz[d, s0:s0 + nb], w_lit[d, s0:s0 + nb]
+        b0 = Bw[0]
+        for k in range(nb):
+            b0[k] = W[k]
+        for c in range(C):
+            fc, rc, rd = f_t[d, c, s0:s0 + nb], Rw[c], x[t, c]
+            for k in range(nb):
+                rc[k] = rd - fc[k]
+        for j in range(lobes):
+            q = 1 + lobes + 2 * j
+            _lobe_rows(cx[j], n[j], P, Z, W, nb, dot, lx, y, sv, scratch, expo, Bw[1 + j], Bw[q], Bw[q + 1], True)
+            for c in range(C):
+                rc, rj = Rw[c], rho[j, c]
+                for k in range(nb):
+                    rc[k] += rj * sv[k]
+        total += _weigh_residuals(Rw, W, nb, True)
+        _gram_block(Bw, Rw, nb, G, H)
+    for i in range(m):
+        for l in range(i):
+            G[i, l] = G[l, i]
+    _assemble_isotropic(x, t, G, H, lobes, C, K, basis_of, coef, A, g)
+    return total
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -456,6 +468,54 @@ def cost_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
 
 
 @njit(cache=True, error_model="numpy")
+def _project_row(v, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C, work):
+    """:func:`constrain_packed` on one packed row ``v``, in place (``work``: (4, L) scratch)."""
+    K = v.shape[0]
+    L, A = c_at.shape
+    r_scale, c_scale, n_new, peaks = work[0], work[1], work[2], work[3]
+    for k in range(K):
+        v[k] = min(max(v[k], lo[k]), hi[k])
+    budget = np.inf
+    if has_peak:
+        rmax_d = -np.inf
+        for c in range(C):
+            v[c] = min(v[c], peak)
+            rmax_d = max(rmax_d, v[c])
+        budget = max(peak - rmax_d, 0.0)
+    finite = budget < np.inf
+    total = 0.0
+    for j in range(L):
+        n = math.exp(v[ln_at[j]])
+        nn = min(max(min(n, n_cap), n_lo), n_hi)
+        rmax = -np.inf
+        for c in range(C):
+            rmax = max(rmax, v[rho_at[j] + c])
+        rs = budget / (rmax if rmax > 0.0 else 1.0) if rmax > budget else 1.0
+        r = rmax * rs
+        log_m = math.log(budget / r) / nn if (r > 0.0 and finite) else np.inf
+        if growth >= 0.0:
+            log_m = min(log_m, math.log(max(growth, 1.0)) / nn)
+        m_allowed = math.exp(min(log_m, 50.0))
+        c_allowed = max((m_allowed - c2) / s2, 1.0)
+        cabs = 0.0
+        for a in range(A):
+            cabs = max(cabs, abs(v[c_at[j, a]]))
+        cs = c_allowed / (cabs if cabs > 0.0 else 1.0) if cabs > c_allowed else 1.0
+        m = max(1.0, cabs * cs * s2 + c2)
+        peaks[j] = r * math.exp(min(nn * math.log(m), 700.0))
+        total += peaks[j]
+        r_scale[j], c_scale[j], n_new[j] = rs, cs, nn
+    share = budget / (total if total > 0.0 else 1.0) if total > budget else 1.0
+    for j in range(L):
+        scale = r_scale[j] * share
+        for c in range(C):
+            v[rho_at[j] + c] *= scale
+        for a in range(A):
+            v[c_at[j, a]] *= c_scale[j]
+        v[ln_at[j]] = math.log(n_new[j])
+
+
+@njit(cache=True, error_model="numpy")
 def constrain_packed(x, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C):
     """:meth:`LafortuneFitForm.constrain` on packed fit-form rows ``x`` ``(T, K)``, returned as a new array.
 
@@ -471,52 +531,141 @@ def constrain_packed(x, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_h
     log against NumPy's).
     """
     T, K = x.shape
-    L, A = c_at.shape
+    L = c_at.shape[0]
     out = np.empty_like(x)
-    r_scale, c_scale, n_new, peaks = np.empty(L), np.empty(L), np.empty(L), np.empty(L)
+    work = np.empty((4, L))
     for t in range(T):
         for k in range(K):
-            out[t, k] = min(max(x[t, k], lo[k]), hi[k])
-        budget = np.inf
-        if has_peak:
-            cap = peak[t]
-            rmax_d = -np.inf
-            for c in range(C):
-                out[t, c] = min(out[t, c], cap)
-                rmax_d = max(rmax_d, out[t, c])
-            budget = max(cap - rmax_d, 0.0)
-        finite = budget < np.inf
-        total = 0.0
-        for j in range(L):
-            n = math.exp(out[t, ln_at[j]])
-            nn = min(max(min(n, n_cap[t]), n_lo), n_hi)
-            rmax = -np.inf
-            for c in range(C):
-                rmax = max(rmax, out[t, rho_at[j] + c])
-            rs = budget / (rmax if rmax > 0.0 else 1.0) if rmax > budget else 1.0
-            r = rmax * rs
-            log_m = math.log(budget / r) / nn if (r > 0.0 and finite) else np.inf
-            if growth >= 0.0:
-                log_m = min(log_m, math.log(max(growth, 1.0)) / nn)
-            m_allowed = math.exp(min(log_m, 50.0))
-            c_allowed = max((m_allowed - c2) / s2, 1.0)
-            cabs = 0.0
-            for a in range(A):
-                cabs = max(cabs, abs(out[t, c_at[j, a]]))
-            cs = c_allowed / (cabs if cabs > 0.0 else 1.0) if cabs > c_allowed else 1.0
-            m = max(1.0, cabs * cs * s2 + c2)
-            peaks[j] = r * math.exp(min(nn * math.log(m), 700.0))
-            total += peaks[j]
-            r_scale[j], c_scale[j], n_new[j] = rs, cs, nn
-        share = budget / (total if total > 0.0 else 1.0) if total > budget else 1.0
-        for j in range(L):
-            scale = r_scale[j] * share
-            for c in range(C):
-                out[t, rho_at[j] + c] *= scale
-            for a in range(A):
-                out[t, c_at[j, a]] *= c_scale[j]
-            out[t, ln_at[j]] = math.log(n_new[j])
+            out[t, k] = x[t, k]
+        _project_row(out[t], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C,
+                     work)
     return out
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo, hi, free, has_limits, peak, has_peak,
+                 n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, iterations, tolerance, damping, max_damping,
+                 exact):
+    """:func:`sbrdf_lib.lm.levenberg_marquardt` for isotropic lobes without β, each texel's whole solve compiled.
+
+    The same iteration, step for step: Marquardt's diagonal scaling, the
+    clip to ``lo``/``hi``, the projection onto the limits
+    (:func:`_project_row`, where ``has_limits``) with the active-set re-solve
+    of parameters it pinned, λ / 3 on success and × 4 on failure, and the
+    same stopping tests (``exact``: the fraction of the data's energy below
+    which a fit counts as exact).  Why: run batched in NumPy, each iteration
+    paid array passes and calls whatever the number of texels still active,
+    most of a tile's time outside the normal equations.  Returns ``(x, cost,
+    converged)``; ``weighted`` ``(T,)``: the texel has a sample with weight.
+    Damped systems are solved by :func:`_solve` (a singular one: no step).
+    """
+    T, K = x0.shape
+    C = f_t.shape[1]
+    L = max(c_at.shape[0], 1)
+    x_out = np.empty_like(x0)
+    cost_out = np.empty(T)
+    converged = np.zeros(T, np.bool_)
+    for chunk in prange((T + TEXEL_CHUNK - 1) // TEXEL_CHUNK):
+        work = _ne_scratch(K, C, lobes)
+        pwork = np.empty((4, L))
+        xc, xn = np.empty((1, K)), np.empty((1, K))
+        Ac, An = np.empty((1, K, K)), np.empty((1, K, K))
+        gc, gn = np.empty((1, K)), np.empty((1, K))
+        M, b, diag, raw, step = np.empty((K, K)), np.empty(K), np.empty(K), np.empty(K), np.empty(K)
+        keep = np.empty(K, np.bool_)
+        for t in range(chunk * TEXEL_CHUNK, min(T, (chunk + 1) * TEXEL_CHUNK)):
+            for k in range(K):
+                xc[0, k] = min(max(x0[t, k], lo[k]), hi[k])
+            if has_limits:
+                _project_row(xc[0], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at, c_at,
+                             ln_at, C, pwork)
+            cost = _texel_normal_equations(xc, 0, t, pxy, pzz, w_lit, f_t, e_unlit, lobes, Ac, gc, *work)
+            _mask_free(Ac, gc, free)
+            active = weighted[t] and cost > 0.0 and np.isfinite(cost)
+            lam = damping
+            for _ in range(iterations):
+                if not active:
+                    break
+                for k in range(K):
+                    diag[k] = max(Ac[0, k, k], 1e-12) if free[k] else 1.0
+                _damped_step(Ac, gc, diag, lam, keep, free, M, b, raw, False)
+                for k in range(K):
+                    xn[0, k] = min(max(xc[0, k] + raw[k], lo[k]), hi[k])
+                    step[k] = raw[k]
+                if has_limits:
+                    _project_row(xn[0], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at,
+                                 c_at, ln_at, C, pwork)
+                    pinned = False  # held by the projection where the step pointed out: solve again without them
+                    for k in range(K):
+                        scale = 1e-9 * max(abs(xc[0, k]), 1.0)
+                        held = (abs(xn[0, k] - (xc[0, k] + raw[k])) > scale and abs(xn[0, k] - xc[0, k]) <= scale
+                                and free[k])
+                        keep[k] = free[k] and not held
+                        pinned = pinned or held
+                    if pinned:
+                        _damped_step(Ac, gc, diag, lam, keep, free, M, b, raw, True)
+                        for k in range(K):
+                            xn[0, k] = min(max(xc[0, k] + raw[k], lo[k]), hi[k])
+                        _project_row(xn[0], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at,
+                                     c_at, ln_at, C, pwork)
+                    for k in range(K):
+                        step[k] = xn[0, k] - xc[0, k]
+                cost_new = _texel_normal_equations(xn, 0, t, pxy, pzz, w_lit, f_t, e_unlit, lobes, An, gn, *work)
+                better = np.isfinite(cost_new) and cost_new < cost
+                gain = (cost - cost_new) / max(cost, 1e-300) if better else 0.0
+                step_max, x_max = 0.0, 0.0
+                for k in range(K):
+                    step_max = max(step_max, abs(step[k]))
+                    x_max = max(x_max, abs(xc[0, k]))
+                negligible = step_max <= 1e-9 * max(x_max, 1e-12)
+                if better:
+                    _mask_free(An, gn, free)
+                    xc[:] = xn
+                    Ac[:] = An
+                    gc[:] = gn
+                    cost = cost_new
+                    lam = max(lam / 3.0, 1e-12)
+                else:
+                    lam = lam * 4.0
+                if ((better and gain < tolerance) or (not better and negligible) or lam > max_damping
+                        or cost <= exact * energy[t]):
+                    active = False
+            x_out[t] = xc[0]
+            cost_out[t] = cost
+            converged[t] = not active
+    return x_out, cost_out, converged
+
+
+@njit(cache=True, inline="always")
+def _mask_free(A, g, free):
+    """Zero the rows and columns of ``A[0]`` and the entries of ``g[0]`` of parameters not ``free``."""
+    K = g.shape[1]
+    for i in range(K):
+        if not free[i]:
+            g[0, i] = 0.0
+            for j in range(K):
+                A[0, i, j] = 0.0
+                A[0, j, i] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _damped_step(A, g, diag, lam, keep, free, M, b, out, reduced):
+    """``out = −(A + λ·diag)⁻¹ g`` (0 where not finite, or everywhere if singular); ``reduced``: only the ``keep``
+    parameters move (the others' rows and columns replaced by the identity, their gradient by 0)."""
+    K = g.shape[1]
+    for i in range(K):
+        ki = keep[i] if reduced else True
+        for j in range(K):
+            if reduced and not (ki and keep[j]):
+                M[i, j] = 1.0 if i == j else 0.0
+            else:
+                M[i, j] = A[0, i, j]
+        M[i, i] += lam * (diag[i] if ki else 1.0)
+        b[i] = -g[0, i] if ki else 0.0
+    ok = _solve(M, b, K)
+    for i in range(K):
+        v = b[i] if ok else 0.0
+        out[i] = v if np.isfinite(v) and (keep[i] or not reduced) else 0.0
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -735,6 +884,23 @@ class CompiledLafortuneProblem:
         if not aniso and not has_beta:
             return run_parallel(normal_equations_isotropic, x, idx, *self._prepared(), lobes)
         return run_parallel(normal_equations, x, idx, self.wi, self.wo, self.f_r, self.weight, *self.flags)
+
+    def levenberg_marquardt(self, x0, bounds, *, iterations, tolerance, damping, free, limits, exact, max_damping):
+        """The whole LM solve compiled (:func:`lm_isotropic`) for isotropic lobes without β; None otherwise (the
+        caller runs the NumPy iteration).  ``bounds`` must be the form's; ``limits`` None: no projection."""
+        lobes, aniso, has_beta = self.flags
+        args = None if aniso or has_beta else self.form.packed_limits(limits, x0.shape[0])
+        if args is None:
+            return None
+        lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at = args
+        if not (np.array_equal(bounds[0], lo) and np.array_equal(bounds[1], hi)):
+            return None
+        pxy, pzz, w_lit, f_t, e_unlit = self._prepared()
+        return run_parallel(lm_isotropic, np.ascontiguousarray(x0, np.float64), pxy, pzz, w_lit, f_t, e_unlit,
+                            self.data_energy(), (self.weight > 0).any(axis=1), lobes, lo, hi,
+                            np.asarray(free, np.bool_), limits is not None, peak, has_peak, n_cap, growth, s2, c2,
+                            n_lo, n_hi, rho_at, c_at, ln_at, int(iterations), float(tolerance), float(damping),
+                            float(max_damping), float(exact))
 
     def cost(self, x, idx):
         x, idx = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(idx, dtype=np.int64)
