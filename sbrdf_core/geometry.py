@@ -7,6 +7,9 @@ area; directions point away from the surface.  Array index order is ``[v, u]``.
 
 from __future__ import annotations
 
+import functools
+import sys
+
 import numpy as np
 
 
@@ -51,9 +54,44 @@ def tile_directions(texels_uv: tuple[int, int], size_mm: tuple[float, float], ro
     ``light_pos``, ``camera_pos`` are ``(P, 3)``.  Returns ``(T, P, 3)``, ``(T, P)``, ``(T, P, 3)``.
     """
     p = texel_centres(texels_uv, size_mm, rows[0], rows[1], cols[0], cols[1]).reshape(-1, 3)
-    wi, r = directions_to(p, np.asarray(light_pos, float).reshape(-1, 3))
-    wo, _ = directions_to(p, np.asarray(camera_pos, float).reshape(-1, 3))
+    light, camera = np.asarray(light_pos, float).reshape(-1, 3), np.asarray(camera_pos, float).reshape(-1, 3)
+    if "numba" in sys.modules and p.dtype == light.dtype == camera.dtype == np.float64:
+        # Loaded already (a compiled fitter), so free to use: one pass, the same values to an ulp
+        # (tests/core/test_geometry.py).
+        return _compiled_directions()(p, np.ascontiguousarray(light), np.ascontiguousarray(camera))
+    wi, r = directions_to(p, light)
+    wo, _ = directions_to(p, camera)
     return wi, r, wo
+
+
+@functools.cache
+def _compiled_directions():
+    """:func:`tile_directions` after its texel centres, compiled (numba, cached on disk).  Why: NumPy's passes
+    over ``(T, P, 3)`` arrays with a trailing axis of 3 were a tenth of a Lafortune Fit tile (py-spy)."""
+    import numba
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def kernel(points, light, camera):  # pragma: no cover (compiled)
+        T, P = points.shape[0], light.shape[0]
+        wi, r, wo = np.empty((T, P, 3)), np.empty((T, P)), np.empty((T, P, 3))
+        for t in range(T):
+            for p in range(P):
+                for target, out, dist in ((light, wi, True), (camera, wo, False)):
+                    # directions_to's arithmetic: d = target − point, r = √(d·d), d / r; d·d summed in the order
+                    # NumPy's einsum sums three terms (x² + z²) + y², measured to give its bits.
+                    dx = target[p, 0] - points[t, 0]
+                    dy = target[p, 1] - points[t, 1]
+                    dz = target[p, 2] - points[t, 2]
+                    rr = np.sqrt((dx * dx + dz * dz) + dy * dy)
+                    if dist:
+                        r[t, p] = rr
+                    if rr == 0:
+                        out[t, p, 0], out[t, p, 1], out[t, p, 2] = 0.0, 0.0, 1.0
+                    else:
+                        out[t, p, 0], out[t, p, 1], out[t, p, 2] = dx / rr, dy / rr, dz / rr
+        return wi, r, wo
+
+    return kernel
 
 
 def camera_centre(R: np.ndarray, t: np.ndarray) -> np.ndarray:
