@@ -29,6 +29,7 @@ YAML::
 from __future__ import annotations
 
 import copy
+import sys
 
 import numpy as np
 
@@ -64,6 +65,8 @@ CZ_BOUNDS = (0.05, 10.0)
 #: C_x, C_y in the C_z = 1 gauge, so the fit form converts back inside C_BOUNDS
 #: (a lobe with |C_x| > 10·C_z is clipped to that ratio when converted).
 FIT_C_BOUNDS = C_BOUNDS
+#: Direction values (T·S·3) from which :meth:`LafortuneModel.eval` runs compiled: below, the call costs more.
+COMPILED_EVAL_MIN = 3 * 4096
 
 
 class LafortuneModel(BRDFModel):
@@ -153,12 +156,39 @@ class LafortuneModel(BRDFModel):
     # -- evaluation --------------------------------------------------------------------------
 
     def eval(self, params, wi, wo):
+        fast = self._compiled_eval(params, wi, wo)
+        return fast if fast is not None else self._numpy_eval(params, wi, wo)
+
+    def _numpy_eval(self, params, wi, wo):
+        """:meth:`eval` in NumPy, for any configuration and broadcast (the reference of the compiled one)."""
         pxx, pyy, pzz, _ = self.lobe_dots(params, wi, wo)
         f = np.broadcast_to(np.asarray(params["rho_d"])[:, None, :], wi.shape[:2] + (self.channels,)).copy()
         for lobe in self.lobe_list(params):
             x = lobe["c_x"][:, :1] * pxx + lobe["c_y"][:, :1] * pyy + lobe["c_z"][:, :1] * pzz
             f += lobe["rho_s"][:, None, :] * positive_power(x, lobe["exponent"][:, :1])[..., None]
         return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+
+    def _compiled_eval(self, params, wi, wo):
+        """:meth:`eval` by ``lafortune_kernels.eval_lobes`` where it applies (no β, a texel's parameters per row of
+        ``(T, S, 3)`` float64 directions, enough samples to pay for the call) and numba is loaded already; else None."""
+        if self.has_beta or not self.lobes or "numba" not in sys.modules:
+            return None
+        wi, wo = np.asarray(wi), np.asarray(wo)
+        rho_d = np.asarray(params["rho_d"])
+        if (wi.ndim != 3 or wi.shape != wo.shape or wi.shape[2] != 3 or wi.dtype != np.float64
+                or wo.dtype != np.float64 or rho_d.shape != (wi.shape[0], self.channels)
+                or wi.size < COMPILED_EVAL_MIN):
+            return None
+        from .lafortune_kernels import eval_lobes
+
+        lobes = self.lobe_list(params)
+        col = lambda key: np.ascontiguousarray(np.concatenate(  # noqa: E731
+            [np.broadcast_to(np.asarray(lb[key], np.float64)[:, :1], (wi.shape[0], 1)) for lb in lobes], axis=1))
+        rho_s = np.ascontiguousarray(np.stack([np.asarray(lb["rho_s"], np.float64) for lb in lobes], axis=1))
+        if rho_s.shape != (wi.shape[0], len(lobes), self.channels):
+            return None
+        return eval_lobes(np.ascontiguousarray(rho_d, np.float64), rho_s, col("c_x"), col("c_y"), col("c_z"),
+                          col("exponent"), np.ascontiguousarray(wi), np.ascontiguousarray(wo))
 
     def albedo_quadrature(self, params, wi, dirs, weights):
         """``Σ_o w_o f_r(ω_i, ω_o)`` per texel and channel, ``(T, C)``, for one ``wi`` per texel ``(T, 3)``: what the
