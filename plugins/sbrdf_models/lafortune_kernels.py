@@ -745,7 +745,7 @@ def lobe_quadrature(a, n, dirs, weights):
     return out
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     """Starting point: for each texel, the lobe-1 exponent from ``log_exponents`` with the smallest cost.
 
@@ -754,95 +754,117 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     follows in closed form from the same sums.  What does not depend on the
     candidate (log(C·ω) of every lobe, the other lobes' values, the diffuse
     residuals and their sums) is taken once per texel, so a candidate costs one
-    exp per sample: the same numbers, in the same order, as summing everything
-    per candidate.  Returns the updated fit-form rows.
+    exp per sample.  The logs and exps run in SIMD lanes (:func:`simd_log`,
+    :func:`simd_exp`) over the texel's lit samples, the small systems are
+    solved in place (:func:`_solve`), and the working arrays are made once per
+    task: the scalar libm calls, LAPACK calls and allocations per texel were
+    most of the scan's time (an eighth of a Fit tile).  Returns the updated
+    fit-form rows.
     """
     T, K = x.shape
     S = wi.shape[1]
     C = f.shape[2]
     out = x.copy()
     kn1 = C + C + 1 + aniso  # index of log_exponent_1
-    for t in prange(T):
-        best = np.inf
-        cx, cy, n, rho0 = np.empty(lobes), np.empty(lobes), np.empty(lobes), np.empty((lobes, C))
-        cb, sb = _unpack(x, t, lobes, aniso, has_beta, C, rho0, cx, cy, n)
-        # Per sample, once: log(C·ω) of lobe 1 (-inf where it is dark), the weight, the other lobes' values
-        # and the weighted diffuse residuals; samples that add nothing to the lobe sums are left out.
-        log_dot = np.empty(S)
-        wt = np.empty(S)
-        sv = np.zeros((S, lobes))
-        r = np.empty((S, C))
-        lit = np.zeros(S, np.bool_)
-        e0 = 0.0
-        G1 = np.zeros((lobes, lobes))  # the candidate-free part of G (lobes 2.. among themselves)
-        h1 = np.zeros((lobes, C))
-        m = 0
-        for s in range(S):
-            ws = w[t, s]
-            if ws == 0.0:
-                continue
-            iz, oz = wi[t, s, 2], wo[t, s, 2]
-            if iz <= 0.0 or oz <= 0.0:
-                for c in range(C):
-                    e0 += (f[t, s, c] * ws) ** 2
-                continue
-            ix, iy, ox, oy = wi[t, s, 0], wi[t, s, 1], wo[t, s, 0], wo[t, s, 1]
-            if has_beta:
-                ix, iy = cb * ix + sb * iy, -sb * ix + cb * iy
-                ox, oy = cb * ox + sb * oy, -sb * ox + cb * oy
-            dot = cx[0] * ix * ox + cy[0] * iy * oy + iz * oz
-            log_dot[m] = math.log(dot) if dot > 0.0 else 0.0
-            lit[m] = dot > 0.0
-            wt[m] = ws
-            for j in range(1, lobes):
-                dot = cx[j] * ix * ox + cy[j] * iy * oy + iz * oz
-                sv[m, j] = math.exp(min(n[j] * math.log(dot), LOG_CAP)) * ws if dot > 0.0 else 0.0
-            for c in range(C):
-                r0 = (f[t, s, c] - x[t, c]) * ws
-                r[m, c] = r0
-                e0 += r0 * r0
-                for j in range(1, lobes):
-                    h1[j, c] += sv[m, j] * r0
-            for j in range(1, lobes):
-                for i in range(1, lobes):
-                    G1[j, i] += sv[m, j] * sv[m, i]
-            m += 1
+    L = max(lobes, 1)
+    for chunk in prange((T + TEXEL_CHUNK - 1) // TEXEL_CHUNK):
+        cx, cy, n, rho0 = np.empty(L), np.empty(L), np.empty(L), np.empty((L, C))
+        dots = np.ones((L, S))  # per lobe, C·ω of each lit sample (1 where it is dark: log 0, masked below)
+        lit = np.zeros((L, S), np.bool_)
+        log_dot, sv = np.empty(S), np.zeros((L, S))
+        wt, r = np.empty(S), np.empty((S, C))
         y, ev, scratch, expo = np.empty(S), np.empty(S), np.empty(S), np.empty(S, np.int64)
-        for q in range(log_exponents.size):
-            n0 = math.exp(log_exponents[q])
-            G = G1.copy()
-            h = h1.copy()
-            for k in range(m):  # the candidate's lobe at every sample: the exps in SIMD lanes, the sums in order
-                yk = n0 * log_dot[k]
-                y[k] = yk if yk < LOG_CAP else LOG_CAP
-            simd_exp(y, ev, scratch, expo, m)
-            for k in range(m):
-                s0 = ev[k] * wt[k] if lit[k] else 0.0
-                for c in range(C):
-                    h[0, c] += s0 * r[k, c]
-                G[0, 0] += s0 * s0
-                for i in range(1, lobes):
-                    G[0, i] += s0 * sv[k, i]
-                    G[i, 0] += sv[k, i] * s0
-            for j in range(lobes):
-                G[j, j] += 1e-12
-            rho = np.linalg.solve(G, h)
-            cost = e0
-            for c in range(C):
-                for j in range(lobes):
-                    rho[j, c] = min(max(rho[j, c], 0.0), 1e6) if np.isfinite(rho[j, c]) else 0.0
-                for j in range(lobes):
-                    cost -= 2.0 * rho[j, c] * h[j, c]
-                    for i in range(lobes):
-                        cost += rho[j, c] * G[j, i] * rho[i, c]
-            if cost < best:
-                best = cost
-                out[t, kn1] = log_exponents[q]
-                k = C
-                for j in range(lobes):
+        G1, h1 = np.zeros((L, L)), np.zeros((L, C))  # the candidate-free part of G (lobes 2.. among themselves)
+        G, h, M, b, rho = np.empty((L, L)), np.empty((L, C)), np.empty((L, L)), np.empty(L), np.empty((L, C))
+        for t in range(chunk * TEXEL_CHUNK, min(T, (chunk + 1) * TEXEL_CHUNK)):
+            best = np.inf
+            cb, sb = _unpack(x, t, lobes, aniso, has_beta, C, rho0, cx, cy, n)
+            # Per sample, once: C·ω of every lobe, the weight and the weighted diffuse residuals; samples that add
+            # nothing to the lobe sums are left out.
+            e0 = 0.0
+            m = 0
+            for s in range(S):
+                ws = w[t, s]
+                if ws == 0.0:
+                    continue
+                iz, oz = wi[t, s, 2], wo[t, s, 2]
+                if iz <= 0.0 or oz <= 0.0:
                     for c in range(C):
-                        out[t, k + c] = rho[j, c]
-                    k += C + 2 + aniso
+                        e0 += (f[t, s, c] * ws) ** 2
+                    continue
+                ix, iy, ox, oy = wi[t, s, 0], wi[t, s, 1], wo[t, s, 0], wo[t, s, 1]
+                if has_beta:
+                    ix, iy = cb * ix + sb * iy, -sb * ix + cb * iy
+                    ox, oy = cb * ox + sb * oy, -sb * ox + cb * oy
+                for j in range(lobes):
+                    dot = cx[j] * ix * ox + cy[j] * iy * oy + iz * oz
+                    lit[j, m] = dot > 0.0
+                    dots[j, m] = dot if dot > 0.0 else 1.0
+                wt[m] = ws
+                for c in range(C):
+                    r0 = (f[t, s, c] - x[t, c]) * ws
+                    r[m, c] = r0
+                    e0 += r0 * r0
+                m += 1
+            if lobes:
+                simd_log(dots[0], log_dot, scratch, expo, m)
+            for j in range(1, lobes):  # the other lobes' values, weighted
+                sj = sv[j]
+                simd_log(dots[j], y, scratch, expo, m)
+                for k in range(m):
+                    yk = n[j] * y[k]
+                    y[k] = yk if yk < LOG_CAP else LOG_CAP
+                simd_exp(y, sj, scratch, expo, m)
+                for k in range(m):
+                    sj[k] = sj[k] * wt[k] if lit[j, k] else 0.0
+            G1[:] = 0.0
+            h1[:] = 0.0
+            for k in range(m):
+                for j in range(1, lobes):
+                    for c in range(C):
+                        h1[j, c] += sv[j, k] * r[k, c]
+                    for i in range(1, lobes):
+                        G1[j, i] += sv[j, k] * sv[i, k]
+            for q in range(log_exponents.size):
+                n0 = math.exp(log_exponents[q])
+                G[:] = G1
+                h[:] = h1
+                for k in range(m):  # the candidate's lobe at every sample: the exps in SIMD lanes, the sums in order
+                    yk = n0 * log_dot[k]
+                    y[k] = yk if yk < LOG_CAP else LOG_CAP
+                simd_exp(y, ev, scratch, expo, m)
+                for k in range(m):
+                    s0 = ev[k] * wt[k] if lit[0, k] else 0.0
+                    for c in range(C):
+                        h[0, c] += s0 * r[k, c]
+                    G[0, 0] += s0 * s0
+                    for i in range(1, lobes):
+                        G[0, i] += s0 * sv[i, k]
+                        G[i, 0] += sv[i, k] * s0
+                for j in range(lobes):
+                    G[j, j] += 1e-12
+                for c in range(C):  # the magnitudes of each channel: G ρ = h, in place
+                    M[:] = G
+                    for j in range(lobes):
+                        b[j] = h[j, c]
+                    ok = _solve(M, b, lobes)
+                    for j in range(lobes):
+                        v = b[j] if ok else 0.0
+                        rho[j, c] = min(max(v, 0.0), 1e6) if np.isfinite(v) else 0.0
+                cost = e0
+                for c in range(C):
+                    for j in range(lobes):
+                        cost -= 2.0 * rho[j, c] * h[j, c]
+                        for i in range(lobes):
+                            cost += rho[j, c] * G[j, i] * rho[i, c]
+                if cost < best:
+                    best = cost
+                    out[t, kn1] = log_exponents[q]
+                    k = C
+                    for j in range(lobes):
+                        for c in range(C):
+                            out[t, k + c] = rho[j, c]
+                        k += C + 2 + aniso
     return out
 
 

@@ -389,7 +389,9 @@ def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, 
     # Round-off differs (LU solves against LAPACK's, libm's exp and log against NumPy's), and an ill-conditioned
     # 3-lobe texel carries it further: 2e-8 measured.  Noiseless fits end at round-off costs (~1e-20).
     np.testing.assert_allclose(ca, cb, rtol=1e-6, atol=1e-12)
-    fitted = cb > 1e-12  # where the cost is round-off, the parameters it leaves are not determined
+    # Parameters: where the cost is round-off they are not determined, nor with 3 lobes, whose cost valleys are
+    # flat enough that round-off moved an exponent by 4e-4 at equal cost (seed 000 §4.3.1: the start decides).
+    fitted = (cb > 1e-12) & (lobes <= 2)
     np.testing.assert_allclose(xa[fitted], xb[fitted], rtol=1e-4, atol=1e-7)
     assert np.array_equal(va, vb)
     np.testing.assert_array_equal(xa[0], xb[0])
