@@ -24,7 +24,8 @@ magnitudes are solved in closed form at every evaluation; the result is then
 projected onto the limits and, where that moved it, refined by the general
 LM.  It is taken where the form says it is exact (``separable_exact``:
 Lambert's closed form) or the caller asks (``separable=True``, the ``lm``
-fitter's ``variable_projection``): for Lafortune it is 1.3–1.4× faster (benchmarks/fit.py) but found
+fitter's ``variable_projection``): for Lafortune it was 1.3–1.4× faster until the general LM was compiled per
+texel too (now within 5 %, benchmarks/fit.py), and it found
 fits with a higher error at unseen directions (benchmarks/fidelity.py:
 median 0.153 → 0.204 with 2 lobes on GGX truth), so it is not the default.
 
