@@ -179,7 +179,7 @@ class LafortuneModel(BRDFModel):
                 or wo.dtype != np.float64 or rho_d.shape != (wi.shape[0], self.channels)
                 or wi.size < COMPILED_EVAL_MIN):
             return None
-        from .lafortune_kernels import eval_lobes
+        from .lafortune_kernels import eval_lobes, run_parallel
 
         lobes = self.lobe_list(params)
         col = lambda key: np.ascontiguousarray(np.concatenate(  # noqa: E731
@@ -187,8 +187,8 @@ class LafortuneModel(BRDFModel):
         rho_s = np.ascontiguousarray(np.stack([np.asarray(lb["rho_s"], np.float64) for lb in lobes], axis=1))
         if rho_s.shape != (wi.shape[0], len(lobes), self.channels):
             return None
-        return eval_lobes(np.ascontiguousarray(rho_d, np.float64), rho_s, col("c_x"), col("c_y"), col("c_z"),
-                          col("exponent"), np.ascontiguousarray(wi), np.ascontiguousarray(wo))
+        return run_parallel(eval_lobes, np.ascontiguousarray(rho_d, np.float64), rho_s, col("c_x"), col("c_y"),
+                            col("c_z"), col("exponent"), np.ascontiguousarray(wi), np.ascontiguousarray(wo))
 
     def albedo_quadrature(self, params, wi, dirs, weights):
         """``Σ_o w_o f_r(ω_i, ω_o)`` per texel and channel, ``(T, C)``, for one ``wi`` per texel ``(T, 3)``: what the

@@ -403,21 +403,8 @@ def _texel_normal_equations(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, A, g,
     total = e_unlit[d]
     for s0 in range(0, S, SAMPLE_BLOCK):
         nb = min(SAMPLE_BLOCK, S - s0)
-        P, Z, W = pxy[d, s0:s0 + nb], pzz[d, s0:s0 + nb], w_lit[d, s0:s0 + nb]
-        b0 = Bw[0]
-        for k in range(nb):
-            b0[k] = W[k]
-        for c in range(C):
-            fc, rc, rd = f_t[d, c, s0:s0 + nb], Rw[c], x[t, c]
-            for k in range(nb):
-                rc[k] = rd - fc[k]
-        for j in range(lobes):
-            q = 1 + lobes + 2 * j
-            _lobe_rows(cx[j], n[j], P, Z, W, nb, dot, lx, y, sv, scratch, expo, Bw[1 + j], Bw[q], Bw[q + 1], True)
-            for c in range(C):
-                rc, rj = Rw[c], rho[j, c]
-                for k in range(nb):
-                    rc[k] += rj * sv[k]
+        W = _block_rows(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, Bw, Rw, dot, lx, y, sv, scratch, expo, rho, cx,
+                        n, True)
         total += _weigh_residuals(Rw, W, nb, True)
         _gram_block(Bw, Rw, nb, G, H)
     for i in range(m):
@@ -427,41 +414,51 @@ def _texel_normal_equations(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, A, g,
     return total
 
 
+@njit(cache=True, error_model="numpy")
+def _block_rows(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, Bw, Rw, dot, lx, y, sv, scratch, expo, rho, cx, n,
+                derivatives):
+    """Texel ``d``'s samples ``s0:s0 + nb`` at parameters ``x[t]`` (unpacked in ``rho``, ``cx``, ``n``): the
+    prediction minus f_r in ``Rw`` (a row per channel, not yet weighted) and the weighted basis in ``Bw`` (row 0
+    the weights, a row per lobe value and, with ``derivatives``, its derivative rows; else those are 0).  What
+    :func:`_texel_normal_equations` and :func:`cost_isotropic` share; returns the block's weights."""
+    C = f_t.shape[1]
+    P, Z, W = pxy[d, s0:s0 + nb], pzz[d, s0:s0 + nb], w_lit[d, s0:s0 + nb]
+    b0 = Bw[0]
+    for k in range(nb):
+        b0[k] = W[k]
+    for c in range(C):
+        fc, rc, rd = f_t[d, c, s0:s0 + nb], Rw[c], x[t, c]
+        for k in range(nb):
+            rc[k] = rd - fc[k]
+    for j in range(lobes):
+        q = 1 + lobes + 2 * j
+        _lobe_rows(cx[j], n[j], P, Z, W, nb, dot, lx, y, sv, scratch, expo, Bw[1 + j], Bw[q], Bw[q + 1], derivatives)
+        for c in range(C):
+            rc, rj = Rw[c], rho[j, c]
+            for k in range(nb):
+                rc[k] += rj * sv[k]
+    return W
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def cost_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
     """The ``cost`` of :func:`normal_equations_isotropic` alone, from the same prepared data: no derivative rows, no
     Gram sums.  Why: the fit's last step (its unweighted cost, when it minimised a weighted one) and the scoring of
     starting points need only the cost, and paid for the whole normal equations (about 2.5× the work, measured)."""
-    T = x.shape[0]
+    T, K = x.shape
     S = pxy.shape[1]
     C = f_t.shape[1]
     cost = np.zeros(T)
     for chunk in prange((T + TEXEL_CHUNK - 1) // TEXEL_CHUNK):
-        rows = np.zeros((3, SAMPLE_BLOCK))  # s·w, and the derivative rows _lobe_rows leaves at 0
-        Rw = np.zeros((C, SAMPLE_BLOCK))
-        dot, lx, y, sv = np.ones(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK)
-        scratch, expo = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK, np.int64)
-        L = max(lobes, 1)
-        rho = np.empty((L, C))
-        cx, cy, n = np.empty(L), np.empty(L), np.empty(L)
+        _, _, Bw, Rw, dot, lx, y, sv, scratch, expo, _, _, rho, cx, cy, n = _ne_scratch(K, C, lobes)
         for t in range(chunk * TEXEL_CHUNK, min(T, (chunk + 1) * TEXEL_CHUNK)):
             d = idx[t]
             _unpack(x, t, lobes, 0, False, C, rho, cx, cy, n)
             total = e_unlit[d]
             for s0 in range(0, S, SAMPLE_BLOCK):
                 nb = min(SAMPLE_BLOCK, S - s0)
-                P, Z, W = pxy[d, s0:s0 + nb], pzz[d, s0:s0 + nb], w_lit[d, s0:s0 + nb]
-                for c in range(C):
-                    fc, rc, rd = f_t[d, c, s0:s0 + nb], Rw[c], x[t, c]
-                    for k in range(nb):
-                        rc[k] = rd - fc[k]
-                for j in range(lobes):
-                    _lobe_rows(cx[j], n[j], P, Z, W, nb, dot, lx, y, sv, scratch, expo, rows[0], rows[1], rows[2],
-                               False)
-                    for c in range(C):
-                        rc, rj = Rw[c], rho[j, c]
-                        for k in range(nb):
-                            rc[k] += rj * sv[k]
+                W = _block_rows(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, Bw, Rw, dot, lx, y, sv, scratch, expo,
+                                rho, cx, n, False)
                 total += _weigh_residuals(Rw, W, nb, False)
             cost[t] = total
     return cost
@@ -588,7 +585,7 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
                     break
                 for k in range(K):
                     diag[k] = max(Ac[0, k, k], 1e-12) if free[k] else 1.0
-                _damped_step(Ac, gc, diag, lam, keep, free, M, b, raw, False)
+                _damped_step(Ac, gc, diag, lam, keep, M, b, raw, False)
                 for k in range(K):
                     xn[0, k] = min(max(xc[0, k] + raw[k], lo[k]), hi[k])
                     step[k] = raw[k]
@@ -603,7 +600,7 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
                         keep[k] = free[k] and not held
                         pinned = pinned or held
                     if pinned:
-                        _damped_step(Ac, gc, diag, lam, keep, free, M, b, raw, True)
+                        _damped_step(Ac, gc, diag, lam, keep, M, b, raw, True)
                         for k in range(K):
                             xn[0, k] = min(max(xc[0, k] + raw[k], lo[k]), hi[k])
                         _project_row(xn[0], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at,
@@ -649,7 +646,7 @@ def _mask_free(A, g, free):
 
 
 @njit(cache=True, inline="always")
-def _damped_step(A, g, diag, lam, keep, free, M, b, out, reduced):
+def _damped_step(A, g, diag, lam, keep, M, b, out, reduced):
     """``out = −(A + λ·diag)⁻¹ g`` (0 where not finite, or everywhere if singular); ``reduced``: only the ``keep``
     parameters move (the others' rows and columns replaced by the identity, their gradient by 0)."""
     K = g.shape[1]
