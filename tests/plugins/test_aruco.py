@@ -9,6 +9,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from sbrdf_cameras.virtual import BLACK_ALBEDO, WHITE_ALBEDO, capture_to_folder, orbit_poses
 from sbrdf_core.errors import SbrdfError
@@ -527,6 +530,93 @@ def test_compiled_texel_mapping_gives_the_numpy_bits():
                 for a, b in zip(remap_maps(xs, ys, H, K, dist, scale, True), remap_maps(xs, ys, H, K, dist, scale, False)):
                     assert a.dtype == b.dtype == np.float32
                     np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=150, deadline=None)
+@given(f=st.tuples(st.floats(300, 3000), st.floats(300, 3000)), c=st.tuples(st.floats(50, 900), st.floats(50, 700)),
+       dist=hnp.arrays(np.float64, 5, elements=st.floats(-0.05, 0.05)), radial=st.floats(-0.3, 0.3),
+       jitter=hnp.arrays(np.float64, (3, 3), elements=st.floats(-0.05, 0.05)),
+       tilt=st.tuples(st.floats(-0.004, 0.004), st.floats(-0.004, 0.004)),
+       texels=st.tuples(st.integers(1, 300), st.integers(1, 300)), size=st.tuples(st.floats(5, 300), st.floats(5, 300)),
+       offset=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5)), level=st.integers(0, 3))
+def test_opencv_texel_maps_are_the_numpy_mapping(f, c, dist, radial, jitter, tilt, texels, size, offset, level):
+    """texel_maps (cv2.initUndistortRectifyMap with K⁻¹·H·A) against remap_maps on the same grid: within one
+    float32 ulp, every distortion term, tilt, pyramid scale and sub-sample offset; grids it cannot map (one texel
+    wide, reaching behind the camera) give remap_maps' bits, its off-image sentinel included."""
+    from sbrdf_register import aruco
+
+    K = np.array([[f[0], 0.0, c[0]], [0.0, f[1], c[1]], [0.0, 0.0, 1.0]])
+    dist = dist.copy()
+    dist[0] += radial
+    H = np.array([[3.0, 0.1, 320.0], [-0.05, 3.1, 240.0], [0.0, 0.0, 1.0]]) + jitter
+    H[2, :2] = tilt  # up to 0.004/mm: a 300 mm sample's far corner may be behind the camera
+    scale = 2.0 ** -level
+    xs, ys = aruco._texel_axes(texels, size, *offset)
+    ref = aruco.remap_maps(xs, ys, H, K, dist, scale)
+    got = aruco.texel_maps(texels, size, offset, H, K, dist, scale)
+    if not aruco._opencv_maps_apply(xs, ys, H, K, dist):
+        for a, b in zip(got, ref):
+            np.testing.assert_array_equal(a, b)
+        return
+    for a, b in zip(got, ref):
+        assert a.dtype == np.float32 and a.shape == b.shape == (texels[1], texels[0])
+        assert np.isfinite(a).all() and (b > -1e5).all()  # in front of the camera: no sentinel
+        np.testing.assert_array_max_ulp(a, b, maxulp=1)
+
+
+def test_texel_maps_refuse_what_opencv_cannot_map():
+    """A skewed K (OpenCV's model has no skew term) or a grid partly behind the camera: remap_maps' bits."""
+    from sbrdf_register import aruco
+
+    dist = np.array([-0.2, 0.05, 1e-3, -2e-3, 0.01])
+    H = np.array([[3.0, 0.1, 320.0], [-0.05, 3.1, 240.0], [0.0, 0.0, 1.0]])
+    skewed = np.array([[900.0, 0.5, 320.0], [0.0, 905.0, 240.0], [0.0, 0.0, 1.0]])
+    behind = H + np.array([[0, 0, 0], [0, 0, 0], [0.012, -0.011, 0.0]])
+    for K, H_ in ((skewed, H), (np.where(skewed == 0.5, 0.0, skewed), behind)):
+        xs, ys = aruco._texel_axes((40, 30), (120.0, 100.0), 0.25, -0.25)
+        assert not aruco._opencv_maps_apply(xs, ys, H_, K, dist)
+        for a, b in zip(aruco.texel_maps((40, 30), (120.0, 100.0), (0.25, -0.25), H_, K, dist, 0.5),
+                        aruco.remap_maps(xs, ys, H_, K, dist, 0.5)):
+            np.testing.assert_array_equal(a, b)
+    xs, ys = aruco._texel_axes((40, 30), (120.0, 100.0))
+    assert aruco._opencv_maps_apply(xs, ys, H, np.where(skewed == 0.5, 0.0, skewed), dist)
+
+
+@settings(max_examples=200, deadline=None)
+@given(values=hnp.arrays(np.float32, st.integers(1, 400), elements=st.floats(-1e6, 1e6, width=32)),
+       q=st.floats(0.0, 100.0))
+def test_percentile_is_numpys(values, q):
+    """The tone map's white point: np.percentile's linear interpolation from one partition."""
+    from sbrdf_register.aruco import _percentile
+
+    want = float(np.percentile(values.astype(np.float64), q))
+    got = _percentile(values.copy(), q)
+    assert got == pytest.approx(want, rel=1e-12, abs=1e-9)
+
+
+def test_tone_map_is_the_gamma_formula(noisy_scan):
+    """tone_map (cv2.transform luminance, exp(log/2.2) in float32 lanes, one partition for the white point)
+    against the formula it implements, np.power and np.percentile in float64: at most one level apart on a
+    few pixels of real photographs; non-finite pixels are black, an all-invalid mask takes the whole image."""
+    from sbrdf_register.aruco import luminance, tone_map
+
+    _, _, store, _ = noisy_scan
+    capture = open_artifact(str(store / "capture"))
+    images, valids = capture.zarr_array("images"), capture.zarr_array("valid")
+    for pose in range(3):
+        image, valid = np.array(images[pose]), np.array(valids[pose])
+        image[10, 10] = np.nan
+        image[11, 11, 1] = np.inf
+        for mask in (valid, np.zeros_like(valid)):
+            grey = image.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+            grey[~np.isfinite(grey)] = 0.0
+            white = np.percentile(grey[mask] if mask.any() else grey, 99.0)
+            want = (255.0 * np.clip(grey / white, 0.0, 1.0) ** (1 / 2.2) + 0.5).astype(np.uint8)
+            got = tone_map(image, mask)
+            assert got.dtype == np.uint8 and got[10, 10] == got[11, 11] == 0
+            diff = np.abs(got.astype(int) - want)
+            assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+            np.testing.assert_array_equal(tone_map(image, mask, luminance(image)), got)
 
 
 def test_resampling_with_the_compiled_mapping_gives_the_same_bits(noisy_scan):
