@@ -56,3 +56,32 @@ def test_block_sized_temporaries_stay_mapped_after_a_larger_one_was_freed():
     env = {k: v for k, v in os.environ.items() if k not in ("MALLOC_ARENA_MAX", "MALLOC_MMAP_THRESHOLD_")}
     out = subprocess.run([sys.executable, "-c", MMAP_CODE], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "True"
+
+
+TRIM_CODE = """
+import ctypes
+from sbrdf_core.memory import limit_arenas, TRIM_THRESHOLD
+
+class MI(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()]
+
+libc = ctypes.CDLL(None)
+libc.mallinfo2.restype = MI
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, (ctypes.c_size_t,)
+libc.free.argtypes = (ctypes.c_void_p,)
+limit_arenas()
+ps = [libc.malloc(1 << 20) for _ in range(3)]  # a pose's temporaries: in the heap, below the mmap threshold
+for p in reversed(ps):
+    libc.free(p)
+print(libc.mallinfo2().keepcost >= 3 << 20, libc.mallinfo2().keepcost <= TRIM_THRESHOLD + (1 << 20))
+"""
+
+
+@glibc
+def test_a_poses_temporaries_stay_in_the_heap_when_freed():
+    """glibc trims a heap's free top above 128 KiB by default, so every pose faulted its few MB of temporaries
+    in again (a million minor faults in a 2 GB Register).  limit_arenas keeps up to TRIM_THRESHOLD free at the
+    top (mallinfo2's keepcost), and no more."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    out = subprocess.run([sys.executable, "-c", TRIM_CODE], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "True"]
