@@ -1030,15 +1030,39 @@ def footprint(H: np.ndarray, K, dist, texels: tuple[int, int], size_mm, max_subs
     The Jacobian's columns are the pixels moved per texel step along u and v; the
     largest, over the sample, sets how many bicubic sub-samples a texel needs, and
     octaves of pre-blur keep that at most ``max_subsamples`` per axis.
+
+    The texel centres' pixels come from OpenCV's float32 map (:func:`texel_maps`, a fifth of the NumPy
+    mapping's time) when the choice it gives cannot be the float64 grid's: every length is within a few
+    float32 ulps of the pixel coordinates of the float64 one, so the choice is kept when it is the same at
+    both ends of that interval, and the float64 grid decides otherwise (a length at a sub-sample count's
+    boundary).  Pixels per texel, a figure for users, then agree to about 1e-5.
     """
     K, dist = np.asarray(K, float), np.asarray(dist, float)
+    H = np.asarray(H, np.float64)
     U, V = texels
     xs, ys = _texel_axes((U, V), size_mm)
+    if not compiled and _opencv_maps_apply(xs, ys, H, K, dist):
+        px32, py32 = texel_maps((U, V), size_mm, (0.0, 0.0), H, K, dist, 1.0)
+        lu, lv, px_per_texel = _jacobian_lengths(px32, py32)
+        # |map - float64 grid| <= 1 ulp per coordinate, so a central difference is off by <= 1 ulp and a
+        # length by <= sqrt(2) ulps, plus float32 rounding in the length itself: 4 ulps of the largest coordinate.
+        tol = 4.0 * float(np.spacing(np.float32(max(np.abs(px32).max(), np.abs(py32).max()))))
+        choice = _filter_choice(lu, lv, max_subsamples)
+        if all(_filter_choice(lu + a, lv + b, max_subsamples) == choice for a in (-tol, tol) for b in (-tol, tol)):
+            return (*choice, px_per_texel)
     if compiled:
         pix = grid_to_pixels(xs, ys, H, K, dist, True)  # (V, U, 2) at the texel centres
         px, py = pix[..., 0], pix[..., 1]
     else:
-        px, py = _grid_xy(xs, ys, np.asarray(H, np.float64), K, dist)
+        px, py = _grid_xy(xs, ys, H, K, dist)
+    lu, lv, px_per_texel = _jacobian_lengths(px, py)
+    return (*_filter_choice(lu, lv, max_subsamples), px_per_texel)
+
+
+def _jacobian_lengths(px: np.ndarray, py: np.ndarray) -> tuple[float, float, float]:
+    """The texel centres' pixels ``(V, U)`` -> the largest Jacobian column lengths along u and v and
+    sqrt(median(du·dv)) (pixels per texel), over the texels with finite columns."""
+    V, U = px.shape
 
     def length(axis: int) -> np.ndarray:  # np.linalg.norm(np.gradient(pix, axis=axis), axis=-1), per component
         gx, gy = np.gradient(px, axis=axis), np.gradient(py, axis=axis)
@@ -1047,8 +1071,8 @@ def footprint(H: np.ndarray, K, dist, texels: tuple[int, int], size_mm, max_subs
         gx += gy
         return np.sqrt(gx, out=gx)
 
-    du = length(1) if U > 1 else np.ones((V, U))
-    dv = length(0) if V > 1 else np.ones((V, U))
+    du = length(1) if U > 1 else np.ones((V, U), px.dtype)
+    dv = length(0) if V > 1 else np.ones((V, U), px.dtype)
     fin = np.isfinite(du) & np.isfinite(dv)
     every = bool(fin.all())  # the usual case: no masked copies
     if every:
@@ -1057,10 +1081,15 @@ def footprint(H: np.ndarray, K, dist, texels: tuple[int, int], size_mm, max_subs
         du_f, dv_f = du[fin], dv[fin]
     lu = float(np.max(du_f)) if du_f.size else 1.0
     lv = float(np.max(dv_f)) if dv_f.size else 1.0
+    # (du·dv is a fresh array: the median may partition it in place, the same order statistics.)
+    px_per_texel = float(np.sqrt(np.median(du_f * dv_f, overwrite_input=True))) if du_f.size else 0.0
+    return lu, lv, px_per_texel
+
+
+def _filter_choice(lu: float, lv: float, max_subsamples: int) -> tuple[int, int, int]:
+    """(pyramid level, n_u, n_v) for the largest Jacobian column lengths ``lu``, ``lv`` (pixels per texel step)."""
     level = max(0, math.ceil(math.log2(max(lu, lv, 1e-9) / max_subsamples))) if max(lu, lv) > max_subsamples else 0
     scale = 2.0 ** -level
     n_u = max(1, math.ceil(lu * scale - 1e-6))
     n_v = max(1, math.ceil(lv * scale - 1e-6))
-    # (du·dv is a fresh array: the median may partition it in place, the same order statistics.)
-    px_per_texel = float(np.sqrt(np.median(du_f * dv_f, overwrite_input=True))) if du_f.size else 0.0
-    return level, n_u, n_v, px_per_texel
+    return level, n_u, n_v

@@ -619,6 +619,46 @@ def test_tone_map_is_the_gamma_formula(noisy_scan):
             np.testing.assert_array_equal(tone_map(image, mask, luminance(image)), got)
 
 
+def test_footprint_from_the_float32_map_chooses_what_the_float64_grid_does(monkeypatch):
+    """footprint measures on OpenCV's float32 map and falls back to the float64 grid where a length is within
+    its error of a boundary: homographies whose largest length is a sub-sample count (2, 3) or an octave
+    (max_subsamples 2 -> 4 px) to 1e-12 ... 1e-3 relative, on either side, choose exactly what the float64 grid
+    chooses; pixels per texel within 1e-4; the float64 grid is used near a boundary only."""
+    from sbrdf_register import aruco
+
+    K = np.array([[900.0, 0.0, 320.0], [0.0, 905.0, 240.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.2, 0.05, 1e-3, -2e-3, 0.01])
+    texels, size = (64, 48), (100.0, 80.0)
+    xs, ys = aruco._texel_axes(texels, size)
+    base = np.array([[3.0, 0.1, 320.0], [-0.05, 3.1, 240.0], [2e-4, -1e-4, 1.0]])
+
+    def scaled(k):  # the pixel rows' linear part scaled by k about the principal point
+        H = base.copy()
+        H[:2, :2] *= k
+        return H
+
+    def reference(H, ms):
+        lu, lv, ppt = aruco._jacobian_lengths(*aruco._grid_xy(xs, ys, H, K, dist))
+        return (*aruco._filter_choice(lu, lv, ms), ppt), max(lu, lv)
+
+    grids = []
+    real_grid = aruco._grid_xy
+    monkeypatch.setattr(aruco, "_grid_xy", lambda *a: grids.append(1) or real_grid(*a))
+    for target, ms in ((2.0, 4), (3.0, 4), (4.0, 2)):
+        lo, hi = 0.1, 10.0  # bisect k so that the largest length (increasing in k) is the target
+        for _ in range(200):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if reference(scaled(mid), ms)[1] < target else (lo, mid)
+        for rel in (-1e-3, -1e-6, -1e-9, -1e-12, 0.0, 1e-12, 1e-9, 1e-6, 1e-3):
+            H = scaled(lo * (1 + rel))
+            (level, n_u, n_v, ppt), _ = reference(H, ms)
+            grids.clear()
+            got = aruco.footprint(H, K, dist, texels, size, ms)
+            assert got[:3] == (level, n_u, n_v), (target, rel)
+            assert got[3] == pytest.approx(ppt, rel=1e-4)
+            assert bool(grids) == (abs(rel) < 1e-5), (target, rel)  # the float64 grid only near the boundary
+
+
 def test_resampling_with_the_compiled_mapping_gives_the_same_bits(noisy_scan):
     """A pose resampled with ``compiled_mapping`` (numba) and without (NumPy), every filter path: clipped edges
     (renormalise), strict, a pyramid level, invalid and non-finite pixels, and one texel at the sample's centre
@@ -631,8 +671,11 @@ def test_resampling_with_the_compiled_mapping_gives_the_same_bits(noisy_scan):
     for params in ({}, {"edge": "strict"}, {"texels": [16, 16]}, {"texels": [1, 1]}):
         plugins = [aruco.ArucoRegistration(**{"texels": [64, 64], **params, "compiled_mapping": c}) for c in (False, True)]
         regs = [p.register(capture) for p in plugins]  # the filter (footprint) is measured with each mapping
-        for name in ("pyramid_level", "subsamples", "pixels_per_texel"):
+        for name in ("pyramid_level", "subsamples"):
             np.testing.assert_array_equal(regs[0].per_pose[name], regs[1].per_pose[name])
+        # (the default measures it on OpenCV's float32 map: see test_footprint_from_the_float32_map)
+        np.testing.assert_allclose(regs[0].per_pose["pixels_per_texel"], regs[1].per_pose["pixels_per_texel"],
+                                   rtol=1e-4)
         reg = regs[0]
         for pose in (int(p) for p in reg.pose_ids[:2]):
             image, valid = np.array(images[pose]), np.array(valids[pose])
