@@ -455,8 +455,8 @@ class ArucoRegistration:
         Param("edge_min_weight", "float", 0.25, "renormalise: a clipped texel is valid when at least this "
               "fraction of its filter's weight falls on usable pixels", bounds=(0.0, 1.0)),
         Param("compiled_mapping", "bool", False, "map texels to pixels with a compiled loop (numba), the NumPy "
-              "mapping's bits, instead of OpenCV's map (within a float32 ulp): about 2 ms less CPU a pose "
-              "(the filter's grid, 256² texels), about 80 MB more memory in every process that registers"),
+              "mapping's bits, instead of OpenCV's map (within a float32 ulp): no faster now (within noise "
+              "at 256² texels), about 80 MB more memory in every process that registers"),
     )
 
     #: Resample only the window of the photograph the pose's filter reaches (:meth:`_crop_window`; the
