@@ -33,7 +33,9 @@ on the same cores:
 
 Time is CPU time of this process (``time.process_time``: all threads, the
 numba kernels' included; nothing runs in child processes) and wall time,
-both per texel.  Kernels are compiled and cached off the clock first.
+both per texel.  Kernels are compiled and cached off the clock first.  The
+process runs with the malloc settings ``sbrdf run`` applies
+(``sbrdf_core.memory.limit_arenas``), so the Fit node is timed as users run it.
 ``speedup_cpu_lmL`` = the L-lobe peer's CPU time / lmL's, on the peer's data;
 ``peer_cpu_ms_per_texel`` is the 2-lobe peer's.  ``rms_ratio_lm2`` = mean
 training RMS of lm2 / of the 2-lobe peer on the peer's data.
@@ -412,6 +414,9 @@ def main() -> int:
                     "of docs/accuracy-vs-time.md")
     args = ap.parse_args()
     side = 32 if args.quick else 64
+    from sbrdf_core.memory import limit_arenas
+
+    limit_arenas()  # as the sbrdf command does at start-up (sbrdf_core.cli.tune_process)
     t0 = time.perf_counter()
     warm_up()
     print(f"warm-up (import, compile or load cached kernels): {time.perf_counter() - t0:.1f} s wall")

@@ -26,12 +26,18 @@ stay in the arenas: a 1 MiB threshold paid page faults on those, Register 47 %
 slower.
 
 It also fixes the trim threshold at :data:`TRIM_THRESHOLD`.  Fixing the mmap
-threshold leaves glibc's trim threshold at 128 KiB, so freeing a pose's few MB of
-temporaries (its photograph, luminance, masks, maps) at the top of a heap gave
-them back to the system, and the next pose faulted every page in again: a 2 GB
-Register took a million minor page faults, 7 MB a pose, and 4.6 s of system time
-(60 000 faults and 2.1 s with 16 MiB, peak RSS unchanged: each heap keeps at most
-that much free at its top, whatever the scan).
+threshold leaves glibc's trim threshold at 128 KiB, so freeing a task's
+temporaries at the top of a heap gave them back to the system, and the next task
+faulted every page in again: a 2 GB Register took a million minor page faults
+(7 MB a pose: its photograph, luminance, masks, maps) and 4.6 s of system time,
+60 000 faults and 2.1 s with a 16 MiB threshold; and a Fit tile's working memory
+(up to ``FIT_TASK_BYTES``, 96 MiB) was faulted in anew for every tile, which made
+the Lafortune fit 25-35 % slower than with glibc's defaults (benchmarks/fit.py:
+1 lobe 0.151-0.165 ms CPU a texel with 16 MiB, 0.129-0.132 with 64 MiB,
+0.113-0.115 with 128 MiB).  Each heap keeps at most that much free at its top,
+whatever the scan, and peaks are set by live memory: the fit benchmark's
+process peaked at 479 MB with 16 MiB and 486 MB with 128 MiB, a 2 GB Register at
+261-273 MB with either.
 
 :data:`CLUSTER_CONFIG` is the dask configuration to start a cluster with
 (``dask.config.set(CLUSTER_CONFIG)``): it passes :data:`WORKER_ENV` to the
@@ -59,8 +65,8 @@ M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD = 4 << 20
 #: glibc's ``mallopt`` parameter number for the trim threshold (malloc.h ``M_TRIM_THRESHOLD``).
 M_TRIM_THRESHOLD = -1
-#: Free memory a heap keeps at its top rather than give back: a few poses' temporaries, fixed.
-TRIM_THRESHOLD = 16 << 20
+#: Free memory a heap keeps at its top rather than give back: a Fit task's working memory, fixed.
+TRIM_THRESHOLD = 128 << 20
 #: Environment for dask worker processes (``distributed.nanny.pre-spawn-environ``).
 WORKER_ENV = {"MALLOC_ARENA_MAX": str(ARENAS), "MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD),
               "MALLOC_TRIM_THRESHOLD_": str(TRIM_THRESHOLD)}
