@@ -26,7 +26,8 @@ def test_limit_arenas_leaves_a_users_setting_alone():
     assert _run({**os.environ, "MALLOC_ARENA_MAX": "4"}) == "False"
 
 
-MMAP_CODE = """
+#: mallinfo2 and raw malloc/free through ctypes, after limit_arenas.
+MALLOC = """
 import ctypes
 from sbrdf_core.memory import limit_arenas
 
@@ -38,7 +39,9 @@ libc.mallinfo2.restype = MI
 libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, (ctypes.c_size_t,)
 libc.free.argtypes = (ctypes.c_void_p,)
 limit_arenas()
-libc.free(libc.malloc(24 << 20))  # a pose block's temporary, mapped then freed
+"""
+
+MMAP_CODE = MALLOC + """libc.free(libc.malloc(24 << 20))  # a pose block's temporary, mapped then freed
 before = libc.mallinfo2().hblkhd
 p = libc.malloc(8 << 20)  # a texel tile
 print(libc.mallinfo2().hblkhd - before >= 8 << 20)
@@ -58,18 +61,7 @@ def test_block_sized_temporaries_stay_mapped_after_a_larger_one_was_freed():
     assert out.stdout.strip() == "True"
 
 
-TRIM_CODE = """
-import ctypes
-from sbrdf_core.memory import limit_arenas, TRIM_THRESHOLD
-
-class MI(ctypes.Structure):
-    _fields_ = [(n, ctypes.c_size_t) for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()]
-
-libc = ctypes.CDLL(None)
-libc.mallinfo2.restype = MI
-libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, (ctypes.c_size_t,)
-libc.free.argtypes = (ctypes.c_void_p,)
-limit_arenas()
+TRIM_CODE = MALLOC + """from sbrdf_core.memory import TRIM_THRESHOLD
 ps = [libc.malloc(1 << 20) for _ in range(3)]  # a pose's temporaries: in the heap, below the mmap threshold
 for p in reversed(ps):
     libc.free(p)
