@@ -208,7 +208,7 @@ def texel_maps(texels_uv, size_mm, offset: tuple[float, float], H: np.ndarray, K
     that, then the same 5-term distortion and K, in float64 SIMD lanes on OpenCV's threads: about 6×
     less CPU than the NumPy passes (0.3 against 1.8 ms at 256² texels, one thread).  It rounds
     differently inside float64, so a float32 map entry may differ from :func:`remap_maps`' by an ulp
-    (tested).  It has no skew term and does not mark points behind the camera, so a skewed K, a grid
+    (of 1 px near 0, where the distortion's terms cancel; tested).  It has no skew term and does not mark points behind the camera, so a skewed K, a grid
     reaching behind the camera or anything non-finite goes to :func:`remap_maps`, as does
     ``compiled`` (numba, the NumPy bits).
     """
@@ -229,7 +229,12 @@ def texel_maps(texels_uv, size_mm, offset: tuple[float, float], H: np.ndarray, K
     # K at pyramid scale, with remap_maps' (p + 0.5)·scale − 0.5 folded into the principal point.
     K_level = np.array([[K[0, 0] * scale, 0.0, (K[0, 2] + 0.5) * scale - 0.5],
                         [0.0, K[1, 1] * scale, (K[1, 2] + 0.5) * scale - 0.5], [0.0, 0.0, 1.0]])
-    return cv2.initUndistortRectifyMap(K_level, k, None, np.linalg.inv(to_normalised), (U, V), cv2.CV_32FC1)
+    maps = cv2.initUndistortRectifyMap(K_level, k, None, np.linalg.inv(to_normalised), (U, V), cv2.CV_32FC1)
+    for m in maps:  # a point in front of the camera whose pixel overflows float32: remap_maps' sentinel
+        finite = np.isfinite(m)
+        if not finite.all():
+            m[~finite] = np.float32(-1e6)
+    return maps
 
 
 def _opencv_maps_apply(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dist) -> bool:
@@ -1043,13 +1048,15 @@ def footprint(H: np.ndarray, K, dist, texels: tuple[int, int], size_mm, max_subs
     xs, ys = _texel_axes((U, V), size_mm)
     if not compiled and _opencv_maps_apply(xs, ys, H, K, dist):
         px32, py32 = texel_maps((U, V), size_mm, (0.0, 0.0), H, K, dist, 1.0)
-        lu, lv, px_per_texel = _jacobian_lengths(px32, py32)
-        # |map - float64 grid| <= 1 ulp per coordinate, so a central difference is off by <= 1 ulp and a
-        # length by <= sqrt(2) ulps, plus float32 rounding in the length itself: 4 ulps of the largest coordinate.
-        tol = 4.0 * float(np.spacing(np.float32(max(np.abs(px32).max(), np.abs(py32).max()))))
-        choice = _filter_choice(lu, lv, max_subsamples)
-        if all(_filter_choice(lu + a, lv + b, max_subsamples) == choice for a in (-tol, tol) for b in (-tol, tol)):
-            return (*choice, px_per_texel)
+        # (Pixels beyond ±1e5, or remap_maps' sentinel, are no footprint to measure in float32: float64 decides.)
+        if max(float(np.abs(px32).max()), float(np.abs(py32).max())) < 1e5:
+            lu, lv, px_per_texel = _jacobian_lengths(px32, py32)
+            # |map - float64 grid| <= 1 ulp per coordinate, so a central difference is off by <= 1 ulp and a length
+            # by <= sqrt(2) ulps, plus float32 rounding in the length itself: 4 ulps of the largest coordinate.
+            tol = 4.0 * float(np.spacing(np.float32(max(np.abs(px32).max(), np.abs(py32).max()))))
+            choice = _filter_choice(lu, lv, max_subsamples)
+            if all(_filter_choice(lu + a, lv + b, max_subsamples) == choice for a in (-tol, tol) for b in (-tol, tol)):
+                return (*choice, px_per_texel)
     if compiled:
         pix = grid_to_pixels(xs, ys, H, K, dist, True)  # (V, U, 2) at the texel centres
         px, py = pix[..., 0], pix[..., 1]

@@ -541,7 +541,7 @@ def test_compiled_texel_mapping_gives_the_numpy_bits():
        offset=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5)), level=st.integers(0, 3))
 def test_opencv_texel_maps_are_the_numpy_mapping(f, c, dist, radial, jitter, tilt, texels, size, offset, level):
     """texel_maps (cv2.initUndistortRectifyMap with K⁻¹·H·A) against remap_maps on the same grid: within one
-    float32 ulp, every distortion term, tilt, pyramid scale and sub-sample offset; grids it cannot map (one texel
+    float32 ulp (of 1 px near 0), every distortion term, tilt, pyramid scale and sub-sample offset; grids it cannot map (one texel
     wide, reaching behind the camera) give remap_maps' bits, its off-image sentinel included."""
     from sbrdf_register import aruco
 
@@ -560,8 +560,30 @@ def test_opencv_texel_maps_are_the_numpy_mapping(f, c, dist, radial, jitter, til
         return
     for a, b in zip(got, ref):
         assert a.dtype == np.float32 and a.shape == b.shape == (texels[1], texels[0])
-        assert np.isfinite(a).all() and (b > -1e5).all()  # in front of the camera: no sentinel
+        assert np.isfinite(a).all()  # (remap_maps' sentinel where a pixel overflows float32, as there)
+        # One float32 ulp of the coordinate, or of 1 px near 0, where the distortion's terms cancel: a pixel
+        # position's error is absolute (hypothesis found 2 ulps at 4e-6 px).
+        ulp = np.spacing(np.maximum(np.abs(b), np.float32(1.0)))
+        assert (np.abs(a.astype(np.float64) - b) <= ulp).all()
+
+
+def test_texel_maps_far_off_the_image():
+    """The hypothesis example CI found: a grid in front of the camera whose distortion throws a corner 1e5 px off
+    (tilted, 300 mm long, every distortion term -1/32): OpenCV's map is still NumPy's within an ulp, and the
+    footprint, measured in float64 there, is what the float64 grid gives."""
+    from sbrdf_register import aruco
+
+    K = np.array([[300.0, 0.0, 50.0], [0.0, 300.0, 50.0], [0.0, 0.0, 1.0]])
+    dist = np.full(5, -0.03125)
+    H = np.array([[3.0, 0.1, 320.0], [-0.05, 3.1, 240.0], [0.0, -0.00390625, 1.0]])
+    xs, ys = aruco._texel_axes((2, 4), (5.0, 300.0))
+    assert aruco._opencv_maps_apply(xs, ys, H, K, dist)
+    ref = aruco.remap_maps(xs, ys, H, K, dist, 1.0)
+    assert max(np.abs(b).max() for b in ref) > 9e4
+    for a, b in zip(aruco.texel_maps((2, 4), (5.0, 300.0), (0.0, 0.0), H, K, dist, 1.0), ref):
         np.testing.assert_array_max_ulp(a, b, maxulp=1)
+    lu, lv, ppt = aruco._jacobian_lengths(*aruco._grid_xy(xs, ys, H, K, dist))
+    assert aruco.footprint(H, K, dist, (2, 4), (5.0, 300.0), 4) == (*aruco._filter_choice(lu, lv, 4), ppt)
 
 
 def test_texel_maps_refuse_what_opencv_cannot_map():
