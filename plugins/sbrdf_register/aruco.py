@@ -116,10 +116,17 @@ class PoseFit:
 # ---------------------------------------------------------------------------
 
 
-def distort(xn: np.ndarray, yn: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised ideal coordinates -> distorted pixel coordinates (OpenCV's 5-term model)."""
+def distortion_terms(dist) -> np.ndarray:
+    """OpenCV's ``(k1, k2, p1, p2, k3)`` from a capture's distortion coefficients: missing terms 0, terms past
+    the fifth (thin prism, tilt) not modelled."""
     k = np.zeros(5)
     k[: min(5, len(dist))] = np.asarray(dist, float)[:5]
+    return k
+
+
+def distort(xn: np.ndarray, yn: np.ndarray, K: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised ideal coordinates -> distorted pixel coordinates (OpenCV's 5-term model)."""
+    k = distortion_terms(dist)
     k1, k2, p1, p2, k3 = k
     r2 = xn * xn + yn * yn
     radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -160,8 +167,7 @@ def grid_to_pixels(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray,
     K, H = np.asarray(K, np.float64), np.asarray(H, np.float64)
     if not compiled:
         return np.stack(_grid_xy(xs, ys, H, K, dist), axis=-1)
-    k = np.zeros(5)
-    k[: min(5, len(dist))] = np.asarray(dist, float)[:5]
+    k = distortion_terms(dist)
     out = np.empty((2, len(ys), len(xs)))
     _grid_kernel()(np.ascontiguousarray(H), np.linalg.inv(K), np.ascontiguousarray(K), k, np.ascontiguousarray(xs),
                    np.ascontiguousarray(ys), False, 1.0, out[0], out[1])
@@ -190,8 +196,7 @@ def remap_maps(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dis
                     m[~finite] = np.float32(-1e6)
         return maps[0], maps[1]
     K = np.asarray(K, np.float64)
-    k = np.zeros(5)
-    k[: min(5, len(dist))] = np.asarray(dist, float)[:5]
+    k = distortion_terms(dist)
     out = np.empty((2, len(ys), len(xs)), np.float32)
     _grid_kernel()(np.ascontiguousarray(H, np.float64), np.linalg.inv(K), np.ascontiguousarray(K), k,
                    np.ascontiguousarray(xs, np.float64), np.ascontiguousarray(ys, np.float64), True, float(scale),
@@ -216,16 +221,20 @@ def texel_maps(texels_uv, size_mm, offset: tuple[float, float], H: np.ndarray, K
     H, K = np.asarray(H, np.float64), np.asarray(K, np.float64)
     if compiled or not _opencv_maps_apply(xs, ys, H, K, dist):
         return remap_maps(xs, ys, H, K, dist, scale, compiled)
+    return _opencv_texel_maps(texels_uv, size_mm, offset, H, K, dist, scale)
+
+
+def _opencv_texel_maps(texels_uv, size_mm, offset: tuple[float, float], H: np.ndarray, K: np.ndarray,
+                       dist: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`texel_maps` by OpenCV, where :func:`_opencv_maps_apply` says it may (float64 ``H`` and ``K``)."""
     import cv2
 
-    U, V = len(xs), len(ys)
-    (sx, sy), (ou, ov) = size_mm, offset
+    (U, V), (sx, sy), (ou, ov) = texels_uv, size_mm, offset
     # x_j = (j + 0.5 + ou)/U·sx − sx/2 = a_x·j + b_x (and y alike): the grid is A·(j, i, 1).
     A = np.array([[sx / U, 0.0, (0.5 + ou) / U * sx - sx / 2], [0.0, sy / V, (0.5 + ov) / V * sy - sy / 2],
                   [0.0, 0.0, 1.0]])
     to_normalised = np.linalg.inv(K) @ H @ A  # OpenCV applies inv(newCameraMatrix · R): give it the inverse
-    k = np.zeros(5)
-    k[: min(5, len(dist))] = np.asarray(dist, float)[:5]
+    k = distortion_terms(dist)
     # K at pyramid scale, with remap_maps' (p + 0.5)·scale − 0.5 folded into the principal point.
     K_level = np.array([[K[0, 0] * scale, 0.0, (K[0, 2] + 0.5) * scale - 0.5],
                         [0.0, K[1, 1] * scale, (K[1, 2] + 0.5) * scale - 0.5], [0.0, 0.0, 1.0]])
@@ -257,8 +266,7 @@ GRID_BLOCK = 8192
 
 def _grid_blocks(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dist: np.ndarray):
     """:func:`_grid_xy` a block of rows at a time: yields ``(rows, px, py)``, ``rows`` a slice of ``ys``."""
-    k = np.zeros(5)
-    k[: min(5, len(dist))] = np.asarray(dist, float)[:5]
+    k = distortion_terms(dist)
     Ki = np.linalg.inv(K)
     step = max(1, GRID_BLOCK // max(1, len(xs)))
     for i in range(0, len(ys), step):
@@ -1047,13 +1055,14 @@ def footprint(H: np.ndarray, K, dist, texels: tuple[int, int], size_mm, max_subs
     U, V = texels
     xs, ys = _texel_axes((U, V), size_mm)
     if not compiled and _opencv_maps_apply(xs, ys, H, K, dist):
-        px32, py32 = texel_maps((U, V), size_mm, (0.0, 0.0), H, K, dist, 1.0)
+        px32, py32 = _opencv_texel_maps((U, V), size_mm, (0.0, 0.0), H, K, dist, 1.0)
+        farthest = max(float(np.abs(px32).max()), float(np.abs(py32).max()))
         # (Pixels beyond ±1e5, or remap_maps' sentinel, are no footprint to measure in float32: float64 decides.)
-        if max(float(np.abs(px32).max()), float(np.abs(py32).max())) < 1e5:
+        if farthest < 1e5:
             lu, lv, px_per_texel = _jacobian_lengths(px32, py32)
             # |map - float64 grid| <= 1 ulp per coordinate, so a central difference is off by <= 1 ulp and a length
             # by <= sqrt(2) ulps, plus float32 rounding in the length itself: 4 ulps of the largest coordinate.
-            tol = 4.0 * float(np.spacing(np.float32(max(np.abs(px32).max(), np.abs(py32).max()))))
+            tol = 4.0 * float(np.spacing(np.float32(farthest)))
             choice = _filter_choice(lu, lv, max_subsamples)
             if all(_filter_choice(lu + a, lv + b, max_subsamples) == choice for a in (-tol, tol) for b in (-tol, tol)):
                 return (*choice, px_per_texel)
