@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .brdf_checks import energy_azimuths, energy_report, uncleared
-from .channels import channel_max
+from .channels import all_finite, channel_max
 from .geometry import polar_direction
 
 #: A cosine lobe cos^n α falls to half its peak at α = √(2 ln 2 / n).
@@ -89,8 +89,13 @@ def sample_support(f_r: np.ndarray, valid: np.ndarray, weight: np.ndarray | None
 
     ``weight`` ``(T, S)``, ≥ 0, multiplies each sample first (cos θ_i cos θ_o for :attr:`Limits.peak_cosine`).
     """
-    with np.errstate(invalid="ignore"):
-        f = channel_max(np.where(np.isfinite(f_r), f_r, 0.0))  # channels first: one (T, S) array after this
+    # Channels first: one (T, S) array after this.  A non-finite channel counts as 0; the usual input (the Fit
+    # node's, made usable) has none, and then the copy that zeroes them is skipped (2 ms a Fit tile).
+    if all_finite(f_r).all():
+        f = channel_max(f_r)
+    else:
+        with np.errstate(invalid="ignore"):
+            f = channel_max(np.where(np.isfinite(f_r), f_r, 0.0))
     if weight is not None:
         f *= weight  # weights are ≥ 0, so the channels' maximum times the weight is the weighted maximum
     return np.where(valid, f, 0.0).max(axis=1, initial=0.0)

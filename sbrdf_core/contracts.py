@@ -304,6 +304,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
         "gl_textures": OptionalMember("`gl_textures() -> {uniform: array}`: textures the model's GLSL samples (a "
                                       "tabulated model's table), uploaded by the gl renderer.", None),
         "suggested_starts": OptionalMember("`suggested_starts`: how many starts a multi-start fit should use.", 2),
+        "reads_peak_cosine": OptionalMember("`reads_peak_cosine`: `constrain` reads `Limits.peak_cosine` (a "
+                                            "microfacet lobe's peak bound on f_r cos θ_i cos θ_o, "
+                                            "`constraints.widen_to_peak`); False: the Fit node does not compute "
+                                            "that support.", True),
         "fit_trapped": OptionalMember("`fit_trapped(x) -> (T,) bool` (on the fit form): packed fit-form rows where LM is "
                                       "known to stall (a lobe with no magnitude gets no gradient in its shape); `lm` "
                                       "and `lm-gl` fit them again (from the form's variable-projection fit where it "

@@ -71,6 +71,7 @@ COMPILED_EVAL_MIN = 3 * 4096
 
 class LafortuneModel(BRDFModel):
     name = "lafortune"
+    reads_peak_cosine = False  # lobes are bounded on f_r itself (bound_lobes), not as microfacet lobes
 
     params = (
         Param("lobes", "int", 1, "number of cosine lobes", bounds=(0, 8)),

@@ -742,6 +742,15 @@ def lobe_quadrature(a, n, dirs, weights):
     return out
 
 
+@njit(cache=True, fastmath={"reassoc", "contract"}, inline="always")
+def _dot(a, b, n):
+    """``Σ_k a[k] b[k]`` over the first ``n`` entries, in SIMD lanes (``reassoc``: the additions in another order)."""
+    acc = 0.0
+    for k in range(n):
+        acc += a[k] * b[k]
+    return acc
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     """Starting point: for each texel, the lobe-1 exponent from ``log_exponents`` with the smallest cost.
@@ -769,7 +778,7 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
         dots = np.ones((L, S))  # per lobe, C·ω of each lit sample (1 where it is dark: log 0, masked below)
         lit = np.zeros((L, S), np.bool_)
         log_dot, sv = np.empty(S), np.zeros((L, S))
-        wt, r = np.empty(S), np.empty((S, C))
+        wt, r = np.empty(S), np.empty((C, S))  # the weighted diffuse residuals, a row per channel
         y, ev, scratch, expo = np.empty(S), np.empty(S), np.empty(S), np.empty(S, np.int64)
         G1, h1 = np.zeros((L, L)), np.zeros((L, C))  # the candidate-free part of G (lobes 2.. among themselves)
         G, h, M, b, rho = np.empty((L, L)), np.empty((L, C)), np.empty((L, L)), np.empty(L), np.empty((L, C))
@@ -800,7 +809,7 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
                 wt[m] = ws
                 for c in range(C):
                     r0 = (f[t, s, c] - x[t, c]) * ws
-                    r[m, c] = r0
+                    r[c, m] = r0
                     e0 += r0 * r0
                 m += 1
             if lobes:
@@ -814,30 +823,26 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
                 simd_exp(y, sj, scratch, expo, m)
                 for k in range(m):
                     sj[k] = sj[k] * wt[k] if lit[j, k] else 0.0
-            G1[:] = 0.0
-            h1[:] = 0.0
-            for k in range(m):
-                for j in range(1, lobes):
-                    for c in range(C):
-                        h1[j, c] += sv[j, k] * r[k, c]
-                    for i in range(1, lobes):
-                        G1[j, i] += sv[j, k] * sv[i, k]
+            for j in range(1, lobes):
+                for c in range(C):
+                    h1[j, c] = _dot(sv[j], r[c], m)
+                for i in range(1, lobes):
+                    G1[j, i] = _dot(sv[j], sv[i], m)
             for q in range(log_exponents.size):
                 n0 = math.exp(log_exponents[q])
                 G[:] = G1
                 h[:] = h1
-                for k in range(m):  # the candidate's lobe at every sample: the exps in SIMD lanes, the sums in order
+                for k in range(m):  # the candidate's lobe at every sample, its exps and sums in SIMD lanes
                     yk = n0 * log_dot[k]
                     y[k] = yk if yk < LOG_CAP else LOG_CAP
                 simd_exp(y, ev, scratch, expo, m)
                 for k in range(m):
-                    s0 = ev[k] * wt[k] if lit[0, k] else 0.0
-                    for c in range(C):
-                        h[0, c] += s0 * r[k, c]
-                    G[0, 0] += s0 * s0
-                    for i in range(1, lobes):
-                        G[0, i] += s0 * sv[i, k]
-                        G[i, 0] += sv[i, k] * s0
+                    ev[k] = ev[k] * wt[k] if lit[0, k] else 0.0
+                G[0, 0] = _dot(ev, ev, m)
+                for c in range(C):
+                    h[0, c] = _dot(ev, r[c], m)
+                for i in range(1, lobes):
+                    G[0, i] = G[i, 0] = _dot(ev, sv[i], m)
                 for j in range(lobes):
                     G[j, j] += 1e-12
                 for c in range(C):  # the magnitudes of each channel: G ρ = h, in place

@@ -23,6 +23,7 @@ class LambertModel(BRDFModel):
     name = "lambert"
     anisotropic = False
     suggested_starts = 1  # linear in ρ_d: one minimum
+    reads_peak_cosine = False
     parameters = (
         ModelParameter("rho_d", channels=3, bounds=(0.0, 10.0), typical=(0.02, 0.3), default=0.1, unit="sr^-1",
                        doc="diffuse reflectance per channel", magnitude=True),

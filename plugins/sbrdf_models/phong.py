@@ -37,6 +37,7 @@ EXPONENT_BOUNDS = (0.1, 20000.0)
 class PhongModel(BRDFModel):
     name = "phong"
     anisotropic = False
+    reads_peak_cosine = False  # its peak is bounded on f_r itself
     parameters = (
         ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
         ModelParameter("rho_s", 3, (0.0, 10.0), (0.05, 0.8), 0.3, unit="1", doc="specular albedo at normal incidence",

@@ -35,6 +35,7 @@ import numpy as np
 from ..artifacts import ParamMaps, SampledReflectance
 from ..channels import all_finite
 from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbourhood_max, sample_support
+from ..contracts import optional
 from ..geometry import tile_directions
 from ..params import Param
 from .base import BuildContext, NodeKind, Output, Port, shared
@@ -147,8 +148,21 @@ def rms_error(model, params, f_r, valid, wi, wo) -> np.ndarray:
 
 def masked_rms(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """RMS of residuals ``(T, S, C)`` over each texel's samples in ``mask`` and the channels (0 with none)."""
-    d = np.where(mask[..., None], diff, 0.0)
-    return np.sqrt(np.einsum("tsc,tsc->t", d, d) / np.maximum(mask.sum(axis=1) * diff.shape[-1], 1))
+    return squares_rms(sample_squares(diff), mask, diff.shape[-1])
+
+
+def sample_squares(diff: np.ndarray) -> np.ndarray:
+    """Each sample's sum of squared residuals over the channels, ``(T, S)``: what :func:`squares_rms` reads, made
+    once for several masks (the Fit node's training and held-out samples)."""
+    out = diff[..., 0] * diff[..., 0]
+    for c in range(1, diff.shape[-1]):
+        out += diff[..., c] * diff[..., c]
+    return out
+
+
+def squares_rms(squares: np.ndarray, mask: np.ndarray, channels: int) -> np.ndarray:
+    """:func:`masked_rms` from :func:`sample_squares` (a NaN outside ``mask`` does not count)."""
+    return np.sqrt(np.where(mask, squares, 0.0).sum(axis=1) / np.maximum(mask.sum(axis=1) * channels, 1))
 
 
 def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[int, int], min_train: int,
@@ -215,7 +229,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
         pf, pw, pi, po = _neighbour_pool(grid, sparse, f_r, train, wi, wo)
         resolution[sparse] = angular_resolution(pi, po, pw)
     support_cosine = None
-    if options.microfacet_peak == "cosine":  # only that bound reads it
+    if options.microfacet_peak == "cosine" and optional(model, "reads_peak_cosine", "brdf-model"):
         cosines = np.clip(wi[..., 2], 0, 1) * np.clip(wo[..., 2], 0, 1)
         support_cosine = neighbourhood_max(sample_support(f_r, valid, cosines).reshape(grid)).ravel()
     limits = options.limits(support, resolution, support_cosine)
@@ -240,8 +254,9 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     x = model.pack(params)
     with np.errstate(all="ignore"):
         diff = model.eval(params, wi, wo) - f_r  # one evaluation for both errors
-    rms = masked_rms(diff, train)
-    rms_holdout = np.where(test.any(axis=1), masked_rms(diff, test), np.nan)
+    squares = sample_squares(diff)  # one pass for both errors
+    rms = squares_rms(squares, train, diff.shape[-1])
+    rms_holdout = np.where(test.any(axis=1), squares_rms(squares, test, diff.shape[-1]), np.nan)
     own = valid.sum(axis=1)
     bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(rms))
     empty = (own == 0) & ~((flags & BORROWED) > 0)

@@ -64,6 +64,70 @@ def mirror_heavy_pairs(T, S, rng, mirror_fraction=0.34, max_theta=75.0):
     return wi, wo
 
 
+
+
+@pytest.mark.parametrize("name,config", MODELS)
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), peak=st.floats(0.01, 100.0), cosine=st.floats(0.001, 100.0))
+def test_a_model_that_says_it_ignores_peak_cosine_does(registry, name, config, seed, peak, cosine):
+    """``reads_peak_cosine = False`` lets the Fit node skip that support: the declaration must be true, so such a
+    model constrains alike with and without the bound (and every model that reads it says so)."""
+    from dataclasses import replace
+
+    from sbrdf_core.contracts import optional
+
+    model = registry.create("brdf-model", name, config)
+    rng = np.random.default_rng(seed)
+    T = 16
+    params = wild_params(model, rng, T)
+    limits = Limits(peak=np.full(T, peak), resolution=np.full(T, 0.05), max_theta=np.radians(80.0), albedo=1.0,
+                    growth=1.0)
+    plain, _ = model.constrain(params, limits)
+    bounded, _ = model.constrain(params, replace(limits, peak_cosine=np.full(T, cosine)))
+    same = all(np.array_equal(plain[k], bounded[k]) for k in plain)
+    if not optional(model, "reads_peak_cosine", "brdf-model"):
+        assert same
+    assert optional(model, "reads_peak_cosine", "brdf-model") == (name in ("cook-torrance", "ward"))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), weighted=st.booleans())
+def test_sample_support_counts_a_non_finite_channel_as_zero(seed, weighted):
+    """The support is the largest valid sample over channels with NaN and ±inf read as 0, whether or not the
+    input has any (the Fit node's usual input has none, and then skips the copy that zeroes them)."""
+    from sbrdf_core.constraints import sample_support
+
+    rng = np.random.default_rng(seed)
+    f = rng.normal(0.5, 1.0, (6, 9, 3))
+    if rng.random() < 0.7:
+        f[rng.random(f.shape) < 0.2] = rng.choice([np.nan, np.inf, -np.inf])
+    valid = rng.random((6, 9)) < 0.8
+    weight = rng.random((6, 9)) if weighted else None
+    expected = np.where(np.isfinite(f), f, 0.0).max(axis=-1) * (1.0 if weight is None else weight)
+    expected = np.where(valid, expected, 0.0).max(axis=1, initial=0.0)
+    np.testing.assert_array_equal(sample_support(f, valid, weight), expected)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_rms_from_sample_squares_is_the_masked_rms(seed):
+    """The Fit node's training and held-out RMS come from one pass of per-sample squares; a NaN residual outside
+    a mask does not count, and a texel without samples in it gets 0."""
+    from sbrdf_core.nodes.fit import masked_rms, sample_squares, squares_rms
+
+    rng = np.random.default_rng(seed)
+    diff = rng.normal(0, 1, (7, 11, 3))
+    train = rng.random((7, 11)) < 0.7
+    test = ~train & (rng.random((7, 11)) < 0.5)
+    diff[~(train | test)] = np.nan
+    train[0] = False
+    squares = sample_squares(diff)
+    for mask in (train, test):
+        d = np.where(mask[..., None], diff, 0.0)
+        expected = np.sqrt((d * d).sum(axis=(1, 2)) / np.maximum(mask.sum(axis=1) * 3, 1))
+        np.testing.assert_allclose(squares_rms(squares, mask, 3), expected, rtol=1e-13, atol=0)
+        np.testing.assert_allclose(masked_rms(diff, mask), expected, rtol=1e-13, atol=0)
+    assert squares_rms(squares, train, 3)[0] == 0.0
 @pytest.mark.parametrize("name,config", MODELS)
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**32 - 1), peak=st.floats(0.01, 100.0), resolution=st.floats(0.005, 1.5),

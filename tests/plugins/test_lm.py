@@ -128,15 +128,18 @@ def test_valid_median_is_nanmedian_bit_for_bit(seed, samples, dropped):
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**31), samples=st.integers(1, 60), dropped=st.floats(0.0, 1.0),
-       percentile=st.floats(0.0, 100.0))
-def test_diffuse_percentile_is_nanpercentile(seed, samples, dropped, percentile):
-    """McAllister's ρ_d: numpy's nanpercentile (linear) of each texel's valid samples per channel; 0 with none."""
+       percentile=st.floats(0.0, 100.0), photographed=st.booleans())
+def test_diffuse_percentile_is_nanpercentile(seed, samples, dropped, percentile, photographed):
+    """McAllister's ρ_d: numpy's nanpercentile (linear) of each texel's valid samples per channel; 0 with none.
+    ``photographed``: float32 values in float64 (what the Fit node passes), which are sorted as float32."""
     import warnings
 
     from sbrdf_lib.lm import diffuse_percentile
 
     rng = np.random.default_rng(seed)
     f = np.round(np.exp(rng.normal(-2, 2, (8, samples, 3))), 3)
+    if photographed:
+        f = f.astype(np.float32).astype(np.float64)
     valid = rng.random((8, samples)) >= dropped
     valid[0] = False
     with warnings.catch_warnings():
