@@ -357,8 +357,10 @@ def lafortune(tmp: Path) -> dict:
 
 def main() -> None:
     from sbrdf_core.memory import limit_arenas
+    from sbrdf_core.parallelism import single_level
 
     limit_arenas()  # as the sbrdf CLI does for its runs: the memory figures assume capped malloc arenas
+    single_level()  # and, for a parallel run, OpenCV's pool off (children inherit it; the cluster's workers get it)
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--gb", type=float, default=None, help="CaptureSet size in GB (default 2; --quick 0.1)")
     ap.add_argument("--quick", action="store_true", help="0.1 GB, plus a half-size threads run for the memory check")

@@ -55,6 +55,8 @@ import ctypes
 import functools
 import os
 
+from .parallelism import LIBRARY_ENV
+
 #: glibc's ``mallopt`` parameter number for the arena limit (malloc.h ``M_ARENA_MAX``).
 M_ARENA_MAX = -8
 #: Arenas per process: one per worker thread of a 2-core run; more adds held memory, not speed.
@@ -67,9 +69,10 @@ MMAP_THRESHOLD = 4 << 20
 M_TRIM_THRESHOLD = -1
 #: Free memory a heap keeps at its top rather than give back: a Fit task's working memory, fixed.
 TRIM_THRESHOLD = 128 << 20
-#: Environment for dask worker processes (``distributed.nanny.pre-spawn-environ``).
+#: Environment for dask worker processes (``distributed.nanny.pre-spawn-environ``): these malloc settings, and
+#: OpenCV's pool off, since a worker's threads are the parallelism (:data:`sbrdf_core.parallelism.LIBRARY_ENV`).
 WORKER_ENV = {"MALLOC_ARENA_MAX": str(ARENAS), "MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD),
-              "MALLOC_TRIM_THRESHOLD_": str(TRIM_THRESHOLD)}
+              "MALLOC_TRIM_THRESHOLD_": str(TRIM_THRESHOLD), **LIBRARY_ENV}
 #: Entries kept in distributed's debugging logs (``distributed.admin.low-level-log-length``, default 1000).
 LOG_LENGTH = 100
 #: dask configuration for a LocalCluster (or any cluster whose processes read it at start-up).
