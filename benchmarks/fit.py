@@ -33,7 +33,9 @@ on the same cores:
 
 Time is CPU time of this process (``time.process_time``: all threads, the
 numba kernels' included; nothing runs in child processes) and wall time,
-both per texel.  Kernels are compiled and cached off the clock first.  The
+both per texel, each summed over the Fit node's tiles, which the three fits
+take in turn, tile after tile (so the machine's changes of speed reach all
+alike).  Kernels are compiled and cached off the clock first.  The
 process runs with the malloc settings ``sbrdf run`` applies
 (``sbrdf_core.memory.limit_arenas``), so the Fit node is timed as users run it.
 ``speedup_cpu_lmL`` = the L-lobe peer's CPU time / lmL's, on the peer's data;
@@ -193,45 +195,81 @@ def peer_texel(f, valid, wi, wo, lobes):
     return params, sol.status > 0
 
 
-def run_peer(data, lobes):
-    T = data["side"] ** 2
-    f, valid = data["f"].reshape(T, -1, 3), data["valid"].reshape(T, -1)
-    rows, ok = [], np.zeros(T, bool)
+def tiles(side, tile=32):
+    """The Fit node's tiles of a ``side × side`` grid, ``(v0, v1, u0, u1)`` each."""
+    return [(v0, min(v0 + tile, side), u0, min(u0 + tile, side))
+            for v0 in range(0, side, tile) for u0 in range(0, side, tile)]
+
+
+def _texels(side, region):
+    """Row-major texel indices of ``region`` in a ``side × side`` grid."""
+    v0, v1, u0, u1 = region
+    return (np.arange(v0, v1)[:, None] * side + np.arange(u0, u1)[None, :]).ravel()
+
+
+def merge(parts, T):
+    """Results of disjoint regions as one, in row-major texel order; their times summed."""
+    idx = np.concatenate([p["texels"] for p in parts])
+    out = {"params": {}, "solver_ok": np.zeros(T, bool), "cpu_s": sum(p["cpu_s"] for p in parts),
+           "wall_s": sum(p["wall_s"] for p in parts), "texels": np.arange(T)}
+    for k in parts[0]["params"]:
+        v = np.concatenate([p["params"][k] for p in parts])
+        out["params"][k] = np.zeros((T,) + v.shape[1:], v.dtype)
+        out["params"][k][idx] = v
+    out["solver_ok"][idx] = np.concatenate([p["solver_ok"] for p in parts])
+    return out
+
+
+def run_peer(data, lobes, region=None):
+    """The peer on the texels of ``region`` (default: all), timed."""
+    side = data["side"]
+    idx = _texels(side, region or (0, side, 0, side))
+    f, valid = data["f"].reshape(side * side, -1, 3), data["valid"].reshape(side * side, -1)
+    rows, ok = [], np.zeros(idx.size, bool)
     c0, w0 = time.process_time(), time.perf_counter()
-    for t in range(T):
-        p, ok[t] = peer_texel(f[t], valid[t], data["wi"][t], data["wo"][t], lobes)
+    for k, t in enumerate(idx):
+        p, ok[k] = peer_texel(f[t], valid[t], data["wi"][t], data["wo"][t], lobes)
         rows.append(p)
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     params = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
-    return {"params": params, "solver_ok": ok, "cpu_s": cpu, "wall_s": wall}
+    return {"params": params, "solver_ok": ok, "cpu_s": cpu, "wall_s": wall, "texels": idx}
 
 
 # -- the project: the Fit node's tile kernel with the lm fitter ---------------------------------------
 
-def run_lm(data, lobes, tile=32, variable_projection=False):
-    from sbrdf_core.nodes.fit import EXTRA, NONFINITE_RESULT, NOT_CONVERGED, FitOptions, fit_tile
+def lm_setup(lobes, variable_projection=False):
+    """``(model, fitter)`` for :func:`run_lm`, made once (the registry's plugin loading is off the clock anyway)."""
     from sbrdf_core.registry import Registry
 
     reg = Registry()
-    model = reg.create("brdf-model", "lafortune", {"lobes": lobes})
-    fitter = reg.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": lobes},
-                                         "variable_projection": variable_projection})
+    return (reg.create("brdf-model", "lafortune", {"lobes": lobes}),
+            reg.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": lobes},
+                                        "variable_projection": variable_projection}))
+
+
+def run_lm(data, lobes, tile=32, variable_projection=False, regions=None, setup=None):
+    """``lm`` through the Fit node's tile kernel, timed: on ``regions``, their texels in that order
+    (``texels``; :func:`merge` puts parts together), or by default every tile, in row-major texel order."""
+    from sbrdf_core.nodes.fit import EXTRA, NONFINITE_RESULT, NOT_CONVERGED, FitOptions, fit_tile
+
+    model, fitter = setup or lm_setup(lobes, variable_projection)
     options = FitOptions(holdout=0.0)
     side = data["side"]
-    out = np.zeros((side, side, model.size + len(EXTRA)), np.float32)
+    whole = regions is None
+    regions = tiles(side, tile) if whole else regions
+    blocks = []
     c0, w0 = time.process_time(), time.perf_counter()
-    for v0 in range(0, side, tile):
-        for u0 in range(0, side, tile):
-            v1, u1 = min(v0 + tile, side), min(u0 + tile, side)
-            info = [{"array-location": [(v0, v1), (u0, u1)]}]
-            out[v0:v1, u0:u1] = fit_tile(data["f"][v0:v1, u0:u1], data["valid"][v0:v1, u0:u1, :, None],
-                                         data["light"], data["camera"], (side, side), SIZE_MM, fitter, model,
-                                         options, block_info=info)
+    for v0, v1, u0, u1 in regions:
+        info = [{"array-location": [(v0, v1), (u0, u1)]}]
+        blocks.append(fit_tile(data["f"][v0:v1, u0:u1], data["valid"][v0:v1, u0:u1, :, None], data["light"],
+                               data["camera"], (side, side), SIZE_MM, fitter, model, options, block_info=info))
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-    out = out.reshape(side * side, -1).astype(np.float64)
+    out = np.concatenate([b.reshape(-1, b.shape[-1]) for b in blocks]).astype(np.float64)
     flags = out[:, model.size + EXTRA.index("flags")].astype(np.uint8)
-    return {"params": model.unpack(out[:, :model.size]), "solver_ok": (flags & (NOT_CONVERGED | NONFINITE_RESULT)) == 0,
-            "cpu_s": cpu, "wall_s": wall}
+    part = {"params": model.unpack(out[:, :model.size]),
+            "solver_ok": (flags & (NOT_CONVERGED | NONFINITE_RESULT)) == 0, "cpu_s": cpu, "wall_s": wall,
+            "texels": np.concatenate([_texels(side, r) for r in regions])}
+    return merge([part], side * side) if whole else part
 
 
 def score(data, result, lobes):
@@ -256,9 +294,21 @@ def failed(result, best):
 
 
 def compare(data, lobes):
-    peer = score(data, run_peer(data, lobes), lobes)
-    lm = score(data, run_lm(data, lobes), lobes)
-    vp = score(data, run_lm(data, lobes, variable_projection=True), lobes)
+    """The peer, lm and lm with variable projection on the same texels, interleaved tile by tile.
+
+    Each tile is fitted by the three one after the other and each one's times are summed over the tiles, so a
+    change in the machine's speed during the run (this VM's other tenants) reaches all three alike.  Run one
+    after the other, the peer's minutes and lm's seconds fell in different phases of it: in one sitting the
+    2-lobe peer took 8.4, 9.4 and 10.6 ms a texel in three runs.
+    """
+    setups = {"lm": lm_setup(lobes), "vp": lm_setup(lobes, variable_projection=True)}
+    parts: dict[str, list] = {"peer": [], "lm": [], "vp": []}
+    for region in tiles(data["side"]):
+        parts["peer"].append(run_peer(data, lobes, region))
+        for who, setup in setups.items():
+            parts[who].append(run_lm(data, lobes, regions=[region], setup=setup))
+    T = data["side"] ** 2
+    peer, lm, vp = (score(data, merge(parts[who], T), lobes) for who in ("peer", "lm", "vp"))
     best = np.minimum(peer["rms"], lm["rms"])
     T = data["side"] ** 2
     row = {"set": data["name"], "lobes": lobes, "texels": T}
