@@ -14,9 +14,9 @@ in parallel: the ``sbrdf`` command calls it at start-up
 sync`` or ``--workers 1``), where OpenCV's own threads are the only
 parallelism.  Dask worker processes read :data:`LIBRARY_ENV` instead
 (``sbrdf_core.memory.WORKER_ENV``, docs/cluster.md).  A value the user set is
-kept.  numba's kernels are left alone: their threads wait passively
-(``OMP_WAIT_POLICY``, ``sbrdf_models.lafortune_kernels``), and one numba thread
-per task measured no faster under the runner.
+kept.  numba's kernels are left alone: the compiled fitters make their threads
+wait passively (``OMP_WAIT_POLICY``), and one numba thread per task measured no
+faster under the runner.
 """
 
 from __future__ import annotations
