@@ -310,7 +310,6 @@ def compare(data, lobes):
     T = data["side"] ** 2
     peer, lm, vp = (score(data, merge(parts[who], T), lobes) for who in ("peer", "lm", "vp"))
     best = np.minimum(peer["rms"], lm["rms"])
-    T = data["side"] ** 2
     row = {"set": data["name"], "lobes": lobes, "texels": T}
     for who, r in (("peer", peer), ("lm", lm), ("vp", vp)):
         fail = failed(r, best)

@@ -12,8 +12,7 @@ import warnings
 
 import numpy as np
 
-from sbrdf_core.channels import all_finite
-from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult
+from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable_mask
 from sbrdf_core.params import Param
 from sbrdf_lib.lm import (  # noqa: F401  (re-exported for one release)
     EXACT,
@@ -81,8 +80,7 @@ class LevenbergMarquardtFitter:
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
 
     def fit(self, model, f_r, valid, wi, wo, limits=None) -> FitResult:
-        # fit_model drops the unusable samples itself; counting them here costs a tenth of a copy that drops them.
-        n = (np.asarray(valid, bool) & all_finite(f_r)).sum(axis=1)
+        n = usable_mask(f_r, valid).sum(axis=1)  # fit_model drops the unusable samples itself
         stats: dict = {}
         params, converged, cost = fit_model(model, f_r, valid, wi, wo, iterations=self.iterations,
                                             tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,

@@ -174,12 +174,23 @@ def grid_to_pixels(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray,
     return np.moveaxis(out, 0, -1)
 
 
+#: remap's map entry for a point with no usable pixel (behind the camera, or overflowing float32): far off the image.
+OFF_IMAGE = -1e6
+
+
+def _mark_off_image(m: np.ndarray) -> None:
+    """Set the non-finite entries of the float32 map ``m`` to :data:`OFF_IMAGE`, in place."""
+    finite = np.isfinite(m)
+    if not finite.all():
+        m[~finite] = np.float32(OFF_IMAGE)
+
+
 def remap_maps(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dist: np.ndarray, scale: float,
                compiled: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """``cv2.remap``'s float32 maps of the grid ``xs × ys`` (mm) at pyramid scale ``scale`` (1, 1/2, ...).
 
     Pixel centres at level l: x_l = (x + 0.5)·2^-l − 0.5; points with no finite pixel (behind the
-    camera) get -1e6, far off the image.  ``compiled``: as :func:`grid_to_pixels`, the same bits.
+    camera) get :data:`OFF_IMAGE`, far off the image.  ``compiled``: as :func:`grid_to_pixels`, the same bits.
     """
     if not compiled:
         maps = np.empty((2, len(ys), len(xs)), np.float32)
@@ -191,9 +202,7 @@ def remap_maps(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray, dis
                 p -= 0.5
                 m = m[rows]
                 m[...] = p  # float64 -> float32, as astype
-                finite = np.isfinite(m)
-                if not finite.all():
-                    m[~finite] = np.float32(-1e6)
+                _mark_off_image(m)
         return maps[0], maps[1]
     K = np.asarray(K, np.float64)
     k = distortion_terms(dist)
@@ -240,9 +249,7 @@ def _opencv_texel_maps(texels_uv, size_mm, offset: tuple[float, float], H: np.nd
                         [0.0, K[1, 1] * scale, (K[1, 2] + 0.5) * scale - 0.5], [0.0, 0.0, 1.0]])
     maps = cv2.initUndistortRectifyMap(K_level, k, None, np.linalg.inv(to_normalised), (U, V), cv2.CV_32FC1)
     for m in maps:  # a point in front of the camera whose pixel overflows float32: remap_maps' sentinel
-        finite = np.isfinite(m)
-        if not finite.all():
-            m[~finite] = np.float32(-1e6)
+        _mark_off_image(m)
     return maps
 
 
@@ -372,8 +379,8 @@ def _grid_kernel():
                 if maps:  # remap's float32 maps at pyramid scale ``scale``, off-image sentinel for non-finite
                     mx = np.float32((px + 0.5) * scale - 0.5)
                     my = np.float32((py + 0.5) * scale - 0.5)
-                    out_x[i, j] = mx if np.isfinite(mx) else np.float32(-1e6)
-                    out_y[i, j] = my if np.isfinite(my) else np.float32(-1e6)
+                    out_x[i, j] = mx if np.isfinite(mx) else np.float32(OFF_IMAGE)
+                    out_y[i, j] = my if np.isfinite(my) else np.float32(OFF_IMAGE)
                 else:
                     out_x[i, j] = px
                     out_y[i, j] = py

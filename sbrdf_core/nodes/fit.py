@@ -136,8 +136,14 @@ def usable(f_r: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     broken pixel, garbage from a saturated one) and weights of 0 do not stop
     NaN from propagating through ``0 · NaN``.
     """
-    valid = np.asarray(valid, bool) & all_finite(f_r)
+    valid = usable_mask(f_r, valid)
     return np.where(valid[..., None], f_r, 0.0), valid
+
+
+def usable_mask(f_r: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The ``valid`` of :func:`usable` without its copy of ``f_r``: a tenth of the cost, for a fitter that only
+    counts the usable samples and hands the rest to code that calls :func:`usable` itself."""
+    return np.asarray(valid, bool) & all_finite(f_r)
 
 
 def rms_error(model, params, f_r, valid, wi, wo) -> np.ndarray:
