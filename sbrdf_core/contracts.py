@@ -317,6 +317,11 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                             "is over this multiple of its tile's median is fitted again as a "
                                             "`fit_trapped` one (LM stalls without a dead lobe to show for it: two "
                                             "lobes on one feature); None: never.", None),
+        "max_step": OptionalMember("`max_step` (on the fit form): `(K,)` the longest change of each packed "
+                                   "parameter in one LM step (inf: no limit); `lm` and `lm-gl` shorten a longer "
+                                   "step along its direction (`sbrdf_lib.lm.limit_step`), so a Gauss–Newton step "
+                                   "far past where the model is near linear does not cost a run of rejected "
+                                   "trials.", None),
         "constrain_packed": OptionalMember("`constrain_packed(x, limits) -> x` (on the fit form): `constrain` on packed "
                                            "fit-form rows `(T, K)`, compiled; `lm` projects every trial point with "
                                            "it. Without it: `constrain` on the unpacked parameters (about 0.5 ms a "

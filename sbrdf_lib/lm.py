@@ -82,14 +82,17 @@ EXACT = 1e-24
 
 
 def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *, iterations: int = 50,
-                        tolerance: float = 1e-4, damping: float = 1e-3, free: np.ndarray | None = None, project=None):
+                        tolerance: float = 1e-4, damping: float = 1e-3, free: np.ndarray | None = None, project=None,
+                        max_step: np.ndarray | None = None):
     """Minimise each texel's cost in ``problem`` (a :class:`~sbrdf_core.least_squares.LeastSquaresProblem`).
 
     Each trial point is evaluated with its normal equations in one call: an
     accepted step (most of them) then needs no second evaluation, which saves
     about a third of the work over evaluating the cost first.  ``project(x,
     idx)``, if given, maps each clipped trial point into the feasible set
-    (:func:`projector`).  Returns ``(x, cost, converged)``; texels whose
+    (:func:`projector`).  ``max_step`` ``(K,)``, if given, is the longest a
+    step may move each parameter (the form's optional ``max_step``): a longer
+    step is shortened along its direction (:func:`limit_step`).  Returns ``(x, cost, converged)``; texels whose
     weights are all zero stay at ``x0``.  A problem with its own
     ``levenberg_marquardt`` (the compiled Lafortune one) runs this same
     iteration per texel in its kernel where the projection is the form's own
@@ -101,7 +104,8 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
     compiled = getattr(problem, "levenberg_marquardt", None)
     if compiled is not None and (project is None or (isinstance(project, Projection) and project.form is problem.form)):
         out = compiled(x0, bounds, iterations=iterations, tolerance=tolerance, damping=damping, free=free,
-                       limits=None if project is None else project.limits, exact=EXACT, max_damping=MAX_DAMPING)
+                       limits=None if project is None else project.limits, exact=EXACT, max_damping=MAX_DAMPING,
+                       max_step=max_step)
         if out is not None:
             return out
     outer_free = np.outer(free, free)
@@ -125,11 +129,11 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
         diag = np.where(free, np.maximum(np.einsum("tkk->tk", Aa), 1e-12), 1.0)
         with np.errstate(all="ignore"):
             step = -np.linalg.solve(Aa + (lam[idx, None] * diag)[:, :, None] * eye, ga[..., None])[..., 0]
-        step = np.where(np.isfinite(step), step, 0.0)
+        step = limit_step(np.where(np.isfinite(step), step, 0.0), max_step)
         x_new = np.clip(xa + step, lo, hi)
         if project is not None:
             x_new = project(x_new, idx)
-            x_new = _active_set_step(Aa, ga, diag, lam[idx], free, xa, step, x_new, lo, hi, project, idx)
+            x_new = _active_set_step(Aa, ga, diag, lam[idx], free, xa, step, x_new, lo, hi, project, idx, max_step)
             step = x_new - xa
         A_new, g_new, cost_new = problem.normal_equations(x_new, idx)
         better = np.isfinite(cost_new) & (cost_new < cost[idx])
@@ -147,7 +151,24 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
     return x, cost, ~active
 
 
-def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx):
+def limit_step(step: np.ndarray, max_step: np.ndarray | None) -> np.ndarray:
+    """Rows of ``step`` ``(n, K)`` shortened along their direction so no parameter moves more than ``max_step``.
+
+    Why: far from the minimum a Gauss–Newton step can be far longer than the
+    region where the model is near linear (a Lafortune lobe's exponent
+    multiplied many times over); the trial point then costs more than the
+    start, and LM spends evaluation after evaluation raising λ until the step
+    is short enough.  Scaling the step keeps its direction, which λ does not.
+    """
+    if max_step is None:
+        return step
+    size = np.abs(step)
+    with np.errstate(divide="ignore", over="ignore"):  # only where size > max_step is the ratio used
+        scale = np.where(size > max_step, max_step / size, 1.0).min(axis=1)
+    return step * scale[:, None]
+
+
+def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx, max_step=None):
     """The projected trial point, with the step solved again where the projection pinned a parameter.
 
     A parameter the projection held where it was (at its bound, the step
@@ -168,7 +189,7 @@ def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx
     d = np.where(keep, diag[rows], 1.0)
     with np.errstate(all="ignore"):
         s = -np.linalg.solve(Ar + (lam[rows, None] * d)[:, :, None] * np.eye(K), (g[rows] * keep)[..., None])[..., 0]
-    s = np.where(np.isfinite(s) & keep, s, 0.0)
+    s = limit_step(np.where(np.isfinite(s) & keep, s, 0.0), max_step)
     out = x_new.copy()
     out[rows] = project(np.clip(x[rows] + s, lo, hi), idx[rows])
     return out
@@ -386,6 +407,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
             raise ValueError(f"fixed parameter {name!r} is not a parameter of {form.name}; known: {', '.join(slices)}")
         free[slices[name]] = False
     project = projector(form, limits)
+    max_step = optional(form, "max_step", "brdf-model")
     everyone = np.arange(T)
     fast = getattr(form, "separable_fit", None)
     exact = getattr(form, "separable_exact", False)  # linear in every parameter (Lambert): no shape to weigh
@@ -404,7 +426,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
                     sub = projector(form, limits.take(moved))
                     x[moved], cost[moved], converged[moved] = levenberg_marquardt(
                         part, xp[moved], (lo, hi), iterations=iterations, tolerance=tolerance, damping=damping,
-                        project=sub)
+                        project=sub, max_step=max_step)
             if stats is not None:
                 stats["restarted"] = np.zeros(T, bool)
             return form.to_model(form.unpack(x)), converged, cost
@@ -416,7 +438,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     x_starts = starting_points(form, objective, f_r, valid, wi, wo, starts, seed, initial, free, project)
     logger.debug("LM fit of %s: %d texels, %d start(s), loss %s, %s weighting", form.name, T, len(x_starts), loss,
                  weighting)
-    opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free)
+    opts = dict(iterations=iterations, tolerance=tolerance, damping=damping, free=free, max_step=max_step)
 
     def descend(x, rows=None):
         """LM (with the robust loss's reweighting) from ``x`` for texels ``rows`` (all by default)."""

@@ -92,6 +92,12 @@ def _pack(f_r, weight, wi, wo, x0, status, exact, sl):
     return data, state
 
 
+def _max_step(max_step, K: int) -> np.ndarray:
+    """The ``u_max_step`` uniform: float32, the largest finite float32 for "unbounded"."""
+    m = np.full(K, np.inf) if max_step is None else np.asarray(max_step, np.float64)
+    return np.minimum(m, np.finfo(np.float32).max).astype(np.float32)
+
+
 def _result(out, K):
     x = out[:, :K].astype(np.float64)
     status = out[:, K + 1]
@@ -99,7 +105,7 @@ def _result(out, K):
 
 
 def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, free, iterations: int,
-              tolerance: float, damping: float, tile: int, timings: dict, limits=None):
+              tolerance: float, damping: float, tile: int, timings: dict, limits=None, max_step=None):
     """LM from ``x0 (T, K)`` on every texel, ``tile`` texels per dispatch; ``(x, cost, converged, iterations)``.
 
     ``weight (T, S)`` already includes the residual scale; ``status`` 1 marks
@@ -107,14 +113,16 @@ def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, 
     ``limits``, ``(packed (T, 3), growth, max_theta)`` as
     :mod:`sbrdf_core.constraints_glsl` packs them, has the shader project the
     start and every trial point (``src`` built with the model's
-    ``glsl_fit_constrain``).
+    ``glsl_fit_constrain``).  ``max_step`` ``(K,)``: the longest step per
+    parameter (the form's ``max_step``; None: unbounded).
     """
     T, K = x0.shape
     S = f_r.shape[1]
     prog = _program(ctx, src)
     growth, max_theta = (-1.0, 0.0) if limits is None else limits[1:]
     chunk = shader.chunk(S, K, limits is not None)
-    _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_samples=S, u_iterations=int(iterations),
+    _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_max_step=_max_step(max_step, K),
+              u_samples=S, u_iterations=int(iterations),
               u_tolerance=float(tolerance), u_damping=float(damping), u_constrain=int(limits is not None),
               u_growth=float(growth), u_max_theta=float(max_theta), u_chunk=chunk)
     stride = shader.state_stride(K)
@@ -161,13 +169,14 @@ def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, 
 
 
 def run_stepwise(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, free, iterations: int,
-                 tolerance: float, damping: float, project, timings: dict):
+                 tolerance: float, damping: float, project, timings: dict, max_step=None):
     """LM from ``x0`` with every trial point projected by ``project(x, idx)`` on the CPU (two dispatches and a
     round trip per iteration; all texels at once): ``lm``'s fit inside the limits, for the texels that need it."""
     T, K = x0.shape
     S = f_r.shape[1]
     prog = _program(ctx, src)
-    _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_samples=S, u_iterations=int(iterations),
+    _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_max_step=_max_step(max_step, K),
+              u_samples=S, u_iterations=int(iterations),
               u_tolerance=float(tolerance), u_damping=float(damping), u_texels=T, u_constrain=0)
     stride, work_stride = shader.state_stride(K), shader.work_stride(K)
     NA = K * (K + 1) // 2

@@ -130,6 +130,7 @@ class GLLevenbergMarquardtFitter:
         form = model.fit_form()
         T, K = f_r.shape[0], form.size
         lo, hi = form.bounds()
+        max_step = optional(form, "max_step", "brdf-model")
         free = np.ones(K, bool)
         slices = form.slices()
         for name in self.fixed:
@@ -163,7 +164,7 @@ class GLLevenbergMarquardtFitter:
             fw = f_r[idx] * w[..., None]
             exact = EXACT32 * np.einsum("tsc,tsc->t", fw, fw)
             opts = dict(lo=lo, hi=hi, free=free, iterations=iterations, tolerance=self.tolerance, damping=self.damping,
-                        timings=self.timings)
+                        timings=self.timings, max_step=max_step)
             if project is None:
                 lim = (packed[0][idx], packed[1], packed[2]) if constrained and packed is not None else None
                 x, cost, converged, _ = device.call(device.run_tiles, src, x, status, exact, f_r[idx], w, wi[idx],

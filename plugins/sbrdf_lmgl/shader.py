@@ -97,6 +97,7 @@ uniform float u_damping;
 uniform float u_lo[{K}];
 uniform float u_hi[{K}];
 uniform float u_free[{K}];
+uniform float u_max_step[{K}];
 const int K = {K};
 const int NA = {NA};
 
@@ -172,9 +173,14 @@ bool propose(float A[NA], float g[K], float x[K], float lam, float fr[K], out fl
         for (int k = i + 1; k < K; ++k) v -= M[k * (k + 1) / 2 + i] * y[k];
         y[i] = v / M[i * (i + 1) / 2 + i];
     }}
+    float scale = 1.0;  // the step shortened along its direction to u_max_step (sbrdf_lib.lm.limit_step)
     for (int k = 0; k < K; ++k) {{
         float step = fr[k] > 0.0 ? y[k] / d[k] : 0.0;
-        xr[k] = finite(step) ? x[k] + step : x[k];
+        y[k] = finite(step) ? step : 0.0;
+        if (abs(y[k]) > u_max_step[k]) scale = min(scale, u_max_step[k] / abs(y[k]));
+    }}
+    for (int k = 0; k < K; ++k) {{
+        xr[k] = x[k] + scale * y[k];
         xn[k] = clamp(xr[k], u_lo[k], u_hi[k]);
     }}
     return true;

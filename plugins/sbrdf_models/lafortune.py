@@ -56,6 +56,11 @@ TRAPPED = (1e-3, 0.1, 0.95)
 #: on the mirror peak or one at n ≈ 20000 and fitted 3-8x worse than the peer; one lobe: not worth its time (the
 #: missing lobe's energy varies texel to texel, so a third of a tile are "outliers" a restart cannot improve).
 OUTLIER_RATIO = 2.0
+#: Longest LM step in a lobe's log n (the fit form's ``max_step``): n changes by at most e^0.5 ≈ 1.65× a step.
+#: Unbounded, a quarter of 1-lobe texels on McAllister-like data (benchmarks/fit.py) took a Gauss–Newton step
+#: that multiplied n several times over, cost more than the start, and needed about 20 evaluations instead of 6
+#: while λ grew until the step was short enough; bounded: mean evaluations 9.7 → 7.4 (1 lobe), 11.0 → 10.0 (2).
+MAX_LOG_EXPONENT_STEP = 0.5
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
 C_BOUNDS = (-10.0, 10.0)
@@ -596,6 +601,15 @@ class LafortuneFitForm(LafortuneModel):
 
     def fit_form(self):
         return self
+
+    @property
+    def max_step(self) -> np.ndarray:
+        """Longest LM step per packed parameter: :data:`MAX_LOG_EXPONENT_STEP` in each log n, the rest unbounded."""
+        out = np.full(self.size, np.inf)
+        for name, where in self.slices().items():
+            if name.startswith("log_exponent_"):
+                out[where] = MAX_LOG_EXPONENT_STEP
+        return out
 
     def to_model(self, params):
         """Back to the model's form; a *dead* lobe (ρ_s below DEAD_LOBE) is reset to a harmless shape.

@@ -542,13 +542,14 @@ def constrain_packed(x, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_h
 @njit(parallel=True, cache=True, error_model="numpy")
 def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo, hi, free, has_limits, peak, has_peak,
                  n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, iterations, tolerance, damping, max_damping,
-                 exact):
+                 exact, max_step):
     """:func:`sbrdf_lib.lm.levenberg_marquardt` for isotropic lobes without β, each texel's whole solve compiled.
 
     The same iteration, step for step: Marquardt's diagonal scaling, the
     clip to ``lo``/``hi``, the projection onto the limits
     (:func:`_project_row`, where ``has_limits``) with the active-set re-solve
-    of parameters it pinned, λ / 3 on success and × 4 on failure, and the
+    of parameters it pinned, each step shortened to ``max_step`` ``(K,)``
+    (:func:`_limit_step`), λ / 3 on success and × 4 on failure, and the
     same stopping tests (``exact``: the fraction of the data's energy below
     which a fit counts as exact).  Why: run batched in NumPy, each iteration
     paid array passes and calls whatever the number of texels still active,
@@ -586,6 +587,7 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
                 for k in range(K):
                     diag[k] = max(Ac[0, k, k], 1e-12) if free[k] else 1.0
                 _damped_step(Ac, gc, diag, lam, keep, M, b, raw, False)
+                _limit_step(raw, max_step)
                 for k in range(K):
                     xn[0, k] = min(max(xc[0, k] + raw[k], lo[k]), hi[k])
                     step[k] = raw[k]
@@ -601,6 +603,7 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
                         pinned = pinned or held
                     if pinned:
                         _damped_step(Ac, gc, diag, lam, keep, M, b, raw, True)
+                        _limit_step(raw, max_step)
                         for k in range(K):
                             xn[0, k] = min(max(xc[0, k] + raw[k], lo[k]), hi[k])
                         _project_row(xn[0], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at,
@@ -631,6 +634,19 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
             cost_out[t] = cost
             converged[t] = not active
     return x_out, cost_out, converged
+
+
+@njit(cache=True, inline="always")
+def _limit_step(raw, max_step):
+    """:func:`sbrdf_lib.lm.limit_step` on one step, in place (the same scale, so the same bits)."""
+    scale = 1.0
+    for k in range(raw.shape[0]):
+        size = abs(raw[k])
+        if size > max_step[k]:
+            scale = min(scale, max_step[k] / size)
+    if scale < 1.0:
+        for k in range(raw.shape[0]):
+            raw[k] *= scale
 
 
 @njit(cache=True, inline="always")
@@ -957,9 +973,11 @@ class CompiledLafortuneProblem:
             return run_parallel(normal_equations_isotropic, x, idx, *self._prepared(), lobes)
         return run_parallel(normal_equations, x, idx, self.wi, self.wo, self.f_r, self.weight, *self.flags)
 
-    def levenberg_marquardt(self, x0, bounds, *, iterations, tolerance, damping, free, limits, exact, max_damping):
+    def levenberg_marquardt(self, x0, bounds, *, iterations, tolerance, damping, free, limits, exact, max_damping,
+                            max_step=None):
         """The whole LM solve compiled (:func:`lm_isotropic`) for isotropic lobes without β; None otherwise (the
-        caller runs the NumPy iteration).  ``bounds`` must be the form's; ``limits`` None: no projection."""
+        caller runs the NumPy iteration).  ``bounds`` must be the form's; ``limits`` None: no projection;
+        ``max_step`` None: steps of any length."""
         lobes, aniso, has_beta = self.flags
         args = None if aniso or has_beta else self.form.packed_limits(limits, x0.shape[0])
         if args is None:
@@ -972,7 +990,8 @@ class CompiledLafortuneProblem:
                             self.data_energy(), (self.weight > 0).any(axis=1), lobes, lo, hi,
                             np.asarray(free, np.bool_), limits is not None, peak, has_peak, n_cap, growth, s2, c2,
                             n_lo, n_hi, rho_at, c_at, ln_at, int(iterations), float(tolerance), float(damping),
-                            float(max_damping), float(exact))
+                            float(max_damping), float(exact),
+                            np.full(x0.shape[1], np.inf) if max_step is None else np.asarray(max_step, np.float64))
 
     def cost(self, x, idx):
         x, idx = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(idx, dtype=np.int64)

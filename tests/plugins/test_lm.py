@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.nodes.fit import NO_SAMPLES, fit_tile
@@ -360,11 +361,12 @@ class _NumpyIteration:
 
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 2**31), lobes=st.integers(1, 3), limited=st.booleans(), fixed=st.booleans(),
-       noise=st.sampled_from([0.0, 0.01, 0.1]), iterations=st.sampled_from([1, 5, 50]))
-def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, iterations):
+       noise=st.sampled_from([0.0, 0.01, 0.1]), iterations=st.sampled_from([1, 5, 50]), short=st.booleans())
+def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, iterations, short):
     """The Lafortune problem's own solve (``lm_isotropic``, each texel's whole LM compiled) takes the NumPy
     iteration's steps: the same costs and parameters up to round-off, the same texels converged, over limits on or
-    off (a tight peak and sharpness, grazing growth 1), a fixed parameter, noise, and cut-off iteration counts."""
+    off (a tight peak and sharpness, grazing growth 1), a fixed parameter, noise, cut-off iteration counts, and
+    steps limited to the form's ``max_step`` or not (``short``)."""
     from sbrdf_core.constraints import Limits
     from sbrdf_lib.lm import levenberg_marquardt, projector, sample_weights
 
@@ -391,7 +393,7 @@ def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, 
     for wrap in (lambda p: p, _NumpyIteration):
         problem = wrap(form.least_squares(f, w, wi, wo))
         runs.append(levenberg_marquardt(problem, x0, form.bounds(), iterations=iterations, free=free,
-                                        project=projector(form, limits)))
+                                        project=projector(form, limits), max_step=form.max_step if short else None))
     (xa, ca, va), (xb, cb, vb) = runs
     assert np.isfinite(xa).all() and np.isfinite(ca).all()
     # Round-off differs (LU solves against LAPACK's, libm's exp and log against NumPy's), and an ill-conditioned
@@ -405,3 +407,65 @@ def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, 
     np.testing.assert_array_equal(xa[0], xb[0])
     if fixed and limits is None:  # a fixed parameter keeps its start
         np.testing.assert_array_equal(xa[:, ~free], np.clip(x0, *form.bounds())[:, ~free])
+
+
+@settings(max_examples=200, deadline=None)
+@given(step=hnp.arrays(np.float64, (4, 5), elements=st.floats(-1e6, 1e6)),
+       max_step=hnp.arrays(np.float64, 5, elements=st.one_of(st.floats(1e-6, 1e3), st.just(np.inf))))
+def test_a_limited_step_keeps_its_direction_and_the_compiled_limit_is_the_same(step, max_step):
+    """``limit_step`` shortens a row only as far as its longest relative overshoot asks, along the row; the
+    compiled LM's ``_limit_step`` gives the same bits."""
+    from sbrdf_lib.lm import limit_step
+    from sbrdf_models.lafortune_kernels import _limit_step
+
+    out = limit_step(step, max_step)
+    assert (np.abs(out) <= max_step * (1 + 1e-12)).all()
+    scale = np.where(np.abs(step) > 1e-300, out / np.where(step == 0, 1.0, step), np.nan)  # subnormals round
+    for row, s_row, o_row in zip(scale, step, out):
+        ratio = row[np.isfinite(row)]
+        assert ((ratio > 0) & (ratio <= 1)).all()
+        assert ratio.size == 0 or np.ptp(ratio) <= 1e-12 * ratio.max()
+        if (np.abs(s_row) <= max_step).all():
+            assert np.array_equal(o_row, s_row)
+        else:  # as long as the limits allow: one parameter's step is at its limit
+            assert np.isclose(np.abs(o_row) / max_step, 1.0, rtol=1e-12).any()
+        compiled = s_row.copy()
+        _limit_step(compiled, max_step)
+        assert np.array_equal(compiled, o_row)
+    assert limit_step(step, None) is step
+
+
+def test_a_step_limit_in_log_n_saves_the_rejected_trials():
+    """benchmarks/fit.py's data, one lobe, limits as the Fit node sets them: an unlimited Gauss–Newton step can
+    multiply a lobe's exponent many times over, cost more than its start and be rejected again and again while λ
+    grows.  With the fit form's ``max_step`` LM evaluates the normal equations far fewer times and ends at costs as
+    low (measured here: 9.6 → 7.4 evaluations a texel, mean cost 0.542 → 0.524, all converged)."""
+    from sbrdf_core.constraints import Limits
+    from sbrdf_lib.lm import levenberg_marquardt, projector, sample_weights
+
+    rng = np.random.default_rng(3)
+    _, _, f, wi, wo = fit_benchmark_texels(rng, 256, 300, 0.01)
+    form = Registry().create("brdf-model", "lafortune", {"lobes": 1}).fit_form()
+    valid = np.ones(f.shape[:2], bool)
+    w = sample_weights(f, valid, 0.5)
+    x0 = form.pack(form.initial_guess(f, valid, wi, wo))
+    limits = Limits(peak=np.full(256, 50.0), resolution=np.full(256, 0.01), growth=1.0,
+                    max_theta=float(np.radians(80)))
+
+    class Counted(_NumpyIteration):
+        evaluations = 0
+
+        def normal_equations(self, x, idx):
+            Counted.evaluations += len(idx)
+            return super().normal_equations(x, idx)
+
+    out = {}
+    for name, max_step in (("unlimited", None), ("limited", form.max_step)):
+        Counted.evaluations = 0
+        x, cost, converged = levenberg_marquardt(Counted(form.least_squares(f, w, wi, wo)), x0, form.bounds(),
+                                                 project=projector(form, limits), max_step=max_step)
+        out[name] = (Counted.evaluations / 256, cost, converged)
+    print({k: (v[0], float(v[1].mean()), int(v[2].sum())) for k, v in out.items()})
+    assert out["limited"][0] < 0.9 * out["unlimited"][0]
+    assert out["limited"][1].mean() <= 1.01 * out["unlimited"][1].mean()
+    assert out["limited"][2].sum() >= out["unlimited"][2].sum()
