@@ -119,34 +119,44 @@ def test_other_stores_are_left_to_zarr():
     assert read_direct(z, (slice(0, 2),)) is None
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(layout=layouts(), seed=st.integers(0, 2**16))
-def test_direct_writes_are_zarrs_bytes(layout, seed):
-    """Every chunk written by write_direct is the file zarr writes for it (edge chunks padded with the fill value)."""
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(layout=layouts(), seed=st.integers(0, 2**16), zeros=st.booleans())
+def test_direct_writes_are_zarrs_bytes(layout, seed, zeros):
+    """Every chunk or shard written by write_direct is the file zarr writes for it (edge chunks and shards
+    padded with the fill value; a shard's inner chunks in zarr's order, then its index), all-fill ones too."""
     from sbrdf_core.chunk_files import write_direct
 
-    shape, chunks, _, dtype = layout
+    shape, chunks, shards, dtype = layout
     with tempfile.TemporaryDirectory() as tmp:
-        want = _array(os.path.join(tmp, "zarr"), shape, chunks, dtype, seed=seed)
+        want = _array(os.path.join(tmp, "zarr"), shape, chunks, dtype, shards=shards, seed=seed)
+        if zeros:  # fill-valued chunks: zarr still writes them (write_empty_chunks), so must write_direct
+            with zarr.config.set({"array.write_empty_chunks": True}):
+                zarr.open_array(store=os.path.join(tmp, "zarr"), mode="r+")[...] = 0
+            want = zarr.open_array(store=os.path.join(tmp, "zarr"), mode="r")
         with zarr.config.set({"array.write_empty_chunks": True}):
-            z = zarr.create_array(store=os.path.join(tmp, "direct"), shape=shape, chunks=chunks, dtype=dtype,
-                                  fill_value=0, compressors=_codecs())
+            z = zarr.create_array(store=os.path.join(tmp, "direct"), shape=shape, chunks=chunks, shards=shards,
+                                  dtype=dtype, fill_value=0, compressors=_codecs())
         values = want[...]
-        for index in np.ndindex(*z.cdata_shape):
-            region = tuple(slice(i * c, min((i + 1) * c, n)) for i, c, n in zip(index, chunks, shape))
+        unit = shards or chunks
+        grid = tuple(-(-n // c) for n, c in zip(shape, unit))
+        for index in np.ndindex(*grid):
+            region = tuple(slice(i * c, min((i + 1) * c, n)) for i, c, n in zip(index, unit, shape))
             assert write_direct(z, region, values[region])
-        for index in np.ndindex(*z.cdata_shape):
+        for index in np.ndindex(*grid):
             rel = os.path.join("c", *map(str, index))
             with open(os.path.join(tmp, "zarr", rel), "rb") as a, open(os.path.join(tmp, "direct", rel), "rb") as b:
                 assert a.read() == b.read(), rel
         assert not [f for _, _, fs in os.walk(tmp) for f in fs if f.endswith(".partial")]
+        np.testing.assert_array_equal(zarr.open_array(store=os.path.join(tmp, "direct"), mode="r")[...], values)
 
 
 def test_writes_zarr_must_make_are_refused(tmp_path):
     from sbrdf_core.chunk_files import write_direct
 
     s = _array(str(tmp_path / "s"), (8, 4), (4, 4), "float32", shards=(8, 4))
-    assert not write_direct(s, (slice(0, 8), slice(0, 4)), np.zeros((8, 4), np.float32))  # a shard
+    shard = (tmp_path / "s" / "c" / "0" / "0").read_bytes()
+    assert not write_direct(s, (slice(0, 4), slice(0, 4)), np.zeros((4, 4), np.float32))  # one chunk of a shard
+    assert (tmp_path / "s" / "c" / "0" / "0").read_bytes() == shard
     z = _array(str(tmp_path / "z"), (8, 4), (4, 4), "float32")
     before = (tmp_path / "z" / "c" / "0" / "0").read_bytes()
     assert not write_direct(z, (slice(0, 2), slice(0, 4)), np.zeros((2, 4), np.float32))  # part of a chunk
