@@ -50,7 +50,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from . import __version__
+from . import __version__, compile_notice
 from .contracts import optional
 from .errors import RunError, SbrdfError
 from .extras import require
@@ -590,7 +590,16 @@ class Runner:
         from tqdm import tqdm
 
         t = tqdm(total=total, initial=already, desc=f"{node:<12}", unit=unit, file=sys.stderr, leave=True)
-        return lambda n: t.close() if n is None else t.update(n)
+        unwatch = compile_notice.watch(lambda note: t.set_postfix_str(note or "", refresh=True))
+
+        def update(n):
+            if n is None:
+                unwatch()
+                t.close()
+            else:
+                t.update(n)
+
+        return update
 
     @staticmethod
     def _closure(graph: Graph, only: Iterable[str] | None) -> set[str]:
