@@ -159,8 +159,12 @@ class Fitter(Protocol):
         removed), directions ``(T, S, 3)`` in the sample frame.  Keyword
         ``limits`` (:class:`~sbrdf_core.constraints.Limits`) are the texels'
         physical bounds: fit inside them (``model.fit_form().constrain``);
-        the node projects whatever comes back onto them anyway.  Vectorised
-        over texels; runs inside dask tasks, one tile at a time.
+        the node projects whatever comes back onto them anyway.  Keyword
+        ``rms``, where ``fit`` declares it: the Fit node passes ``False``, as
+        it scores the fit itself; ``FitResult.rms`` may then be ``None`` (a
+        fitter whose training RMS costs a further pass skips it).  Each
+        keyword is passed only to a ``fit`` whose signature names it.
+        Vectorised over texels; runs inside dask tasks, one tile at a time.
         """
 
 

@@ -364,7 +364,7 @@ IRLS_ROUNDS = 4
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
               fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None, separable=False,
-              weighting="absolute", start="guess"):
+              weighting="absolute", start="guess", want_cost=True):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
@@ -387,7 +387,10 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     ``start``: ``"separable"`` starts LM (without ``initial`` or ``fixed``)
     from :func:`separable_start` where the form has one, ``"guess"`` from
     the form's initial guess.  Texels the form flags as trapped
-    (``fit_trapped``) are fitted again (:func:`rescue`).
+    (``fit_trapped``) are fitted again (:func:`rescue`).  ``want_cost``
+    False: ``cost`` is ``None`` (a weighted fit's unweighted cost is a
+    further pass over the samples, a fifteenth of a 1-lobe Fit tile, which
+    a caller that scores the fit itself does not need).
     """
     if loss not in LOSSES:
         raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
@@ -429,7 +432,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
                         project=sub, max_step=max_step)
             if stats is not None:
                 stats["restarted"] = np.zeros(T, bool)
-            return form.to_model(form.unpack(x)), converged, cost
+            return form.to_model(form.unpack(x)), converged, cost if want_cost else None
     if start == "separable" and initial is None and free.all():
         initial = separable_start(form, f_r, valid, wi, wo, limits, iterations, tolerance, damping)
     plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
@@ -462,7 +465,9 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     best = rescue(form, best, f_r, valid, wi, wo, base, seed, free, limits, descend, 1e-9,
                   (iterations, tolerance, damping))
     x, cost, converged, restarted = best
-    if weighting != "absolute":
+    if not want_cost:
+        cost = None
+    elif weighting != "absolute":
         cost = total_cost(plain, x)  # unweighted, whatever was minimised (a robust loss's cost already is)
     if stats is not None:
         stats["restarted"] = restarted

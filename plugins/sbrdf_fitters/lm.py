@@ -79,7 +79,9 @@ class LevenbergMarquardtFitter:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
 
-    def fit(self, model, f_r, valid, wi, wo, limits=None) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True) -> FitResult:
+        """``rms`` False: no training RMS (``FitResult.rms`` None), for a caller that scores the fit itself
+        (the Fit node): with a weighted objective it is a further pass over the samples."""
         n = usable_mask(f_r, valid).sum(axis=1)  # fit_model drops the unusable samples itself
         stats: dict = {}
         params, converged, cost = fit_model(model, f_r, valid, wi, wo, iterations=self.iterations,
@@ -88,7 +90,8 @@ class LevenbergMarquardtFitter:
                                             loss_scale=self.loss_scale, stats=stats,
                                             separable=self.variable_projection,
                                             weighting="absolute" if self.variable_projection else self.weighting,
-                                            start=self.start)
+                                            start=self.start, want_cost=rms)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
-        rms = np.sqrt(cost / np.maximum(f_r.shape[-1] * n, 1))  # the fit's own cost: no second evaluation
-        return FitResult(params, rms, n, flags, restarted=stats.get("restarted"))
+        # The fit's own cost: no second evaluation.
+        train_rms = None if cost is None else np.sqrt(cost / np.maximum(f_r.shape[-1] * n, 1))
+        return FitResult(params, train_rms, n, flags, restarted=stats.get("restarted"))

@@ -29,6 +29,7 @@ import logging
 import time
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class FitResult:
     """Per-texel fit output for a batch of T texels."""
 
     params: dict[str, np.ndarray]  # name -> (T, C), in the model's own form
-    rms: np.ndarray  # (T,) sr^-1 over valid samples, RGB pooled
+    rms: np.ndarray | None  # (T,) sr^-1 over valid samples, RGB pooled; None when the caller passed rms=False
     samples: np.ndarray  # (T,) valid sample count
     flags: np.ndarray | None = None  # (T,) uint8 bits of FLAGS the fitter raised (e.g. NOT_CONVERGED)
     restarted: np.ndarray | None = None  # (T,) bool: the best result came from a later start (multi-start)
@@ -239,10 +240,13 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
         cosines = np.clip(wi[..., 2], 0, 1) * np.clip(wo[..., 2], 0, 1)
         support_cosine = neighbourhood_max(sample_support(f_r, valid, cosines).reshape(grid)).ravel()
     limits = options.limits(support, resolution, support_cosine)
-    takes_limits = "limits" in inspect.signature(fitter.fit).parameters
+    accepts = inspect.signature(fitter.fit).parameters
 
     def run(f, w, a, b, lim):
-        return fitter.fit(model, f, w, a, b, limits=lim) if takes_limits else fitter.fit(model, f, w, a, b)
+        kw: dict[str, Any] = {"limits": lim} if "limits" in accepts else {}
+        if "rms" in accepts:
+            kw["rms"] = False  # the node scores the fit itself, below
+        return fitter.fit(model, f, w, a, b, **kw)
 
     res: FitResult = run(f_r, train, wi, wo, limits)
     params = {k: np.array(v, dtype=np.float64) for k, v in res.params.items()}

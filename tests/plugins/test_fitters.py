@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sbrdf_core.brdf import luminance_weights
-from sbrdf_core.geometry import fibonacci_hemisphere
+from sbrdf_core.geometry import fibonacci_hemisphere, tile_directions
 from sbrdf_core.least_squares import LeastSquaresProblem
-from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, NO_SAMPLES, NONFINITE_INPUT, UNDERDETERMINED, fit_tile
+from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, NO_SAMPLES, NONFINITE_INPUT, UNDERDETERMINED, FitOptions, fit_tile
 from sbrdf_lib.lm import fit_model, levenberg_marquardt
 
 
@@ -337,6 +337,53 @@ def test_fit_tile_flags_reasons_and_never_writes_nan(registry, lafortune):
     assert flags[1, 0] & UNDERDETERMINED
     assert flags[1, 1] & ~CONSTRAINED == 0
     assert out[0, 0, K + 2] == 0 and out[0, 1, K + 2] == 15
+
+
+class _NoRmsKeyword:
+    """``lm`` behind a ``fit`` without the ``rms`` keyword: the node cannot ask it to skip its RMS."""
+
+    def __init__(self, fitter):
+        self.fitter = fitter
+
+    def fit(self, model, f_r, valid, wi, wo, limits=None):
+        return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits)
+
+
+@pytest.mark.parametrize("weighting", ["shot-noise", "absolute"])
+def test_the_node_skipping_lms_rms_changes_no_bit(registry, lafortune, weighting):
+    """The Fit node passes rms=False to a fit that takes it (it scores the fit itself): lm then skips its training
+    RMS (None), with the same parameters, and the tile comes out bit for bit as when lm computes it."""
+    model = lafortune(lobes=1)
+    lm = registry.create("fitter", "lm", {"model": "lafortune", "weighting": weighting})
+    light = fibonacci_hemisphere(40, 70) * 500
+    camera = fibonacci_hemisphere(40, 70, offset=2.0) * 700
+    truth, _, _, _, _ = data(model, T=9, S=4)
+    grid_wi, _, grid_wo = tile_directions((3, 3), (10.0, 10.0), (0, 3), (0, 3), light, camera)
+    f = model.eval(truth, grid_wi, grid_wo) + 1e-3 * np.random.default_rng(3).standard_normal((9, 40, 3))
+    f = f.reshape(3, 3, 40, 3)
+    valid = np.ones((3, 3, 40, 1), bool)
+    info = [{"array-location": [(0, 3), (0, 3), (0, 40), (0, 3)]}]
+    options = FitOptions(holdout=0.0)
+    asked: list[bool] = []
+
+    class Recording:  # lm, recording what the node asks of its rms keyword
+        def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True):
+            asked.append(rms)
+            return lm.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms)
+
+    skipped = fit_tile(f, valid, light, camera, (3, 3), (10.0, 10.0), Recording(), model, options, block_info=info)
+    assert asked == [False]
+    computed = fit_tile(f, valid, light, camera, (3, 3), (10.0, 10.0), _NoRmsKeyword(lm), model, options,
+                        block_info=info)
+    K = model.size
+    seconds = K + 6  # EXTRA's last column: the tile's time per texel
+    np.testing.assert_array_equal(np.delete(skipped, seconds, axis=-1), np.delete(computed, seconds, axis=-1))
+    data_f, data_valid = f.reshape(9, 40, 3).astype(np.float64), np.ones((9, 40), bool)
+    res = lm.fit(model, data_f, data_valid, grid_wi, grid_wo, rms=False)
+    full = lm.fit(model, data_f, data_valid, grid_wi, grid_wo)
+    assert res.rms is None and np.isfinite(full.rms).all()
+    for k in full.params:
+        np.testing.assert_array_equal(res.params[k], full.params[k])
 
 
 def test_lm_core_leaves_texels_without_weight_alone(lafortune):
