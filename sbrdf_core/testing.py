@@ -484,6 +484,21 @@ class FitterTests(PluginTests):
         scale = np.sqrt(np.mean(f ** 2, axis=(1, 2)))
         assert np.median(res.rms / np.maximum(scale, 1e-12)) < self.tolerance
 
+    def test_skipping_the_rms_changes_no_parameter(self):
+        """A ``fit`` that declares the ``rms`` keyword (the Fit node passes ``rms=False``) gives the same
+        parameters without its training RMS, and ``rms`` None or one value per texel."""
+        import inspect
+
+        import pytest
+
+        fitter, model, f, valid, wi, wo = self._problem()
+        if "rms" not in inspect.signature(fitter.fit).parameters:
+            pytest.skip("fit has no rms keyword (optional)")
+        full, bare = fitter.fit(model, f, valid, wi, wo), fitter.fit(model, f, valid, wi, wo, rms=False)
+        assert bare.rms is None or np.shape(bare.rms) == (f.shape[0],)
+        for p in model.parameters:
+            np.testing.assert_array_equal(bare.params[p.name], full.params[p.name], err_msg=p.name)
+
     def test_no_valid_sample_gives_finite_defaults(self):
         fitter, model, f, valid, wi, wo = self._problem(T=3)
         f = np.full_like(f, np.nan)
