@@ -234,6 +234,8 @@ def write_direct(z, region: tuple[slice, ...], data: np.ndarray) -> bool:
     lay = _layout(z)
     if lay is None or len(region) != len(lay.shape):
         return False
+    if not getattr(getattr(z, "config", None), "write_empty_chunks", False):
+        return False  # zarr would leave out (and delete) fill-valued chunks: every chunk written is this writer's
     unit = tuple(c * p for c, p in zip(lay.chunk, lay.per_shard)) if lay.per_shard else lay.chunk
     key = []
     for s, c, n in zip(region, unit, lay.shape):
@@ -267,9 +269,9 @@ def write_direct(z, region: tuple[slice, ...], data: np.ndarray) -> bool:
                     if any(s.start + i * c >= n for s, i, c, n in zip(region, ci, lay.chunk, lay.shape)):
                         continue  # wholly beyond the array's end: not stored (zarr's index marks it missing)
                     inner = data[tuple(slice(i * c, (i + 1) * c) for i, c in zip(ci, lay.chunk))]
-                    n = _write_encoded(f, lay, inner)
-                    index[ci] = (offset, n)
-                    offset += n
+                    nbytes = _write_encoded(f, lay, inner)
+                    index[ci] = (offset, nbytes)
+                    offset += nbytes
                 raw = index.tobytes()
                 f.write(raw)
                 f.write(_crc32c(raw))

@@ -162,6 +162,9 @@ def test_writes_zarr_must_make_are_refused(tmp_path):
     assert not write_direct(z, (slice(0, 2), slice(0, 4)), np.zeros((2, 4), np.float32))  # part of a chunk
     assert not write_direct(z, (slice(0, 4), slice(0, 4)), np.zeros((2, 4), np.float32))  # the wrong shape
     assert (tmp_path / "z" / "c" / "0" / "0").read_bytes() == before
+    plain = zarr.open_array(store=str(tmp_path / "z"), mode="r+")  # without write_empty_chunks: zarr skips fill
+    assert not write_direct(plain, (slice(0, 4), slice(0, 4)), np.zeros((4, 4), np.float32))
+    assert (tmp_path / "z" / "c" / "0" / "0").read_bytes() == before
 
 
 def test_zero_dimensional_arrays_are_left_to_zarr(tmp_path):
