@@ -72,7 +72,10 @@ def _show(message: str | None) -> None:
     with _LOCK:
         show = _shows[-1] if _shows else None
     if show is not None:
-        show(message)
+        try:
+            show(message)
+        except Exception:  # a note must never fail the compilation it is about (numba calls this inside it)
+            logger.debug("compile note not shown", exc_info=True)
 
 
 def watch(show: Callable[[str | None], None]) -> Callable[[], None]:

@@ -74,3 +74,14 @@ def test_the_runner_bar_shows_the_note(capsys):
     err = capsys.readouterr().err
     assert "numba compiling test_compile_notice.outer_kernel: first run on this machine only" in err
     assert "3/3" in err
+
+
+def test_a_failing_bar_does_not_fail_the_compilation():
+    def broken(note):
+        raise RuntimeError("the bar is gone")
+
+    stop = compile_notice.watch(broken)
+    try:
+        assert _fresh_kernel()(np.ones(4)) == 8.0
+    finally:
+        stop()
