@@ -590,7 +590,13 @@ class Runner:
         from tqdm import tqdm
 
         t = tqdm(total=total, initial=already, desc=f"{node:<12}", unit=unit, file=sys.stderr, leave=True)
-        unwatch = compile_notice.watch(lambda note: t.set_postfix_str(note or "", refresh=True))
+
+        def note(text: str | None) -> None:
+            t.set_postfix_str(text or "", refresh=True)
+            if text is None:  # a compilation's seconds are no chunk's: the rate (and the estimate) start after it
+                t.last_print_t = time.time()
+
+        unwatch = compile_notice.watch(note)
 
         def update(n):
             if n is None:
