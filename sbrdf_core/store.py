@@ -515,9 +515,10 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
         raise ArtifactError(f"{url}/{name}: chunk {index} has shape {block.shape}, expected {expected}")
     # No contiguous copy of a strided block (radiance is a view of Register's packed (k, V, U, 4)
     # block, f_r of Reflectance's tile): write_direct copies a whole chunk once, or a shard one
-    # inner chunk at a time (as zarr's encoding did), and chunk_crc reads it a slice at a time.  A whole copy (24 MiB a pose block), and the crc's
-    # bytes copy of it, were each the size of the block again in every writing thread, and
-    # such block-sized temporaries are what glibc's arenas kept as freed memory (sbrdf_core.memory).
+    # inner chunk at a time (as zarr's encoding did), and chunk_crc reads it a slice at a time.
+    # A whole copy (24 MiB a pose block), and the crc's bytes copy of it, were each the size of
+    # the block again in every writing thread, and such block-sized temporaries are what glibc's
+    # arenas kept as freed memory (sbrdf_core.memory).
     data = block.astype(arr.dtype, copy=False)
     if not write_direct(arr, region, data):  # part of a shard, another store or codec: zarr writes it
         arr[region] = data

@@ -435,9 +435,8 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
             return form.to_model(form.unpack(x)), converged, cost if want_cost else None
     if start == "separable" and initial is None and free.all():
         initial = separable_start(form, f_r, valid, wi, wo, limits, iterations, tolerance, damping)
-    plain = form.least_squares(f_r, valid.astype(np.float64), wi, wo)
-    base = sample_weights(f_r, valid, WEIGHTINGS[weighting])
-    objective = plain if weighting == "absolute" else form.least_squares(f_r, base, wi, wo)
+    base = sample_weights(f_r, valid, WEIGHTINGS[weighting])  # absolute: valid as weights, the plain problem
+    objective = form.least_squares(f_r, base, wi, wo)
     x_starts = starting_points(form, objective, f_r, valid, wi, wo, starts, seed, initial, free, project)
     logger.debug("LM fit of %s: %d texels, %d start(s), loss %s, %s weighting", form.name, T, len(x_starts), loss,
                  weighting)
@@ -467,8 +466,8 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     x, cost, converged, restarted = best
     if not want_cost:
         cost = None
-    elif weighting != "absolute":
-        cost = total_cost(plain, x)  # unweighted, whatever was minimised (a robust loss's cost already is)
+    elif weighting != "absolute":  # unweighted, whatever was minimised (a robust loss's cost already is)
+        cost = total_cost(form.least_squares(f_r, valid.astype(np.float64), wi, wo), x)
     if stats is not None:
         stats["restarted"] = restarted
     return form.to_model(form.unpack(x)), converged, cost
