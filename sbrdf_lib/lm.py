@@ -473,10 +473,10 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     return form.to_model(form.unpack(x)), converged, cost
 
 
-def starting_points(form, plain, f_r, valid, wi, wo, starts: int, seed: int = 0, initial=None, free=None,
+def starting_points(form, objective, f_r, valid, wi, wo, starts: int, seed: int = 0, initial=None, free=None,
                     project=None) -> list[np.ndarray]:
     """The packed fit-form points LM runs from, best first: with ``starts`` > 1, the ``starts`` best-scoring
-    (on ``plain``, the unweighted problem) of ``8 · starts`` candidates (:func:`candidate_starts`), per texel;
+    (on ``objective``, the problem the fit minimises, weighted as it is) of ``8 · starts`` candidates (:func:`candidate_starts`), per texel;
     parameters not ``free`` keep the first candidate's (the initial guess's) value; every start is projected
     by ``project``.  What :func:`fit_model` and the ``lm-gl`` fitter both start from."""
     T = f_r.shape[0]
@@ -491,7 +491,7 @@ def starting_points(form, plain, f_r, valid, wi, wo, starts: int, seed: int = 0,
         cands = [project(c, everyone) for c in cands]
     if len(cands) == 1:
         return cands
-    costs = np.stack([total_cost(plain, c) for c in cands])  # (C, T)
+    costs = np.stack([total_cost(objective, c) for c in cands])  # (C, T)
     order = np.argsort(np.where(np.isfinite(costs), costs, np.inf), axis=0, kind="stable")
     stack = np.stack(cands)  # (C, T, K)
     return [stack[order[r], everyone] for r in range(min(starts, len(cands)))]
