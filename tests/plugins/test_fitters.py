@@ -223,15 +223,16 @@ def test_three_lobes_warn_and_multistart_never_worsens(registry, lafortune):
 
 
 @settings(max_examples=25, deadline=None)
-@given(lobes=st.integers(0, 3), aniso=st.booleans(), seed=st.integers(0, 10_000), max_theta=st.floats(10, 90))
-def test_compiled_normal_equations_match_numpy(lafortune, lobes, aniso, seed, max_theta):
+@given(lobes=st.integers(0, 3), aniso=st.booleans(), seed=st.integers(0, 10_000), max_theta=st.floats(10, 90),
+       samples=st.sampled_from([25, 512, 700, 1100]))  # the isotropic kernel's blocks: part, one, one and a part, more
+def test_compiled_normal_equations_match_numpy(lafortune, lobes, aniso, seed, max_theta, samples):
     model = lafortune(lobes=lobes, anisotropic=aniso, beta=aniso)
     form = model.fit_form()
     rng = np.random.default_rng(seed)
-    wi, wo = directions(4, 25, max_theta, seed)
+    wi, wo = directions(4, samples, max_theta, seed)
     x = form.pack(form.random_guess(rng, 4))
-    f = rng.uniform(0, 2, (4, 25, 3))
-    w = (rng.random((4, 25)) > 0.2).astype(float)
+    f = rng.uniform(0, 2, (4, samples, 3))
+    w = (rng.random((4, samples)) > 0.2).astype(float)
     idx = np.arange(4)
     ref = LeastSquaresProblem(form, f, w, wi, wo).normal_equations(x, idx)
     fast = form.least_squares(f, w, wi, wo).normal_equations(x, idx)
