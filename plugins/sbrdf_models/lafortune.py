@@ -63,16 +63,6 @@ OUTLIER_RATIO = 2.0
 MAX_LOG_EXPONENT_STEP = 0.5
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
-#: Lobe-1 C_xy tried, as factors of the text's C = (−1, −1, 1): the mirror lobe, and one that dims toward grazing
-#: (C_xy = −0.9: a sharp lobe of it is bright near normal incidence only).  With the mirror lobe alone, a texel of
-#: such a lobe started at a small n (the sharp mirror candidates light every mirror pose) and LM walked log n up
-#: half a unit a step: on benchmarks/fit.py's data, 2 lobes, a quarter of the texels took over 10 evaluations, half
-#: of all of them.  No factor above 1: such a lobe grows toward grazing, and LM's grazing-growth limit holds a
-#: start there back (measured: fits left 1.8× worse on the Cook–Torrance data).
-START_C_FACTORS = (1.0, 0.9)
-#: A factor other than 1 is tried with the exponents from this one up: a broad lobe's shape hardly depends on
-#: its C_xy (C·ω at the mirror direction is 1 − 0.1 sin²θ), and the broad candidates cost as much as the sharp.
-START_C_SHARP = 40.0
 C_BOUNDS = (-10.0, 10.0)
 #: C_z > 0: the fit form's C_z = 1 gauge needs it, and a lobe with C_z ≤ 0 is
 #: dark at normal incidence (no measured material in the seed needs one).
@@ -564,12 +554,6 @@ def neutralise(model, out, j: int, dead: np.ndarray) -> None:
         out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"])
 
 
-def start_candidates() -> np.ndarray:
-    """Which (C_xy factor, exponent) pairs the starting scan tries, ``(len(START_C_FACTORS), len(START_EXPONENTS))``."""
-    factors, exponents = np.asarray(START_C_FACTORS), np.asarray(START_EXPONENTS)
-    return (factors[:, None] == 1.0) | (exponents[None, :] >= START_C_SHARP)
-
-
 class LafortuneFitForm(LafortuneModel):
     """The same lobes with C_z = 1 fixed and log n: what fitters iterate on."""
 
@@ -660,16 +644,15 @@ class LafortuneFitForm(LafortuneModel):
         params["rho_d"] = diffuse_percentile(f_r, valid, 10.0)
         if not self.lobes:
             return params
-        # The text starts lobe 1 at n = 10; a coarse scan over n and C_xy (magnitudes
-        # solved for each, compiled) starts every texel near its own shape and saves
+        # The text starts lobe 1 at n = 10; a coarse scan over n (magnitudes solved
+        # for each, compiled) starts every texel near its own sharpness and saves
         # LM iterations.
         from .lafortune_kernels import run_parallel, scan_first_exponent
 
         x = run_parallel(scan_first_exponent, self.pack(params), np.log(np.asarray(START_EXPONENTS)),
                                 np.ascontiguousarray(wi, dtype=np.float64), np.ascontiguousarray(wo, dtype=np.float64),
                                 np.ascontiguousarray(f_r, dtype=np.float64), valid.astype(np.float64),
-                                self.lobes, int(self.anisotropic), bool(self.has_beta), np.asarray(START_C_FACTORS),
-                                start_candidates())
+                                self.lobes, int(self.anisotropic), bool(self.has_beta))
         return self.unpack(x)
 
     def least_squares(self, f_r, weight, wi, wo):

@@ -714,11 +714,12 @@ def eval_lobes(rho_d, rho_s, c_x, c_y, c_z, n, wi, wo):
     T, S, _ = wi.shape
     L, C = rho_s.shape[1], rho_d.shape[1]
     out = np.empty((T, S, C))
+    B = max(1, min(SAMPLE_BLOCK, S))  # a block's scratch, no longer than the samples
     for t in prange(T):
-        pxx, pyy, pzz = np.empty(SAMPLE_BLOCK), np.empty(SAMPLE_BLOCK), np.empty(SAMPLE_BLOCK)
-        dot, lx, y, sv = np.ones(SAMPLE_BLOCK), np.empty(SAMPLE_BLOCK), np.empty(SAMPLE_BLOCK), np.empty(SAMPLE_BLOCK)
-        scratch, expo = np.empty(SAMPLE_BLOCK), np.empty(SAMPLE_BLOCK, np.int64)
-        f = np.empty((SAMPLE_BLOCK, C))
+        pxx, pyy, pzz = np.empty(B), np.empty(B), np.empty(B)
+        dot, lx, y, sv = np.ones(B), np.empty(B), np.empty(B), np.empty(B)
+        scratch, expo = np.empty(B), np.empty(B, np.int64)
+        f = np.empty((B, C))
         for s0 in range(0, S, SAMPLE_BLOCK):
             nb = min(SAMPLE_BLOCK, S - s0)
             for k in range(nb):
@@ -760,10 +761,11 @@ def lobe_quadrature(a, n, dirs, weights):
     N = dirs.shape[0]
     out = np.zeros((T, L))
     dx, dy, dz = dirs[:, 0].copy(), dirs[:, 1].copy(), dirs[:, 2].copy()
+    B = max(1, min(SAMPLE_BLOCK, N))  # a block's scratch, no longer than the directions
     for t in prange(T):
-        x_, lx, y, v = np.ones(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK)
-        scratch, expo = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK, np.int64)
-        dots, zero, rows = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros((3, SAMPLE_BLOCK))
+        x_, lx, y, v = np.ones(B), np.zeros(B), np.zeros(B), np.zeros(B)
+        scratch, expo = np.zeros(B), np.zeros(B, np.int64)
+        dots, zero, rows = np.zeros(B), np.zeros(B), np.zeros((3, B))
         for j in range(L):
             ax, ay, az = a[t, j, 0], a[t, j, 1], a[t, j, 2]
             acc = 0.0
@@ -813,10 +815,8 @@ def _candidate_sums(ev, wl, r, s2, m, second, G, h):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta, factors, tried):
-    """Starting point: for each texel, the lobe-1 shape with the smallest cost: an exponent from ``log_exponents``
-    ``(Q,)`` and lobe 1's C_x, C_y (those of ``x``) times a factor from ``factors`` ``(P,)``, the pairs where
-    ``tried`` ``(P, Q)`` (both written to the output).
+def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
+    """Starting point: for each texel, the lobe-1 exponent from ``log_exponents`` with the smallest cost.
 
     For every candidate the lobe magnitudes are solved by least squares (ρ_d
     and the other lobes' shapes held at ``x``), clipped to ≥ 0, and the cost
@@ -830,23 +830,21 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta, 
     the same output to the bit on benchmarks/fit.py's tile), the small systems are
     solved in place (:func:`_solve`), and the working arrays are made once per
     task: the scalar libm calls, LAPACK calls and allocations per texel were
-    most of the scan's time (an eighth of a Fit tile).  A factor costs one log
-    per sample, and each exponent tried with it an exp.  Returns the updated
-    fit-form rows.
+    most of the scan's time (an eighth of a Fit tile).  With three channels and
+    1-2 lobes a candidate's sums take one pass (:func:`_candidate_sums`).
+    Returns the updated fit-form rows.
     """
     T, K = x.shape
     S = wi.shape[1]
     C = f.shape[2]
     out = x.copy()
     kn1 = C + C + 1 + aniso  # index of log_exponent_1
-    kc1 = C + C  # index of c_x_1 (c_y_1 follows where anisotropic)
     L = max(lobes, 1)
     for chunk in prange((T + TEXEL_CHUNK - 1) // TEXEL_CHUNK):
         cx, cy, n, rho0 = np.empty(L), np.empty(L), np.empty(L), np.empty((L, C))
         dots = np.ones((L, S))  # per lobe, C·ω of each lit sample (1 where it is dark: log 0, masked below)
         lit = np.zeros((L, S), np.bool_)
         log_dot, sv, wl = np.empty(S), np.zeros((L, S)), np.empty(S)
-        xy0, z0 = np.empty(S), np.empty(S)  # lobe 1's C_xy-weighted ω_i,xy·ω_o,xy and ω_i,z·ω_o,z of each sample
         wt, r = np.empty(S), np.empty((C, S))  # the weighted diffuse residuals, a row per channel
         y, ev, scratch, expo = np.empty(S), np.empty(S), np.empty(S), np.empty(S, np.int64)
         G1, h1 = np.zeros((L, L)), np.zeros((L, C))  # the candidate-free part of G (lobes 2.. among themselves)
@@ -871,10 +869,7 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta, 
                 if has_beta:
                     ix, iy = cb * ix + sb * iy, -sb * ix + cb * iy
                     ox, oy = cb * ox + sb * oy, -sb * ox + cb * oy
-                if lobes:
-                    xy0[m] = cx[0] * ix * ox + cy[0] * iy * oy
-                    z0[m] = iz * oz
-                for j in range(1, lobes):
+                for j in range(lobes):
                     dot = cx[j] * ix * ox + cy[j] * iy * oy + iz * oz
                     lit[j, m] = dot > 0.0
                     dots[j, m] = dot if dot > 0.0 else 1.0
@@ -884,6 +879,10 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta, 
                     r[c, m] = r0
                     e0 += r0 * r0
                 m += 1
+            if lobes:
+                simd_log(dots[0], log_dot, scratch, expo, m)
+                for k in range(m):  # the weight where lobe 1 lights the sample
+                    wl[k] = wt[k] if lit[0, k] else 0.0
             for j in range(1, lobes):  # the other lobes' values, weighted
                 sj = sv[j]
                 simd_log(dots[j], y, scratch, expo, m)
@@ -898,60 +897,48 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta, 
                     h1[j, c] = _dot(sv[j], r[c], m)
                 for i in range(1, lobes):
                     G1[j, i] = _dot(sv[j], sv[i], m)
-            for p in range(factors.size if lobes else 0):
-                sp = factors[p]
-                for k in range(m):  # lobe 1's C·ω with its C_xy times the factor (times 1.0: the same bits)
-                    dot = sp * xy0[k] + z0[k]
-                    wl[k] = wt[k] if dot > 0.0 else 0.0  # the weight where lobe 1 lights the sample
-                    dots[0, k] = dot if dot > 0.0 else 1.0
-                simd_log(dots[0], log_dot, scratch, expo, m)
-                for q in range(log_exponents.size):
-                    if not tried[p, q]:
-                        continue
-                    n0 = math.exp(log_exponents[q])
-                    G[:] = G1
-                    h[:] = h1
-                    for k in range(m):  # the candidate's lobe at every sample, its exps and sums in SIMD lanes
-                        yk = n0 * log_dot[k]
-                        y[k] = yk if yk < LOG_CAP else LOG_CAP
-                    simd_exp(y, ev, scratch, expo, m)
-                    if C == 3 and lobes <= 2:  # the usual fit: its sums in one pass
-                        _candidate_sums(ev, wl, r, sv[lobes - 1], m, lobes == 2, G, h)
-                    else:
-                        for k in range(m):
-                            ev[k] = ev[k] * wl[k]
-                        G[0, 0] = _dot(ev, ev, m)
-                        for c in range(C):
-                            h[0, c] = _dot(ev, r[c], m)
-                        for i in range(1, lobes):
-                            G[0, i] = G[i, 0] = _dot(ev, sv[i], m)
-                    for j in range(lobes):
-                        G[j, j] += 1e-12
-                    for c in range(C):  # the magnitudes of each channel: G ρ = h, in place
-                        M[:] = G
-                        for j in range(lobes):
-                            b[j] = h[j, c]
-                        ok = _solve(M, b, lobes)
-                        for j in range(lobes):
-                            v = b[j] if ok else 0.0
-                            rho[j, c] = min(max(v, 0.0), 1e6) if np.isfinite(v) else 0.0
-                    cost = e0
+            for q in range(log_exponents.size):
+                n0 = math.exp(log_exponents[q])
+                G[:] = G1
+                h[:] = h1
+                for k in range(m):  # the candidate's lobe at every sample, its exps and sums in SIMD lanes
+                    yk = n0 * log_dot[k]
+                    y[k] = yk if yk < LOG_CAP else LOG_CAP
+                simd_exp(y, ev, scratch, expo, m)
+                if C == 3 and lobes <= 2:  # the usual fit: its sums in one pass
+                    _candidate_sums(ev, wl, r, sv[lobes - 1], m, lobes == 2, G, h)
+                else:
+                    for k in range(m):
+                        ev[k] = ev[k] * wl[k]
+                    G[0, 0] = _dot(ev, ev, m)
                     for c in range(C):
-                        for j in range(lobes):
-                            cost -= 2.0 * rho[j, c] * h[j, c]
-                            for i in range(lobes):
-                                cost += rho[j, c] * G[j, i] * rho[i, c]
-                    if cost < best:
-                        best = cost
-                        out[t, kn1] = log_exponents[q]
-                        out[t, kc1] = sp * cx[0]
-                        if aniso:
-                            out[t, kc1 + 1] = sp * cy[0]
-                        k = C
-                        for j in range(lobes):
-                            for c in range(C):
-                                out[t, k + c] = rho[j, c]
-                            k += C + 2 + aniso
+                        h[0, c] = _dot(ev, r[c], m)
+                    for i in range(1, lobes):
+                        G[0, i] = G[i, 0] = _dot(ev, sv[i], m)
+                for j in range(lobes):
+                    G[j, j] += 1e-12
+                for c in range(C):  # the magnitudes of each channel: G ρ = h, in place
+                    M[:] = G
+                    for j in range(lobes):
+                        b[j] = h[j, c]
+                    ok = _solve(M, b, lobes)
+                    for j in range(lobes):
+                        v = b[j] if ok else 0.0
+                        rho[j, c] = min(max(v, 0.0), 1e6) if np.isfinite(v) else 0.0
+                cost = e0
+                for c in range(C):
+                    for j in range(lobes):
+                        cost -= 2.0 * rho[j, c] * h[j, c]
+                        for i in range(lobes):
+                            cost += rho[j, c] * G[j, i] * rho[i, c]
+                if cost < best:
+                    best = cost
+                    out[t, kn1] = log_exponents[q]
+                    k = C
+                    for j in range(lobes):
+                        for c in range(C):
+                            out[t, k + c] = rho[j, c]
+                        k += C + 2 + aniso
     return out
 
 
@@ -1190,9 +1177,10 @@ def _gram(pxy, pz, ws, S, lobes, c, n, f, d, G, H, derivatives):
     C = H.shape[1]
     G[:] = 0.0
     H[:] = 0.0
-    Bw, Fw = np.zeros((m, SAMPLE_BLOCK)), np.zeros((C, SAMPLE_BLOCK))  # b·w and f·w, a row each
-    x_, lx, y, v = np.ones(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK)
-    scratch, expo = np.zeros(SAMPLE_BLOCK), np.zeros(SAMPLE_BLOCK, np.int64)
+    B = max(1, min(SAMPLE_BLOCK, S))  # a block's scratch (made per call), no longer than the samples
+    Bw, Fw = np.zeros((m, B)), np.zeros((C, B))  # b·w and f·w, a row each
+    x_, lx, y, v = np.ones(B), np.zeros(B), np.zeros(B), np.zeros(B)
+    scratch, expo = np.zeros(B), np.zeros(B, np.int64)
     for s0 in range(0, S, SAMPLE_BLOCK):
         nb = min(SAMPLE_BLOCK, S - s0)
         P, Z, W = pxy[s0:s0 + nb], pz[s0:s0 + nb], ws[s0:s0 + nb]

@@ -435,14 +435,11 @@ def test_a_limited_step_keeps_its_direction_and_the_compiled_limit_is_the_same(s
     assert limit_step(step, None) is step
 
 
-def test_a_step_limit_in_log_n_saves_the_rejected_trials(monkeypatch):
+def test_a_step_limit_in_log_n_saves_the_rejected_trials():
     """benchmarks/fit.py's data, one lobe, limits as the Fit node sets them: an unlimited Gauss–Newton step can
     multiply a lobe's exponent many times over, cost more than its start and be rejected again and again while λ
     grows.  With the fit form's ``max_step`` LM evaluates the normal equations far fewer times and ends at costs as
-    low (measured here: 9.6 → 7.4 evaluations a texel, mean cost 0.542 → 0.524, all converged).  Started as the
-    exponent scan started texels before it tried a second C_xy (the mirror lobe's alone): from the scan's own
-    start, nearer, the two differ less (5.9 → 5.7 evaluations)."""
-    import sbrdf_models.lafortune as lafortune
+    low (measured here: 9.6 → 7.4 evaluations a texel, mean cost 0.542 → 0.524, all converged)."""
     from sbrdf_core.constraints import Limits
     from sbrdf_lib.lm import levenberg_marquardt, projector, sample_weights
 
@@ -451,7 +448,6 @@ def test_a_step_limit_in_log_n_saves_the_rejected_trials(monkeypatch):
     form = Registry().create("brdf-model", "lafortune", {"lobes": 1}).fit_form()
     valid = np.ones(f.shape[:2], bool)
     w = sample_weights(f, valid, 0.5)
-    monkeypatch.setattr(lafortune, "START_C_FACTORS", (1.0,))
     x0 = form.pack(form.initial_guess(f, valid, wi, wo))
     limits = Limits(peak=np.full(256, 50.0), resolution=np.full(256, 0.01), growth=1.0,
                     max_theta=float(np.radians(80)))
