@@ -116,12 +116,15 @@ def angular_resolution(wi: np.ndarray, wo: np.ndarray, valid: np.ndarray, neares
     sample on its flanks, so its width and height are not measured.  π/2 for
     a texel with fewer valid samples.
     """
+    # The k-th smallest angle is the arccos of the k-th largest cosine (arccos falls monotonically): one arccos per
+    # texel, not per sample.  An invalid sample's cosine 0 is the angle π/2 it stood for.
     cos_a = wi[..., 2] * wo[..., 2] - wi[..., 0] * wo[..., 0] - wi[..., 1] * wo[..., 1]
-    angle = np.where(valid, np.arccos(np.clip(cos_a, -1.0, 1.0)), np.pi / 2)
-    k = min(nearest, angle.shape[1]) - 1
+    cos_a = np.where(valid, np.clip(cos_a, -1.0, 1.0), 0.0)
+    k = min(nearest, cos_a.shape[1]) - 1
     if k < 0:
-        return np.full(angle.shape[0], np.pi / 2)
-    return np.minimum(np.partition(angle, k, axis=1)[:, k], np.pi / 2)
+        return np.full(cos_a.shape[0], np.pi / 2)
+    largest = -np.partition(-cos_a, k, axis=1)[:, k]
+    return np.minimum(np.arccos(largest), np.pi / 2)
 
 
 def clip_shape(params, names, low=None, high=None) -> tuple[dict, np.ndarray]:

@@ -441,3 +441,26 @@ def test_compiled_fit_form_projection_equals_constrain(registry, lobes, aniso, s
     # libm's exp and log against NumPy's differ by an ulp; |C|'s bound divides by sin² θ_max (3e-4 at 1°), so the
     # difference grows to ~1e-12 there.
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-300)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), samples=st.integers(0, 40), dropped=st.floats(0.0, 1.0),
+       nearest=st.integers(1, 6), nan=st.booleans())
+def test_angular_resolution_is_the_kth_smallest_angle(seed, samples, dropped, nearest, nan):
+    """One arccos per texel (of the k-th largest cosine) gives, bit for bit, the k-th smallest of every sample's
+    angle to the mirror direction (π/2 for an invalid sample, at most π/2), NaN directions included."""
+    rng = np.random.default_rng(seed)
+    wi, wo = rng.normal(size=(5, samples, 3)), rng.normal(size=(5, samples, 3))
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+    wo[0, : samples // 2] = wi[0, : samples // 2] * [-1, -1, 1]  # exact mirror pairs: angle 0, ties
+    if nan and samples:
+        wi[1, 0] = np.nan
+    valid = rng.random((5, samples)) >= dropped
+    cos_a = wi[..., 2] * wo[..., 2] - wi[..., 0] * wo[..., 0] - wi[..., 1] * wo[..., 1]
+    with np.errstate(invalid="ignore"):
+        angle = np.where(valid, np.arccos(np.clip(cos_a, -1.0, 1.0)), np.pi / 2)
+    k = min(nearest, samples) - 1
+    expected = (np.full(5, np.pi / 2) if k < 0 else np.minimum(np.sort(angle, axis=1)[:, k], np.pi / 2))
+    with np.errstate(invalid="ignore"):
+        np.testing.assert_array_equal(angular_resolution(wi, wo, valid, nearest), expected)
