@@ -24,8 +24,10 @@ BRDF model to fit (the node constructs it from the registry), and
 
 from __future__ import annotations
 
+import functools
 import inspect
 import logging
+import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -130,15 +132,47 @@ class FitOptions:
                       growth=self.grazing_growth if self.grazing_growth > 0 else None)
 
 
-def usable(f_r: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(f_r, valid)`` with non-finite samples invalid and every invalid sample 0.
+def usable(f_r: np.ndarray, valid: np.ndarray, dtype=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(f_r, valid)`` with non-finite samples invalid and every invalid sample 0 (``f_r`` as ``dtype``, default
+    its own).
 
     Fitters call this first: invalid samples may carry anything (NaN from a
     broken pixel, garbage from a saturated one) and weights of 0 do not stop
     NaN from propagating through ``0 · NaN``.
     """
+    f_r, valid = np.asarray(f_r), np.asarray(valid)
+    dtype = f_r.dtype if dtype is None else np.dtype(dtype)
+    if ("numba" in sys.modules and f_r.ndim == 3 and valid.shape == f_r.shape[:2] and f_r.dtype.kind == "f"
+            and dtype.kind == "f"):
+        # Loaded already (a compiled fitter), so free to use: one pass for the test, the conversion and the copy,
+        # the same bits as the NumPy passes below (tests/core/test_usable.py).
+        out = np.empty(f_r.shape, dtype)
+        return out, _compiled_usable()(f_r, valid.astype(bool, copy=False), out)
     valid = usable_mask(f_r, valid)
-    return np.where(valid[..., None], f_r, 0.0), valid
+    return np.where(valid[..., None], f_r.astype(dtype, copy=False), dtype.type(0)), valid
+
+
+@functools.cache
+def _compiled_usable():
+    """:func:`usable`'s kernel (numba, cached on disk): fills ``out`` and returns the mask.  Why: the NumPy
+    passes (a finiteness test per channel, then a copy) ran twice a Fit tile, a twentieth of a Lafortune one."""
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def kernel(f_r, valid, out):  # pragma: no cover (compiled)
+        T, S, C = f_r.shape
+        mask = np.empty((T, S), np.bool_)
+        for t in range(T):
+            for s in range(S):
+                ok = valid[t, s]
+                for c in range(C):
+                    ok = ok and np.isfinite(f_r[t, s, c])
+                mask[t, s] = ok
+                for c in range(C):
+                    out[t, s, c] = f_r[t, s, c] if ok else 0.0
+        return mask
+
+    return kernel
 
 
 def usable_mask(f_r: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -221,11 +255,9 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     grid = (v1 - v0, u1 - u0)
     wi, _, wo = tile_directions(texels, size_mm, (v0, v1), (u0, u1), light_pos, camera_pos)
     T = wi.shape[0]
-    f_r = f_r.reshape(T, -1, 3).astype(np.float64)
-    valid = valid.reshape(T, -1)
-    finite = all_finite(f_r)
-    flags = np.where((valid & ~finite).any(axis=1), NONFINITE_INPUT, 0).astype(np.uint8)
-    f_r, valid = usable(f_r, valid)
+    given = valid.reshape(T, -1)
+    f_r, valid = usable(f_r.reshape(T, -1, 3), given, np.float64)
+    flags = np.where((given & ~valid).any(axis=1), NONFINITE_INPUT, 0).astype(np.uint8)
     min_samples = options.min_samples or model.size
     support = neighbourhood_max(sample_support(f_r, valid).reshape(grid)).ravel()
     origin, skip = holdout_at if holdout_at is not None else ((v0, u0), 0)

@@ -361,12 +361,14 @@ class _NumpyIteration:
 
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 2**31), lobes=st.integers(1, 3), limited=st.booleans(), fixed=st.booleans(),
-       noise=st.sampled_from([0.0, 0.01, 0.1]), iterations=st.sampled_from([1, 5, 50]), short=st.booleans())
-def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, iterations, short):
+       noise=st.sampled_from([0.0, 0.01, 0.1]), iterations=st.sampled_from([1, 5, 50]), short=st.booleans(),
+       samples=st.sampled_from([60, 60, 1100]))
+def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, iterations, short, samples):
     """The Lafortune problem's own solve (``lm_isotropic``, each texel's whole LM compiled) takes the NumPy
     iteration's steps: the same costs and parameters up to round-off, the same texels converged, over limits on or
     off (a tight peak and sharpness, grazing growth 1), a fixed parameter, noise, cut-off iteration counts, and
-    steps limited to the form's ``max_step`` or not (``short``)."""
+    steps limited to the form's ``max_step`` or not (``short``), with the samples in one block or in three (its
+    normal equations from the values it kept of the trial step it accepted)."""
     from sbrdf_core.constraints import Limits
     from sbrdf_lib.lm import levenberg_marquardt, projector, sample_weights
 
@@ -376,7 +378,7 @@ def test_compiled_lm_is_the_numpy_iteration(seed, lobes, limited, fixed, noise, 
         # step logic is the same code for every lobe count; 1-2 lobes check it over whole runs.
         iterations = 1
     rng = np.random.default_rng(seed)
-    model, truth, f, wi, wo = fit_benchmark_texels(rng, 32, 60, noise)
+    model, truth, f, wi, wo = fit_benchmark_texels(rng, 32, samples, noise)
     model = Registry().create("brdf-model", "lafortune", {"lobes": lobes})
     form = model.fit_form()
     valid = rng.random(f.shape[:2]) > 0.1
