@@ -444,16 +444,21 @@ class LafortuneModel(BRDFModel):
 
 
     def albedo_bound(self, params):
-        """π ρ_d + Σ_j ρ_s,j |C_j|_max^n_j 2π/(n_j + 1), per channel, maximised: max(0, C·(ω_i⊙ω_o))^n is at
-        most |C|_max^n cos^n of the angle between ω_o and a fixed direction, whose integral over the sphere is
-        2π/(n + 1)."""
+        """π ρ_d + Σ_j ρ_s,j |C_j|_max^n_j 2π/(n_j + 2), per channel, maximised.
+
+        Seen from ω_i a lobe is max(0, a·ω_o)^n with a = C⊙ω_i, |a| ≤ |C|_max: |a|^n times a cosine lobe about
+        â.  Its albedo weights it by cos θ_o, another cosine lobe (about the normal), and the integral of a
+        product of two such lobes is largest when they are aligned (Hardy–Littlewood's rearrangement
+        inequality on the sphere): ∫ cos^(n+1) θ over the hemisphere = 2π/(n + 2), reached at normal incidence
+        by C = (0, 0, 1).  (Until 2026-11-28 the bound dropped the cos θ_o and read 2π/(n + 1): up to 1.5×
+        looser at n = 1, so more texels went to the energy check's quadrature.)"""
         a = np.pi * np.asarray(params["rho_d"], np.float64)
         for lobe in self.lobe_list(params):
             n = np.asarray(lobe["exponent"], np.float64)[:, :1]
             cmax = np.max([np.abs(np.asarray(lobe[k], np.float64)[:, :1]) for k in ("c_x", "c_y", "c_z")], axis=0)
             with np.errstate(over="ignore"):
                 grow = np.exp(np.minimum(n * np.log(np.maximum(cmax, 1e-300)), 700.0))
-            a = a + np.asarray(lobe["rho_s"], np.float64) * grow * 2 * np.pi / (n + 1.0)
+            a = a + np.asarray(lobe["rho_s"], np.float64) * grow * 2 * np.pi / (n + 2.0)
         return a.max(axis=1)
 
     def constrain(self, params, limits):

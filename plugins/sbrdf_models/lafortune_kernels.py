@@ -596,7 +596,7 @@ def constrain_packed(x, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_h
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo, hi, free, has_limits, peak, has_peak,
+def lm_isotropic(x0, wi, wo, w, f, lobes, lo, hi, free, has_limits, peak, has_peak,
                  n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, iterations, tolerance, damping, max_damping,
                  exact, max_step):
     """:func:`sbrdf_lib.lm.levenberg_marquardt` for isotropic lobes without β, each texel's whole solve compiled.
@@ -610,7 +610,10 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
     which a fit counts as exact).  Why: run batched in NumPy, each iteration
     paid array passes and calls whatever the number of texels still active,
     most of a tile's time outside the normal equations.  Returns ``(x, cost,
-    converged)``; ``weighted`` ``(T,)``: the texel has a sample with weight.
+    converged)``.  The data come as the problem holds them (ω_i, ω_o, the
+    weights ``w``, f_r); each texel's samples are prepared as its solve starts
+    (:func:`_prepare_texel`), into the task's scratch rows, instead of a whole
+    tile's prepared copy made first and read back from memory.
     Damped systems are solved by :func:`_solve` (a singular one: no step).
     A trial step is scored by its cost alone (:func:`_texel_values`); its
     normal equations (:func:`_texel_gram`, from the values kept) are summed
@@ -619,28 +622,32 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
     42.7 → 39.2 µs a texel, one thread, the same iterates to the bit).
     """
     T, K = x0.shape
-    C = f_t.shape[1]
+    S, C = f.shape[1], f.shape[2]
     L = max(c_at.shape[0], 1)
     x_out = np.empty_like(x0)
     cost_out = np.empty(T)
     converged = np.zeros(T, np.bool_)
     for chunk in prange((T + TEXEL_CHUNK - 1) // TEXEL_CHUNK):
-        work = _ne_scratch(K, C, lobes, pxy.shape[1])
+        work = _ne_scratch(K, C, lobes, S)
         G, H, Bw, Rw, V, y, scratch, expo, basis_of, coef, rho, cx, cy, n = work
+        # The texel's prepared samples (prepare_isotropic's rows), made as it starts, while they are in cache.
+        pxy, pzz, w_lit, f_t, e_unlit = np.empty((1, S)), np.empty((1, S)), np.empty((1, S)), np.empty((1, C, S)), \
+            np.empty(1)
         pwork = np.empty((4, L))
         xc, xn = np.empty((1, K)), np.empty((1, K))
         Ac, gc = np.empty((1, K, K)), np.empty((1, K))
         M, b, diag, raw, step = np.empty((K, K)), np.empty(K), np.empty(K), np.empty(K), np.empty(K)
         keep = np.empty(K, np.bool_)
         for t in range(chunk * TEXEL_CHUNK, min(T, (chunk + 1) * TEXEL_CHUNK)):
+            e_unlit[0], energy, weighted = _prepare_texel(wi, wo, w, f, t, pxy, pzz, w_lit, f_t, 0)
             for k in range(K):
                 xc[0, k] = min(max(x0[t, k], lo[k]), hi[k])
             if has_limits:
                 _project_row(xc[0], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at, c_at,
                              ln_at, C, pwork)
-            cost = _texel_normal_equations(xc, 0, t, pxy, pzz, w_lit, f_t, e_unlit, lobes, Ac, gc, *work)
+            cost = _texel_normal_equations(xc, 0, 0, pxy, pzz, w_lit, f_t, e_unlit, lobes, Ac, gc, *work)
             _mask_free(Ac, gc, free)
-            active = weighted[t] and cost > 0.0 and np.isfinite(cost)
+            active = weighted and cost > 0.0 and np.isfinite(cost)
             lam = damping
             for _ in range(iterations):
                 if not active:
@@ -673,7 +680,7 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
                         step[k] = xn[0, k] - xc[0, k]
                 # The trial's cost first; its normal equations only if LM goes on from it (not for a rejected
                 # step, nor for the step it stops at): the same iterates, a fifth fewer Gram sums.
-                cost_new = _texel_values(xn, 0, t, pxy, pzz, w_lit, f_t, e_unlit, lobes, Rw, V, y, scratch, expo, rho,
+                cost_new = _texel_values(xn, 0, 0, pxy, pzz, w_lit, f_t, e_unlit, lobes, Rw, V, y, scratch, expo, rho,
                                          cx, cy, n)
                 better = np.isfinite(cost_new) and cost_new < cost
                 gain = (cost - cost_new) / max(cost, 1e-300) if better else 0.0
@@ -689,10 +696,10 @@ def lm_isotropic(x0, pxy, pzz, w_lit, f_t, e_unlit, energy, weighted, lobes, lo,
                 else:
                     lam = lam * 4.0
                 if ((better and gain < tolerance) or (not better and negligible) or lam > max_damping
-                        or cost <= exact * energy[t]):
+                        or cost <= exact * energy):
                     active = False
                 elif better:
-                    _texel_gram(xc, 0, t, pxy, pzz, w_lit, lobes, Ac, gc, G, H, Bw, Rw, V, basis_of, coef, cx, n)
+                    _texel_gram(xc, 0, 0, pxy, pzz, w_lit, lobes, Ac, gc, G, H, Bw, Rw, V, basis_of, coef, cx, n)
                     _mask_free(Ac, gc, free)
             x_out[t] = xc[0]
             cost_out[t] = cost
@@ -992,31 +999,42 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
 def prepare_isotropic(wi, wo, w, f):
     """What :func:`normal_equations_isotropic` and :func:`cost_isotropic` read, in one pass over the samples:
     ``(ω_i,xy·ω_o,xy, ω_i,z·ω_o,z, the weight where the sample is lit (0 elsewhere), f_r channel-major (T, C, S),
-    each texel's weighted energy of the unlit samples, and of all samples)``.  Below the horizon the model is 0, so
-    an unlit sample's residual is −f_r·w whatever the parameters.  Why compiled: the same steps in NumPy were six
-    passes over ``(T, S, 3)`` arrays and a transposing copy, a tenth of a Fit tile (py-spy)."""
+    each texel's weighted energy of the unlit samples, and of all samples)`` (:func:`_prepare_texel`).  Why
+    compiled: the same steps in NumPy were six passes over ``(T, S, 3)`` arrays and a transposing copy, a tenth
+    of a Fit tile (py-spy)."""
     T, S, C = f.shape
     pxy, pzz, w_lit = np.empty((T, S)), np.empty((T, S)), np.empty((T, S))
     f_t = np.empty((T, C, S))
     e_unlit, energy = np.zeros(T), np.zeros(T)
     for t in prange(T):
-        eu, ea = 0.0, 0.0
-        for s in range(S):
-            ws = w[t, s]
-            iz, oz = wi[t, s, 2], wo[t, s, 2]
-            pxy[t, s] = wi[t, s, 0] * wo[t, s, 0] + wi[t, s, 1] * wo[t, s, 1]
-            pzz[t, s] = iz * oz
-            lit = ws != 0.0 and iz > 0.0 and oz > 0.0
-            w_lit[t, s] = ws if lit else 0.0
-            for c in range(C):
-                fc = f[t, s, c]
-                f_t[t, c, s] = fc
-                r = fc * ws
-                ea += r * r
-                if not lit:
-                    eu += r * r
-        e_unlit[t], energy[t] = eu, ea
+        e_unlit[t], energy[t], _ = _prepare_texel(wi, wo, w, f, t, pxy, pzz, w_lit, f_t, t)
     return pxy, pzz, w_lit, f_t, e_unlit, energy
+
+
+@njit(cache=True)
+def _prepare_texel(wi, wo, w, f, t, pxy, pzz, w_lit, f_t, d):
+    """Texel ``t``'s samples prepared into row ``d`` of ``pxy``, ``pzz``, ``w_lit``, ``f_t`` (as
+    :func:`prepare_isotropic` describes them); returns ``(unlit energy, energy, any sample weighted)``.  Below
+    the horizon the model is 0, so an unlit sample's residual is −f_r·w whatever the parameters."""
+    S, C = f.shape[1], f.shape[2]
+    eu, ea = 0.0, 0.0
+    weighted = False
+    for s in range(S):
+        ws = w[t, s]
+        iz, oz = wi[t, s, 2], wo[t, s, 2]
+        pxy[d, s] = wi[t, s, 0] * wo[t, s, 0] + wi[t, s, 1] * wo[t, s, 1]
+        pzz[d, s] = iz * oz
+        lit = ws != 0.0 and iz > 0.0 and oz > 0.0
+        w_lit[d, s] = ws if lit else 0.0
+        weighted = weighted or ws > 0.0
+        for c in range(C):
+            fc = f[t, s, c]
+            f_t[d, c, s] = fc
+            r = fc * ws
+            ea += r * r
+            if not lit:
+                eu += r * r
+    return eu, ea, weighted
 
 
 _LAYER_LOCK = threading.Lock()
@@ -1084,9 +1102,8 @@ class CompiledLafortuneProblem:
         lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at = args
         if not (np.array_equal(bounds[0], lo) and np.array_equal(bounds[1], hi)):
             return None
-        pxy, pzz, w_lit, f_t, e_unlit = self._prepared()
-        return run_parallel(lm_isotropic, np.ascontiguousarray(x0, np.float64), pxy, pzz, w_lit, f_t, e_unlit,
-                            self.data_energy(), (self.weight > 0).any(axis=1), lobes, lo, hi,
+        return run_parallel(lm_isotropic, np.ascontiguousarray(x0, np.float64), self.wi, self.wo, self.weight,
+                            self.f_r, lobes, lo, hi,
                             np.asarray(free, np.bool_), limits is not None, peak, has_peak, n_cap, growth, s2, c2,
                             n_lo, n_hi, rho_at, c_at, ln_at, int(iterations), float(tolerance), float(damping),
                             float(max_damping), float(exact),

@@ -413,6 +413,20 @@ def test_albedo_bound_is_an_upper_bound(registry, name, config, seed):
     assert (albedo <= bound * (1 + 1e-3) + 1e-9).all(), (albedo / bound).max()
 
 
+@pytest.mark.parametrize("exponent", [0.5, 1.0, 3.0, 30.0])
+def test_lafortune_albedo_bound_is_reached_by_a_lobe_about_the_normal(registry, exponent):
+    """The bound is tight: a lobe about the normal (C = (0, 0, 1)) seen at normal incidence has albedo
+    π ρ_d + ρ_s 2π/(n + 2), which the bound gives; a looser one (2π/(n + 1)) sends texels to quadrature that
+    need none."""
+    model = registry.create("brdf-model", "lafortune", {"lobes": 1})
+    params = {"rho_d": np.full((1, 3), 0.02), "rho_s_1": np.full((1, 3), 0.3), "c_xy_1": np.zeros((1, 1)),
+              "c_z_1": np.ones((1, 1)), "exponent_1": np.full((1, 1), exponent)}
+    exact = np.pi * 0.02 + 0.3 * 2 * np.pi / (exponent + 2)
+    assert model.albedo_bound(params)[0] == pytest.approx(exact, rel=1e-12)
+    albedo = energy_report(model, params, incident_thetas=np.zeros(1), n_theta=96, n_phi=192).max_albedo
+    assert albedo[0] == pytest.approx(exact, rel=2e-3)
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(lobes=st.integers(1, 3), aniso=st.booleans(), seed=st.integers(0, 2**32 - 1),
        peak=st.one_of(st.none(), st.floats(0.0, 1e4)), resolution=st.one_of(st.none(), st.floats(1e-5, 1.5)),
