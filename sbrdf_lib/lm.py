@@ -608,9 +608,12 @@ def diffuse_percentile(f_r: np.ndarray, valid: np.ndarray, percentile: float) ->
     # the same order statistics, in twice the SIMD lanes (9.2 -> 6.0 ms a Fit tile, the check included).
     if f_r.shape[1] == 0:  # no samples at all
         return np.zeros((f_r.shape[0], f_r.shape[-1]))
+    # Invalid samples set to inf in the copy by a boolean index: np.where's broadcast of the mask took 1.7 ms a tile
+    # against 0.6.
     channels = np.moveaxis(f_r, -1, 1)
     narrow = channels.astype(np.float32)
-    data = np.where(valid[:, None, :], narrow if np.array_equal(narrow, channels) else channels, np.inf)
+    data = narrow if np.array_equal(narrow, channels) else channels.astype(np.float64)
+    data[np.broadcast_to(~np.asarray(valid, bool)[:, None, :], data.shape)] = np.inf
     data.sort(axis=-1)
     n = valid.sum(axis=1)  # (T,)
     pos = np.clip(percentile / 100.0 * (n - 1), 0, None)
