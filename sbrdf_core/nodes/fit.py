@@ -192,18 +192,13 @@ def masked_rms(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return squares_rms(sample_squares(diff), mask, diff.shape[-1])
 
 
-def sample_squares(diff: np.ndarray, minus: np.ndarray | None = None) -> np.ndarray:
+def sample_squares(diff: np.ndarray) -> np.ndarray:
     """Each sample's sum of squared residuals over the channels, ``(T, S)``: what :func:`squares_rms` reads, made
-    once for several masks (the Fit node's training and held-out samples).  With ``minus``, of ``diff − minus``,
-    a channel at a time: the same bits without the ``(T, S, C)`` difference (7 MB a Fit tile)."""
-    out = None
-    for c in range(diff.shape[-1]):
-        d = diff[..., c] if minus is None else diff[..., c] - minus[..., c]
-        if out is None:
-            out = d * d
-        else:
-            out += d * d
-    return np.zeros(diff.shape[:-1]) if out is None else out
+    once for several masks (the Fit node's training and held-out samples)."""
+    out = diff[..., 0] * diff[..., 0]
+    for c in range(1, diff.shape[-1]):
+        out += diff[..., c] * diff[..., c]
+    return out
 
 
 def squares_rms(squares: np.ndarray, mask: np.ndarray, channels: int) -> np.ndarray:
@@ -299,10 +294,11 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     params, changed, bounded_by = enforce(model, params, limits, why=True)
     flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint8)
     x = model.pack(params)
-    with np.errstate(all="ignore"):  # one evaluation and one pass for both errors
-        squares = sample_squares(np.broadcast_to(model.eval(params, wi, wo), f_r.shape), f_r)
-    rms = squares_rms(squares, train, f_r.shape[-1])
-    rms_holdout = np.where(test.any(axis=1), squares_rms(squares, test, f_r.shape[-1]), np.nan)
+    with np.errstate(all="ignore"):
+        diff = model.eval(params, wi, wo) - f_r  # one evaluation for both errors
+    squares = sample_squares(diff)  # one pass for both errors
+    rms = squares_rms(squares, train, diff.shape[-1])
+    rms_holdout = np.where(test.any(axis=1), squares_rms(squares, test, diff.shape[-1]), np.nan)
     own = valid.sum(axis=1)
     bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(rms))
     empty = (own == 0) & ~((flags & BORROWED) > 0)
