@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from scipy.ndimage import maximum_filter
 
 from sbrdf_core.brdf_checks import energy_report, energy_violations, hemisphere_max
-from sbrdf_core.constraints import Limits, angular_resolution, enforce, mirror_peak
+from sbrdf_core.constraints import Limits, _compiled_negated_cosines, angular_resolution, enforce, mirror_peak
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, OVERFIT, FitOptions, fit_tile
 from sbrdf_lib.lm import fit_model
@@ -478,3 +478,6 @@ def test_angular_resolution_is_the_kth_smallest_angle(seed, samples, dropped, ne
     expected = (np.full(5, np.pi / 2) if k < 0 else np.minimum(np.sort(angle, axis=1)[:, k], np.pi / 2))
     with np.errstate(invalid="ignore"):
         np.testing.assert_array_equal(angular_resolution(wi, wo, valid, nearest), expected)
+        numpy_pass = -np.where(valid, np.clip(cos_a, -1.0, 1.0), 0.0)
+    # The compiled pass it takes where numba is loaded gives NumPy's bits, −0 for invalid samples included.
+    assert _compiled_negated_cosines()(wi, wo, valid).tobytes() == numpy_pass.tobytes()
