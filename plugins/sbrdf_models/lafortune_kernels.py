@@ -450,7 +450,7 @@ def _texel_values(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, Rw, V, y, scrat
     for s0 in range(0, S, SAMPLE_BLOCK):
         nb = min(SAMPLE_BLOCK, S - s0)
         R, Vb = Rw[s0 // SAMPLE_BLOCK], V[s0 // SAMPLE_BLOCK]
-        W = _block_rows(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, R, Vb, y, scratch, expo, rho, cx, n)
+        W = _block_values(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, R, Vb, y, scratch, expo, rho, cx, n)
         total += _weigh_residuals(R, W, nb, True)
     return total
 
@@ -484,7 +484,7 @@ def _texel_gram(x, t, d, pxy, pzz, w_lit, lobes, A, g, G, H, Bw, Rw, V, basis_of
 
 
 @njit(cache=True, error_model="numpy")
-def _block_rows(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, Rw, V, y, scratch, expo, rho, cx, n):
+def _block_values(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, Rw, V, y, scratch, expo, rho, cx, n):
     """Texel ``d``'s samples ``s0:s0 + nb`` at parameters ``x[t]`` (unpacked in ``rho``, ``cx``, ``n``): the
     prediction minus f_r in ``Rw`` (a row per channel, not yet weighted) and each lobe's values in ``V`` (rows
     3j, 3j + 1, 3j + 2: :func:`_lobe_values`' s, x and log x).  Returns the block's weights."""

@@ -142,8 +142,9 @@ def usable(f_r: np.ndarray, valid: np.ndarray, dtype=None) -> tuple[np.ndarray, 
     """
     f_r, valid = np.asarray(f_r), np.asarray(valid)
     dtype = f_r.dtype if dtype is None else np.dtype(dtype)
-    if ("numba" in sys.modules and f_r.ndim == 3 and valid.shape == f_r.shape[:2] and f_r.dtype.kind == "f"
-            and dtype.kind == "f"):
+    compiled_types = (np.float32, np.float64)  # what numba compiles (float16 and longdouble: NumPy below)
+    if ("numba" in sys.modules and f_r.ndim == 3 and valid.shape == f_r.shape[:2] and f_r.dtype in compiled_types
+            and dtype in compiled_types):
         # Loaded already (a compiled fitter), so free to use: one pass for the test, the conversion and the copy,
         # the same bits as the NumPy passes below (tests/core/test_usable.py).
         out = np.empty(f_r.shape, dtype)
