@@ -261,10 +261,10 @@ class TimedFitter:
     def __init__(self, fitter):
         self.fitter, self.cpu_s = fitter, 0.0
 
-    def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True):  # the keywords lm's fit takes (the node reads them)
+    def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True, usable=False):  # lm's keywords (the node reads them)
         c0 = time.process_time()
         try:
-            return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms)
+            return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms, usable=usable)
         finally:
             self.cpu_s += time.process_time() - c0
 

@@ -162,7 +162,11 @@ class Fitter(Protocol):
         the node projects whatever comes back onto them anyway.  Keyword
         ``rms``, where ``fit`` declares it: the Fit node passes ``False``, as
         it scores the fit itself; ``FitResult.rms`` may then be ``None`` (a
-        fitter whose training RMS costs a further pass skips it).  Each
+        fitter whose training RMS costs a further pass skips it).  Keyword
+        ``usable``, where ``fit`` declares it: the Fit node passes ``True``,
+        its samples being :func:`~sbrdf_core.nodes.fit.usable`'s (float64,
+        finite, 0 where not ``valid``; ``valid`` false wherever a sample was
+        not finite), so a fitter that tests them itself may skip that.  Each
         keyword is passed only to a ``fit`` whose signature names it.
         Vectorised over texels; runs inside dask tasks, one tile at a time.
         """

@@ -499,6 +499,27 @@ class FitterTests(PluginTests):
         for p in model.parameters:
             np.testing.assert_array_equal(bare.params[p.name], full.params[p.name], err_msg=p.name)
 
+    def test_usable_samples_are_fitted_as_the_raw_ones(self):
+        """A ``fit`` that declares the ``usable`` keyword (the Fit node passes ``usable=True`` with samples
+        :func:`~sbrdf_core.nodes.fit.usable` cleaned) gives the parameters it gives the raw samples, a NaN and
+        an inf among them."""
+        import inspect
+
+        import pytest
+
+        from sbrdf_core.nodes.fit import usable
+
+        fitter, model, f, valid, wi, wo = self._problem()
+        if "usable" not in inspect.signature(fitter.fit).parameters:
+            pytest.skip("fit has no usable keyword (optional)")
+        f = np.array(f, dtype=np.float64)
+        f[0, 0, 1], f[-1, 1, 0] = np.nan, np.inf
+        clean, ok = usable(f, valid, np.float64)
+        raw, checked = fitter.fit(model, f, valid, wi, wo), fitter.fit(model, clean, ok, wi, wo, usable=True)
+        np.testing.assert_array_equal(checked.samples, raw.samples)
+        for p in model.parameters:
+            np.testing.assert_array_equal(checked.params[p.name], raw.params[p.name], err_msg=p.name)
+
     def test_no_valid_sample_gives_finite_defaults(self):
         fitter, model, f, valid, wi, wo = self._problem(T=3)
         f = np.full_like(f, np.nan)

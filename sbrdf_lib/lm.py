@@ -364,7 +364,7 @@ IRLS_ROUNDS = 4
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
               fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None, separable=False,
-              weighting="absolute", start="guess", want_cost=True):
+              weighting="absolute", start="guess", want_cost=True, checked=False):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
@@ -390,7 +390,8 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     (``fit_trapped``) are fitted again (:func:`rescue`).  ``want_cost``
     False: ``cost`` is ``None`` (a weighted fit's unweighted cost is a
     further pass over the samples, a fifteenth of a 1-lobe Fit tile, which
-    a caller that scores the fit itself does not need).
+    a caller that scores the fit itself does not need).  ``checked``: ``f_r`` and ``valid`` are
+    :func:`~sbrdf_core.nodes.fit.usable`'s output already (the Fit node's), so its pass is not made again.
     """
     if loss not in LOSSES:
         raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
@@ -401,7 +402,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     starts = starts or model.suggested_starts
     form = model.fit_form()
     T = f_r.shape[0]
-    f_r, valid = usable(f_r, valid)
+    f_r, valid = (np.asarray(f_r, np.float64), np.asarray(valid, bool)) if checked else usable(f_r, valid)
     lo, hi = form.bounds()
     free = np.ones(form.size, bool)
     slices = form.slices()

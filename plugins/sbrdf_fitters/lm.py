@@ -79,10 +79,12 @@ class LevenbergMarquardtFitter:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
 
-    def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True, usable=False) -> FitResult:
         """``rms`` False: no training RMS (``FitResult.rms`` None), for a caller that scores the fit itself
-        (the Fit node): with a weighted objective it is a further pass over the samples."""
-        n = usable_mask(f_r, valid).sum(axis=1)  # fit_model drops the unusable samples itself
+        (the Fit node): with a weighted objective it is a further pass over the samples.  ``usable`` True: the
+        samples are :func:`~sbrdf_core.nodes.fit.usable`'s already (the Fit node's), not tested again."""
+        # fit_model drops the unusable samples itself
+        n = (np.asarray(valid, bool) if usable else usable_mask(f_r, valid)).sum(axis=1)
         stats: dict = {}
         params, converged, cost = fit_model(model, f_r, valid, wi, wo, iterations=self.iterations,
                                             tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
@@ -90,7 +92,7 @@ class LevenbergMarquardtFitter:
                                             loss_scale=self.loss_scale, stats=stats,
                                             separable=self.variable_projection,
                                             weighting="absolute" if self.variable_projection else self.weighting,
-                                            start=self.start, want_cost=rms)
+                                            start=self.start, want_cost=rms, checked=usable)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         # The fit's own cost: no second evaluation.
         train_rms = None if cost is None else np.sqrt(cost / np.maximum(f_r.shape[-1] * n, 1))

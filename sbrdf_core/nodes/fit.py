@@ -279,6 +279,8 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
         kw: dict[str, Any] = {"limits": lim} if "limits" in accepts else {}
         if "rms" in accepts:
             kw["rms"] = False  # the node scores the fit itself, below
+        if "usable" in accepts:
+            kw["usable"] = True  # f, w are usable()'s (the pool's too): no second finiteness pass
         return fitter.fit(model, f, w, a, b, **kw)
 
     res: FitResult = run(f_r, train, wi, wo, limits)
