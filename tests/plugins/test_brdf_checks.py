@@ -190,3 +190,22 @@ def test_lafortune_compiled_albedo_equals_its_eval_on_the_grid(cfg, monkeypatch)
             mp.delattr(lafortune.LafortuneModel, "albedo_quadrature")
             slow = directional_albedo(m, p, wi, 24, 48)
         np.testing.assert_allclose(fast, slow, rtol=1e-10, atol=1e-13)
+
+
+@pytest.mark.parametrize("name, cfg", [("lafortune", {"lobes": 1}), ("lafortune", {"lobes": 2, "anisotropic": True}),
+                                       ("ward", {})])
+@pytest.mark.parametrize("phis", [(0.0,), (0.0, np.pi / 4, np.pi / 2)])
+def test_energy_report_gives_each_directions_albedo(name, cfg, phis):
+    """``energy_report`` integrates all its incident directions in one call where the model's quadrature is
+    compiled (the texels repeated per direction): the albedo of each texel at each direction is still the one
+    ``directional_albedo`` gives for that direction alone, to the bit."""
+    from sbrdf_core.contracts import optional
+
+    m = model(name, **cfg)
+    p = m.random_guess(np.random.default_rng(11), 9)
+    got = energy_report(m, p, incident_phis=phis, n_theta=12, n_phi=24)
+    isotropic = not optional(m, "anisotropic", "brdf-model")
+    want = np.stack([directional_albedo(m, p, d, 12, 24, bool(d[1] == 0.0 and isotropic)) for d in got.directions],
+                    axis=1)
+    assert got.albedo.shape == (9, len(got.directions), 3)
+    assert got.albedo.tobytes() == want.tobytes()
