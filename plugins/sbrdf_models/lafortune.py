@@ -175,8 +175,29 @@ class LafortuneModel(BRDFModel):
         return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
 
     def _compiled_eval(self, params, wi, wo):
-        """:meth:`eval` by ``lafortune_kernels.eval_lobes`` where it applies (no β, a texel's parameters per row of
-        ``(T, S, 3)`` float64 directions, enough samples to pay for the call) and numba is loaded already; else None."""
+        """:meth:`eval` by ``lafortune_kernels.eval_lobes`` where :meth:`_compiled_args` applies; else None."""
+        args = self._compiled_args(params, wi, wo)
+        if args is None:
+            return None
+        from .lafortune_kernels import eval_lobes, run_parallel
+
+        return run_parallel(eval_lobes, *args)
+
+    def squared_residuals(self, params, wi, wo, f_r):
+        """Σ_c (eval − f_r)² per sample, ``(T, S)``, compiled without the ``(T, S, C)`` prediction
+        (``lafortune_kernels.squared_residuals_lobes``: the Fit node's scoring, the same bits); None where
+        :meth:`_compiled_args` does not apply or ``f_r`` is not ``(T, S, C)`` float64."""
+        args = self._compiled_args(params, wi, wo)
+        f_r = np.asarray(f_r)
+        if args is None or f_r.shape != np.shape(wi)[:2] + (self.channels,) or f_r.dtype != np.float64:
+            return None
+        from .lafortune_kernels import run_parallel, squared_residuals_lobes
+
+        return run_parallel(squared_residuals_lobes, *args, np.ascontiguousarray(f_r))
+
+    def _compiled_args(self, params, wi, wo):
+        """The compiled kernels' arguments (no β, a texel's parameters per row of ``(T, S, 3)`` float64 directions,
+        enough samples to pay for the call, numba loaded already), or None."""
         if self.has_beta or not self.lobes or "numba" not in sys.modules:
             return None
         wi, wo = np.asarray(wi), np.asarray(wo)
@@ -185,16 +206,14 @@ class LafortuneModel(BRDFModel):
                 or wo.dtype != np.float64 or rho_d.shape != (wi.shape[0], self.channels)
                 or wi.size < COMPILED_EVAL_MIN):
             return None
-        from .lafortune_kernels import eval_lobes, run_parallel
-
         lobes = self.lobe_list(params)
         col = lambda key: np.ascontiguousarray(np.concatenate(  # noqa: E731
             [np.broadcast_to(np.asarray(lb[key], np.float64)[:, :1], (wi.shape[0], 1)) for lb in lobes], axis=1))
         rho_s = np.ascontiguousarray(np.stack([np.asarray(lb["rho_s"], np.float64) for lb in lobes], axis=1))
         if rho_s.shape != (wi.shape[0], len(lobes), self.channels):
             return None
-        return run_parallel(eval_lobes, np.ascontiguousarray(rho_d, np.float64), rho_s, col("c_x"), col("c_y"),
-                            col("c_z"), col("exponent"), np.ascontiguousarray(wi), np.ascontiguousarray(wo))
+        return (np.ascontiguousarray(rho_d, np.float64), rho_s, col("c_x"), col("c_y"), col("c_z"), col("exponent"),
+                np.ascontiguousarray(wi), np.ascontiguousarray(wo))
 
     def albedo_quadrature(self, params, wi, dirs, weights):
         """``Σ_o w_o f_r(ω_i, ω_o)`` per texel and channel, ``(T, C)``, for one ``wi`` per texel ``(T, 3)``: what the

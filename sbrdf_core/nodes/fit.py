@@ -193,6 +193,15 @@ def masked_rms(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return squares_rms(sample_squares(diff), mask, diff.shape[-1])
 
 
+def residual_squares(model, params, wi, wo, f_r) -> np.ndarray:
+    """:func:`sample_squares` of ``model.eval − f_r``, ``(T, S)``: by the model's ``squared_residuals`` where it has
+    one that applies (compiled, no ``(T, S, C)`` prediction or difference), else from ``eval``."""
+    own = optional(model, "squared_residuals", "brdf-model")
+    with np.errstate(all="ignore"):
+        squares = None if own is None else own(params, wi, wo, f_r)
+        return sample_squares(model.eval(params, wi, wo) - f_r) if squares is None else squares
+
+
 def sample_squares(diff: np.ndarray) -> np.ndarray:
     """Each sample's sum of squared residuals over the channels, ``(T, S)``: what :func:`squares_rms` reads, made
     once for several masks (the Fit node's training and held-out samples)."""
@@ -297,11 +306,9 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     params, changed, bounded_by = enforce(model, params, limits, why=True)
     flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint8)
     x = model.pack(params)
-    with np.errstate(all="ignore"):
-        diff = model.eval(params, wi, wo) - f_r  # one evaluation for both errors
-    squares = sample_squares(diff)  # one pass for both errors
-    rms = squares_rms(squares, train, diff.shape[-1])
-    rms_holdout = np.where(test.any(axis=1), squares_rms(squares, test, diff.shape[-1]), np.nan)
+    squares = residual_squares(model, params, wi, wo, f_r)  # one evaluation for both errors
+    rms = squares_rms(squares, train, f_r.shape[-1])
+    rms_holdout = np.where(test.any(axis=1), squares_rms(squares, test, f_r.shape[-1]), np.nan)
     own = valid.sum(axis=1)
     bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(rms))
     empty = (own == 0) & ~((flags & BORROWED) > 0)

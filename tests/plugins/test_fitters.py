@@ -429,3 +429,55 @@ def test_compiled_eval_matches_numpy(lafortune, lobes, aniso, seed, max_theta, w
         ok = ~np.isnan(ref) & (np.abs(ref) > 1e-300)
         np.testing.assert_allclose(fast[ok], ref[ok], rtol=1e-13)
         assert (fast[~ok & ~np.isnan(ref)] < 1e-290).all()
+
+
+@settings(max_examples=25, deadline=None)
+@given(lobes=st.integers(1, 3), aniso=st.booleans(), seed=st.integers(0, 10_000), max_theta=st.floats(10, 100),
+       wild=st.booleans())
+def test_squared_residuals_are_those_of_the_compiled_eval(lafortune, lobes, aniso, seed, max_theta, wild):
+    """``squared_residuals`` (the Fit node's scoring, no ``(T, S, C)`` prediction) gives the bits of
+    ``sample_squares(eval − f_r)``: over directions below the horizon, NaN and huge samples, and (``wild``)
+    exponents up to 2·10⁴, |C| up to 10 and a NaN exponent; None where the compiled path does not apply."""
+    import sbrdf_models.lafortune_kernels  # noqa: F401  (numba loaded: the compiled path is taken)
+    from sbrdf_core.nodes.fit import residual_squares, sample_squares
+
+    model = lafortune(lobes=lobes, anisotropic=aniso)
+    rng = np.random.default_rng(seed)
+    T, S = 8, 700
+    wi, wo = directions(T, S, max_theta, seed)
+    p = model.random_guess(rng, T)
+    if wild:
+        for j in range(1, lobes + 1):
+            p[f"exponent_{j}"] = rng.uniform(0.1, 2e4, (T, 1))
+            for k in [k for k in p if k.startswith("c_") and k.endswith(f"_{j}") and k != f"c_z_{j}"]:
+                p[k] = rng.uniform(-10, 10, (T, 1))
+        p["exponent_1"][0] = np.nan
+    f_r = rng.lognormal(-2.0, 2.0, (T, S, 3))
+    f_r[1, :5] = np.array([np.nan, np.inf, -np.inf, 1e300, 0.0])[:, None]
+    got = model.squared_residuals(p, wi, wo, f_r)
+    assert got is not None and got.shape == (T, S) and got.dtype == np.float64
+    with np.errstate(all="ignore"):
+        want = sample_squares(model.eval(p, wi, wo) - f_r)
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    assert np.where(np.isnan(got), 0.0, got).tobytes() == np.where(np.isnan(want), 0.0, want).tobytes()
+    assert residual_squares(model, p, wi, wo, f_r).tobytes() == got.tobytes()
+    with np.errstate(over="ignore"):  # 1e300 in float32
+        narrow = f_r.astype(np.float32)
+    assert model.squared_residuals(p, wi, wo, narrow) is None  # not the kernel's inputs
+    assert model.squared_residuals(p, wi[:, :3], wo[:, :3], f_r[:, :3]) is None  # too few samples to pay
+
+
+def test_squared_residuals_leave_models_without_them_to_eval(lafortune):
+    """The node's ``residual_squares``: a model without ``squared_residuals`` (Lambert), or one whose
+    ``squared_residuals`` does not apply (a Lafortune β), is scored through ``eval``."""
+    from sbrdf_core.nodes.fit import residual_squares, sample_squares
+    from sbrdf_core.registry import Registry
+
+    rng = np.random.default_rng(2)
+    wi, wo = directions(4, 30, 80.0, 2)
+    f_r = rng.lognormal(-2.0, 1.0, (4, 30, 3))
+    for model in (Registry().create("brdf-model", "lambert", {}), lafortune(lobes=1, anisotropic=True, beta=True)):
+        p = model.random_guess(rng, 4)
+        assert getattr(model, "squared_residuals", lambda *a: None)(p, wi, wo, f_r) is None
+        np.testing.assert_array_equal(residual_squares(model, p, wi, wo, f_r),
+                                      sample_squares(model.eval(p, wi, wo) - f_r))
