@@ -44,7 +44,7 @@ import logging
 
 import numpy as np
 
-from sbrdf_core.channels import channel_mean
+from sbrdf_core.channels import abs_channel_mean
 from sbrdf_core.contracts import optional
 from sbrdf_core.nodes.fit import usable
 from sbrdf_core.params import Param
@@ -337,7 +337,7 @@ def sample_weights(f_r: np.ndarray, valid: np.ndarray, power: float, floor: floa
     if power == 0.0:
         return valid.astype(np.float64)
     valid = np.asarray(valid, bool)
-    y = channel_mean(np.abs(f_r))
+    y = abs_channel_mean(f_r)
     level = valid_median(y, valid)
     with np.errstate(all="ignore"):
         w = np.where(valid, (np.where(valid, y, 0.0) + floor * level + 1e-12) ** -power, 0.0)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import numba  # noqa: F401  (loaded, so abs_channel_mean takes its compiled pass)
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from sbrdf_core.channels import all_finite, channel_max, channel_mean
+from sbrdf_core.channels import abs_channel_mean, all_finite, channel_max, channel_mean
 
 SPECIAL = st.sampled_from([np.nan, np.inf, -np.inf, 0.0, -0.0, 3e38, -3e38, 1.4e-45])  # all fit in float32
 ARRAYS = hnp.arrays(
@@ -41,3 +42,16 @@ def test_inputs_are_not_changed_and_no_channels_is_all_finite():
     assert channel_mean(a)[1] == 5.0
     assert np.array_equal(a, before, equal_nan=True)
     assert all_finite(np.zeros((4, 0))).tolist() == [True] * 4
+
+
+@settings(max_examples=100, deadline=None)
+@given(ARRAYS.filter(lambda a: a.ndim == 3))
+def test_abs_channel_mean_is_the_mean_of_the_absolute_values(a):
+    """The compiled pass (float64) and the NumPy one (float32) give ``channel_mean(np.abs(a))``'s bits."""
+    with np.errstate(all="ignore"):
+        for x in (a.astype(np.float64), a.astype(np.float32)):
+            want, got = channel_mean(np.abs(x)), abs_channel_mean(x)
+            assert got.dtype == want.dtype and got.shape == want.shape
+            nan = np.isnan(want)
+            assert np.array_equal(np.isnan(got), nan)
+            assert got[~nan].tobytes() == want[~nan].tobytes()
