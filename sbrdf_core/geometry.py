@@ -71,24 +71,34 @@ def _compiled_directions():
     import numba
 
     @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def towards(points, tx, ty, tz, out, r, store_r, dx, dy, dz, rr):  # pragma: no cover (compiled)
+        """One target set's directions (and distances where ``store_r``): per texel, the divisions first in
+        planar rows (SIMD lanes; a sample at a time they were scalar), then written as ``(P, 3)`` rows."""
+        for t in range(points.shape[0]):
+            px, py, pz = points[t, 0], points[t, 1], points[t, 2]
+            for p in range(tx.shape[0]):
+                # directions_to's arithmetic: d = target − point, r = √(d·d), d / r; d·d summed in the order
+                # NumPy's einsum sums three terms (x² + z²) + y², measured to give its bits.
+                a, b, c = tx[p] - px, ty[p] - py, tz[p] - pz
+                q = np.sqrt((a * a + c * c) + b * b)
+                rr[p] = q
+                q = q if q != 0.0 else 1.0
+                dx[p], dy[p], dz[p] = a / q, b / q, c / q
+            for p in range(tx.shape[0]):
+                if store_r:
+                    r[t, p] = rr[p]
+                zero = rr[p] == 0.0  # coincident: +z, not NaN
+                out[t, p, 0] = 0.0 if zero else dx[p]
+                out[t, p, 1] = 0.0 if zero else dy[p]
+                out[t, p, 2] = 1.0 if zero else dz[p]
+
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
     def kernel(points, light, camera):  # pragma: no cover (compiled)
         T, P = points.shape[0], light.shape[0]
         wi, r, wo = np.empty((T, P, 3)), np.empty((T, P)), np.empty((T, P, 3))
-        for t in range(T):
-            for p in range(P):
-                for target, out, dist in ((light, wi, True), (camera, wo, False)):
-                    # directions_to's arithmetic: d = target − point, r = √(d·d), d / r; d·d summed in the order
-                    # NumPy's einsum sums three terms (x² + z²) + y², measured to give its bits.
-                    dx = target[p, 0] - points[t, 0]
-                    dy = target[p, 1] - points[t, 1]
-                    dz = target[p, 2] - points[t, 2]
-                    rr = np.sqrt((dx * dx + dz * dz) + dy * dy)
-                    if dist:
-                        r[t, p] = rr
-                    if rr == 0:
-                        out[t, p, 0], out[t, p, 1], out[t, p, 2] = 0.0, 0.0, 1.0
-                    else:
-                        out[t, p, 0], out[t, p, 1], out[t, p, 2] = dx / rr, dy / rr, dz / rr
+        rows = np.empty(P), np.empty(P), np.empty(P), np.empty(P)
+        towards(points, light[:, 0].copy(), light[:, 1].copy(), light[:, 2].copy(), wi, r, True, *rows)
+        towards(points, camera[:, 0].copy(), camera[:, 1].copy(), camera[:, 2].copy(), wo, r, False, *rows)
         return wi, r, wo
 
     return kernel
