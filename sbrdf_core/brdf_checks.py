@@ -184,11 +184,11 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
     dirs = polar_direction(th.ravel(), ph.ravel())
     # An isotropic model's albedo at φ_i = 0 is symmetric in φ_o: half the grid (directional_albedo's mirror).
     mirror = (dirs[:, 1] == 0.0) & (not optional(model, "anisotropic", "brdf-model"))
-    albedo = np.empty((_texels(model, params), len(dirs), 3))
-    for m in (False, True):
-        pick = np.flatnonzero(mirror == m)
-        if pick.size:
-            albedo[:, pick] = _albedo_at(model, params, dirs[pick], m, n_theta, n_phi)
+    parts = [(pick, _albedo_at(model, params, dirs[pick], m, n_theta, n_phi))
+             for m in (False, True) if (pick := np.flatnonzero(mirror == m)).size]
+    albedo = np.empty((_texels(model, params), len(dirs), parts[0][1].shape[-1]))  # the model's channels
+    for pick, part in parts:
+        albedo[:, pick] = part
     per_dir = albedo.max(axis=2)  # (T, D)
     worst = per_dir.argmax(axis=1)
     max_albedo = per_dir.max(axis=1)
@@ -209,7 +209,7 @@ def _albedo_at(model: BRDFModel, params: Mapping[str, np.ndarray], dirs: np.ndar
     T, D = _texels(model, params), len(dirs)
     rows = {k: np.concatenate([np.broadcast_to(np.asarray(v), (T,) + np.shape(v)[1:])] * D) for k, v in params.items()}
     out = directional_albedo(model, rows, np.repeat(dirs, T, axis=0), n_theta, n_phi, mirror)
-    return out.reshape(D, T, -1).transpose(1, 0, 2)
+    return out.reshape(D, T, out.shape[-1]).transpose(1, 0, 2)  # not -1: T may be 0
 
 
 def energy_azimuths(model: BRDFModel) -> tuple[float, ...]:

@@ -209,3 +209,5 @@ def test_energy_report_gives_each_directions_albedo(name, cfg, phis):
                     axis=1)
     assert got.albedo.shape == (9, len(got.directions), 3)
     assert got.albedo.tobytes() == want.tobytes()
+    none = energy_report(m, {k: v[:0] for k, v in p.items()}, incident_phis=phis, n_theta=12, n_phi=24)
+    assert none.albedo.shape == (0, len(got.directions), 3) and none.violations.shape == (0,)
