@@ -46,7 +46,10 @@ training RMS of lm2 / of the 2-lobe peer on the peer's data.
 or the solver says it did not finish (the peer: ``least_squares`` status ≤ 0;
 lm: the Fit node's flag 8 or 16), or a training RMS above twice the best that
 either fit of that lobe count reached on the texel (and above 1.5 σ).  The last
-line's counts are on the peer's data, 2 lobes.
+line's counts are on the peer's data, 2 lobes, except ``failed_lm1`` (1 lobe).
+``failed_lmL_energy`` counts those of lm's failures where the better fit is the
+peer's and may reflect more energy than it receives (the Lafortune albedo bound
+above 1): a fit the Fit node's energy bound forbids, so lm cannot match it.
 
 Sizes: full = 64×64 texels per data set × 300 training + 100 held-out pairs
 (the lm side in the Fit node's 32×32 tiles); ``--quick`` = one 32×32 tile per
@@ -66,7 +69,8 @@ Last line: ``fit: texels=... peer_cpu_ms_per_texel=... lm1_cpu_ms_per_texel=...
 lm2_cpu_ms_per_texel=... speedup_cpu_lm1=... speedup_cpu_lm2=...
 rms_ratio_lm2=... failed_lm2=... failed_peer=... speedup_cpu_lm1_vp=...
 speedup_cpu_lm2_vp=... rms_ratio_lm2_vp=... failed_lm2_vp=... lm1_fit_cpu_ms_per_texel=...
-lm2_fit_cpu_ms_per_texel=... speedup_cpu_lm1_fit=... speedup_cpu_lm2_fit=...``
+lm2_fit_cpu_ms_per_texel=... speedup_cpu_lm1_fit=... speedup_cpu_lm2_fit=...
+failed_lm1=... failed_lm1_energy=... failed_lm2_energy=...``
 """
 
 from __future__ import annotations
@@ -317,6 +321,17 @@ def failed(result, best):
     return ~result["finite"] | ~result["solver_ok"] | worse
 
 
+def reflects_too_much(params, lobes):
+    """Texels whose Lafortune fit ``params`` may reflect more energy than it receives (the model's analytic albedo
+    bound above 1): fits the Fit node's energy bound forbids, so ``lm`` cannot match them."""
+    from sbrdf_core.registry import Registry
+
+    model = Registry().create("brdf-model", "lafortune", {"lobes": lobes})
+    T = len(params["rho_d"])
+    full = {**{k: v for k, v in model.defaults(T).items() if k not in params}, **params}
+    return ~(np.asarray(model.albedo_bound(full)) <= 1.0)
+
+
 def compare(data, lobes):
     """The peer, lm and lm with variable projection on the same texels, interleaved tile by tile.
 
@@ -334,12 +349,15 @@ def compare(data, lobes):
     T = data["side"] ** 2
     peer, lm, vp = (score(data, merge(parts[who], T), lobes) for who in ("peer", "lm", "vp"))
     best = np.minimum(peer["rms"], lm["rms"])
+    # Where the peer's fit is the better one but reflects more than it receives, lm's bounded fit cannot match it.
+    unphysical_best = (peer["rms"] <= lm["rms"]) & reflects_too_much(peer["params"], lobes)
     row = {"set": data["name"], "lobes": lobes, "texels": T}
     for who, r in (("peer", peer), ("lm", lm), ("vp", vp)):
         fail = failed(r, best)
         row[who] = {"cpu_ms": 1e3 * r["cpu_s"] / T, "wall_ms": 1e3 * r["wall_s"] / T, "fit_cpu_ms": 1e3 * r["fit_cpu_s"] / T,
                     "rms": float(np.mean(r["rms"][r["finite"]])), "held": float(np.mean(r["held"][r["finite"]])),
-                    "failed": int(fail.sum()), "unfinished": int((~r["solver_ok"]).sum())}
+                    "failed": int(fail.sum()), "unfinished": int((~r["solver_ok"]).sum()),
+                    "failed_energy": int((fail & unphysical_best).sum())}
     return row
 
 
@@ -504,7 +522,8 @@ def main() -> int:
                   f"peer {p['cpu_ms']:8.3f} ms CPU {p['wall_ms']:8.3f} ms wall per texel, RMS {p['rms']:.5f} "
                   f"held-out {p['held']:.5f}, failed {p['failed']} (unfinished {p['unfinished']}) | "
                   f"lm {m['cpu_ms']:7.3f} ms CPU {m['wall_ms']:7.3f} ms wall, RMS {m['rms']:.5f} "
-                  f"held-out {m['held']:.5f}, failed {m['failed']} (unfinished {m['unfinished']}) | "
+                  f"held-out {m['held']:.5f}, failed {m['failed']} (unfinished {m['unfinished']}; "
+                  f"{m['failed_energy']} where the better fit reflects more than it receives) | "
                   f"speedup CPU {p['cpu_ms'] / m['cpu_ms']:.1f}x wall {p['wall_ms'] / m['wall_ms']:.1f}x | "
                   f"variable projection {row['vp']['cpu_ms']:7.3f} ms CPU, RMS {row['vp']['rms']:.5f} held-out "
                   f"{row['vp']['held']:.5f}, failed {row['vp']['failed']}, speedup CPU "
@@ -521,7 +540,9 @@ def main() -> int:
             f"rms_ratio_lm2_vp={two['vp']['rms'] / two['peer']['rms']:.4f} failed_lm2_vp={two['vp']['failed']} "
             f"lm1_fit_cpu_ms_per_texel={one['lm']['fit_cpu_ms']:.4f} lm2_fit_cpu_ms_per_texel={two['lm']['fit_cpu_ms']:.4f} "
             f"speedup_cpu_lm1_fit={one['peer']['cpu_ms'] / one['lm']['fit_cpu_ms']:.1f} "
-            f"speedup_cpu_lm2_fit={two['peer']['cpu_ms'] / two['lm']['fit_cpu_ms']:.1f}")
+            f"speedup_cpu_lm2_fit={two['peer']['cpu_ms'] / two['lm']['fit_cpu_ms']:.1f} "
+            f"failed_lm1={one['lm']['failed']} failed_lm1_energy={one['lm']['failed_energy']} "
+            f"failed_lm2_energy={two['lm']['failed_energy']}")
     if args.docs:
         workdir = Path(tempfile.mkdtemp(prefix="sbrdf-fit-bench-"))
         try:
