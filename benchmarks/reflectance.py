@@ -33,6 +33,14 @@ input) and ``reflectance_read_ratio`` = Reflectance seconds / ``stack_read_s``.
 The project's own reads of aligned chunks skip zarr's per-chunk overhead
 (``sbrdf_core.chunk_files``), so Reflectance can take less time than this
 plain zarr read of its input.
+``register_floor_s`` = what Register cannot go below with its resampling filter
+on this machine: every accepted pose's photograph read through the node's own
+reads, reduced to its pyramid level and remapped bicubically at each of its
+sub-samples (``cv2.remap``), on one thread per core, and nothing else (no pose
+measurement, masks, edge handling or writes; the maps are made off the clock),
+in a fresh process right after the run; ``read_ratio_floor`` = (``register_floor_s``
++ Reflectance seconds) / ``read_s``: the ``read_ratio`` a Register doing only
+that would give.
 ``peak_rss_mb_<size>gb`` = the threaded run's peak RSS at two sizes, each in a
 fresh process: 0.5 and 2 GB at full size, ``--gb``/2 and ``--gb`` with
 ``--quick`` (the two must agree within 10 %: memory flat in the scan).  A single
@@ -69,7 +77,7 @@ stderr; the last line of stdout is::
     reflectance: gb=<float> mb_per_s=<float> peak_rss_mb=<float> registration_rms_texel=<float> lambert_err=<float>
         register_s=<float> reflectance_s=<float> read_s=<float> read_ratio=<float> stack_read_s=<float>
         reflectance_read_ratio=<float> peak_rss_mb_<a>gb=<float> peak_rss_mb_<b>gb=<float> peak_ratio=<float>
-        repeats=<int>
+        repeats=<int> register_floor_s=<float> read_ratio_floor=<float>
 
 (one line).
 """
@@ -217,6 +225,63 @@ def read_child(artifact: str, names: list[str]) -> None:
     print(json.dumps({"read_s": time.perf_counter() - t0, "touch": total}))
 
 
+def register_floor(store: Path) -> float:
+    """Seconds of :func:`floor_child` on ``store``'s capture and registration, in a fresh process."""
+    import json
+    import subprocess
+
+    cmd = [sys.executable, __file__, "--floor", str(store)]
+    out = subprocess.run(cmd, stdout=subprocess.PIPE, check=True, text=True).stdout
+    return float(json.loads(out.strip().splitlines()[-1])["floor_s"])
+
+
+def floor_child(store: str, block: int = 32) -> None:
+    """``--floor``: wall seconds for every accepted pose's read and bicubic remaps alone (``register_floor_s``).
+
+    Poses go in blocks: a block's maps are made first, off the clock (all of them would not fit in memory at
+    8 GB), then its poses are read and remapped on one thread per core, on the clock.
+    """
+    import json
+    from concurrent.futures import ThreadPoolExecutor
+
+    import cv2
+
+    from sbrdf_core.store import open_artifact
+    from sbrdf_register.aruco import texel_maps
+
+    cv2.setNumThreads(1)  # as under the runner: the pool's threads are the parallelism (sbrdf_core.parallelism)
+    capture, reg = open_artifact(f"{store}/capture"), open_artifact(f"{store}/register")
+    images, valid = capture.zarr_array("images"), capture.zarr_array("valid")
+    U, V = reg.attrs["texels"]
+    size = tuple(reg.attrs["size_mm"])
+    K, dist = np.asarray(reg.attrs["registration"]["K"], float), np.asarray(reg.attrs["registration"]["dist"], float)
+    ids, H = reg.read("pose_ids"), reg.read("homography")
+    levels, subsamples = reg.read("registration/pyramid_level"), reg.read("registration/subsamples")
+
+    def maps_of(k: int) -> list:
+        n_u, n_v = (int(n) for n in subsamples[k])
+        return [texel_maps((U, V), size, ((a + 0.5) / n_u - 0.5, (b + 0.5) / n_v - 0.5), H[k], K, dist,
+                           2.0 ** -int(levels[k])) for a in range(n_u) for b in range(n_v)]
+
+    def resample(job) -> None:
+        k, maps = job
+        image = np.asarray(images[int(ids[k])], np.float32)
+        np.asarray(valid[int(ids[k])])
+        for _ in range(int(levels[k])):
+            image = cv2.pyrDown(image)
+        for mx, my in maps:
+            cv2.remap(image, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+    seconds = 0.0
+    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+        for k0 in range(0, len(ids), block):
+            jobs = [(k, maps_of(k)) for k in range(k0, min(k0 + block, len(ids)))]
+            t0 = time.perf_counter()
+            list(pool.map(resample, jobs))
+            seconds += time.perf_counter() - t0
+    print(json.dumps({"floor_s": seconds, "poses": len(ids)}))
+
+
 def child_run(g: str, scheduler: str, nodes: list[str]) -> None:
     """``--child``: run ``nodes`` of graph ``g`` on ``threads`` or a 2-worker LocalCluster; print JSON figures."""
     import contextlib
@@ -291,8 +356,11 @@ def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None, keep: boo
     # reads.  Medians of three fresh processes each: one read of the same files varied 2.0-3.5 s here.
     out["read_s"] = med([plain_read(store / "capture", ("images", "valid")) for _ in range(3)])
     out["stack_read_s"] = med([plain_read(store / "register", ("radiance", "valid")) for _ in range(3)])
+    out["floor_s"] = med([register_floor(store) for _ in range(3)])
     print(f"plain read: capture {out['read_s']:.2f} s (ratio {secs / out['read_s']:.2f}), registered stack "
           f"{out['stack_read_s']:.2f} s (Reflectance ratio {out['reflectance_s'] / out['stack_read_s']:.2f})",
+          file=sys.stderr, flush=True)
+    print(f"Register's floor (reads and bicubic remaps alone): {out['floor_s']:.2f} s against {out['register_s']:.2f} s",
           file=sys.stderr, flush=True)
     out["rms_texel"], out["lambert_err"], out["valid"] = summarise(store)
     print(f"threads: {P} poses, {mb:.0f} MB in {secs:.1f} s = {mb / secs:.1f} MB/s, peak RSS {peak:.0f} MB; "
@@ -374,11 +442,14 @@ def main() -> None:
     ap.add_argument("--scheduler", help=argparse.SUPPRESS)
     ap.add_argument("--node", action="append", help=argparse.SUPPRESS)
     ap.add_argument("--read", help=argparse.SUPPRESS)
+    ap.add_argument("--floor", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         return child_run(args.child, args.scheduler, args.node)
     if args.read:
         return read_child(args.read, args.node)
+    if args.floor:
+        return floor_child(args.floor)
     gb = args.gb if args.gb is not None else (0.1 if args.quick else 2.0)
     tmp = Path(tempfile.mkdtemp(prefix="sbrdf-reflectance-", dir=args.tmpdir))
     try:
@@ -399,7 +470,9 @@ def main() -> None:
               f"read_ratio={r['threads_s'] / r['read_s']:.2f} stack_read_s={r['stack_read_s']:.2f} "
               f"reflectance_read_ratio={r['reflectance_s'] / r['stack_read_s']:.2f} "
               f"{key(small)}={half['threads_peak']:.0f} {key(gb)}={r['threads_peak']:.0f} "
-              f"peak_ratio={r['threads_peak'] / half['threads_peak']:.3f} repeats={repeats}")
+              f"peak_ratio={r['threads_peak'] / half['threads_peak']:.3f} repeats={repeats} "
+              f"register_floor_s={r['floor_s']:.2f} "
+              f"read_ratio_floor={(r['floor_s'] + r['reflectance_s']) / r['read_s']:.2f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
