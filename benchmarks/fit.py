@@ -70,7 +70,15 @@ lm2_cpu_ms_per_texel=... speedup_cpu_lm1=... speedup_cpu_lm2=...
 rms_ratio_lm2=... failed_lm2=... failed_peer=... speedup_cpu_lm1_vp=...
 speedup_cpu_lm2_vp=... rms_ratio_lm2_vp=... failed_lm2_vp=... lm1_fit_cpu_ms_per_texel=...
 lm2_fit_cpu_ms_per_texel=... speedup_cpu_lm1_fit=... speedup_cpu_lm2_fit=...
-failed_lm1=... failed_lm1_energy=... failed_lm2_energy=...``
+failed_lm1=... failed_lm1_energy=... failed_lm2_energy=... sweep_texels=...
+sweep_missed_lm1=... sweep_missed_flagged=...``
+
+``sweep_*``: ``lm`` at 1 lobe on single-lobe materials it can fit to the noise
+(:data:`SWEEP_SHAPES`: 28 shapes, forward to back-scattering, n 3 to 100, one
+32² tile each, 16² with ``--quick``, noise σ, the peer's pair plan):
+``sweep_missed_lm1`` counts texels whose training RMS is above 2σ, a fit that
+missed the truth's basin, and ``sweep_missed_flagged`` those of them the Fit
+node flagged.
 """
 
 from __future__ import annotations
@@ -133,6 +141,57 @@ def lafortune_truth(rng, T):
             "exponent_1": np.exp(u(np.log(8.0), np.log(300.0))),
             "rho_s_2": u(0.05, 0.3) * colour, "c_xy_2": u(0.75, 1.0), "c_z_2": np.ones((T, 1)),
             "exponent_2": np.exp(u(np.log(2.0), np.log(20.0)))}
+
+
+#: Single-lobe materials of :func:`shape_sweep`: forward, near-normal and back-scattering lobes (C_xy with C_z = 1),
+#: broad to sharp.
+SWEEP_SHAPES = [(c_xy, n) for c_xy in (-0.95, -0.7, -0.3, 0.3, 0.6, 0.8, 0.95) for n in (3.0, 5.0, 20.0, 100.0)]
+
+
+def one_lobe_dataset(c_xy, exponent, side, train, seed):
+    """Like :func:`make_dataset`, for a 1-lobe Lafortune truth of one shape (ρ_d and ρ_s per texel, made physical):
+    data ``lm`` at 1 lobe can fit to the noise, so a texel above 2σ is a fit that missed."""
+    from sbrdf_core.geometry import tile_directions
+    from sbrdf_core.registry import Registry
+    from sbrdf_fitters.sample_model import physical
+
+    rng = np.random.default_rng(seed)
+    model = Registry().create("brdf-model", "lafortune", {"lobes": 1})
+    T = side * side
+    flat = {"rho_d": rng.uniform(0.02, 0.2, (T, 3)), "rho_s_1": rng.uniform(0.3, 1.0, (T, 1)) * np.ones((1, 3)),
+            "c_xy_1": np.full((T, 1), c_xy), "c_z_1": np.ones((T, 1)), "exponent_1": np.full((T, 1), exponent)}
+    maps = physical(model, {k: v.reshape(side, side, -1) for k, v in flat.items()})
+    truth = {k: v.reshape(T, -1) for k, v in maps.items()}
+    light, camera = pose_plan(rng, train)
+    light, camera = light * LIGHT_MM, camera * CAMERA_MM
+    wi, _, wo = tile_directions((side, side), SIZE_MM, (0, side), (0, side), light, camera)
+    f = model.eval(truth, wi, wo)
+    valid = (wi[..., 2] > MIN_COS) & (wo[..., 2] > MIN_COS)
+    noisy = np.where(valid[..., None], f + NOISE * rng.standard_normal(f.shape), 0.0).astype(np.float32)
+    return {"name": f"lobe({c_xy:g}, {exponent:g})", "side": side, "light": light, "camera": camera,
+            "f": noisy.reshape(side, side, train, 3), "valid": valid.reshape(side, side, train), "wi": wi, "wo": wo,
+            "held_wi": wi, "held_wo": wo, "held_f": f, "held_valid": valid}
+
+
+def shape_sweep(side, train=300):
+    """``lm`` at 1 lobe on :data:`SWEEP_SHAPES`, one ``side²`` tile each: ``(texels, missed, flagged)`` where
+    missed = training RMS above 2σ (the truth itself fits to σ) and flagged = those of them the Fit node flagged."""
+    from sbrdf_core.nodes.fit import EXTRA, FitOptions, fit_tile
+
+    model, fitter = lm_setup(1)
+    texels = missed = flagged = 0
+    for k, (c_xy, exponent) in enumerate(SWEEP_SHAPES):
+        data = one_lobe_dataset(c_xy, exponent, side, train, seed=100 + k)
+        info = [{"array-location": [(0, side), (0, side)]}]
+        out = fit_tile(data["f"], data["valid"][..., None], data["light"], data["camera"], (side, side), SIZE_MM,
+                       fitter, model, FitOptions(holdout=0.0), block_info=info).reshape(side * side, -1)
+        bad = out[:, model.size + EXTRA.index("rms")] > 2 * NOISE
+        texels, missed = texels + side * side, missed + int(bad.sum())
+        flagged += int((bad & (out[:, model.size + EXTRA.index("flags")] != 0)).sum())
+        if bad.any():
+            print(f"  1-lobe shape C_xy={c_xy:g} n={exponent:g}: {int(bad.sum())} of {side * side} texels above 2σ",
+                  flush=True)
+    return texels, missed, flagged
 
 
 def make_dataset(name, side, train, held, seed):
@@ -529,6 +588,7 @@ def main() -> int:
                   f"{row['vp']['held']:.5f}, failed {row['vp']['failed']}, speedup CPU "
                   f"{p['cpu_ms'] / row['vp']['cpu_ms']:.1f}x", flush=True)
     one, two = rows[0], rows[1]
+    sweep_texels, sweep_missed, sweep_flagged = shape_sweep(side // 2)
     line = (f"fit: texels={one['texels']} peer_cpu_ms_per_texel={two['peer']['cpu_ms']:.3f} "
             f"lm1_cpu_ms_per_texel={one['lm']['cpu_ms']:.4f} lm2_cpu_ms_per_texel={two['lm']['cpu_ms']:.4f} "
             f"speedup_cpu_lm1={one['peer']['cpu_ms'] / one['lm']['cpu_ms']:.1f} "
@@ -542,7 +602,8 @@ def main() -> int:
             f"speedup_cpu_lm1_fit={one['peer']['cpu_ms'] / one['lm']['fit_cpu_ms']:.1f} "
             f"speedup_cpu_lm2_fit={two['peer']['cpu_ms'] / two['lm']['fit_cpu_ms']:.1f} "
             f"failed_lm1={one['lm']['failed']} failed_lm1_energy={one['lm']['failed_energy']} "
-            f"failed_lm2_energy={two['lm']['failed_energy']}")
+            f"failed_lm2_energy={two['lm']['failed_energy']} sweep_texels={sweep_texels} "
+            f"sweep_missed_lm1={sweep_missed} sweep_missed_flagged={sweep_flagged}")
     if args.docs:
         workdir = Path(tempfile.mkdtemp(prefix="sbrdf-fit-bench-"))
         try:
