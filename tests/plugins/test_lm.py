@@ -471,3 +471,29 @@ def test_a_step_limit_in_log_n_saves_the_rejected_trials():
     assert out["limited"][0] < 0.9 * out["unlimited"][0]
     assert out["limited"][1].mean() <= 1.01 * out["unlimited"][1].mean()
     assert out["limited"][2].sum() >= out["unlimited"][2].sum()
+
+
+def test_more_starts_keep_the_guess_and_never_end_worse_than_one(registry):
+    """``starting_points`` runs the initial guess whatever the Sobol points score: ranked with them by its cost
+    before LM, the guess lost its place to points that scored better and ended worse (benchmarks/fit.py's shape
+    sweep: one lobe on C_xy = 0.95, n = 3 with ``starts: 4`` ended 478 of 1024 texels above twice the noise, one
+    start none).  So every texel's cost with 4 starts is at most its cost with 1."""
+    from sbrdf_lib.lm import fit_model, starting_points
+
+    rng = np.random.default_rng(124)
+    T, S, noise = 64, 300, 0.01
+    _, _, _, wi, wo = fit_benchmark_texels(rng, T, S, noise)
+    model = registry.create("brdf-model", "lafortune", {"lobes": 1})
+    truth = {"rho_d": rng.uniform(0.02, 0.2, (T, 3)), "rho_s_1": rng.uniform(0.1, 0.3, (T, 1)) * np.ones((1, 3)),
+             "c_xy_1": np.full((T, 1), 0.95), "c_z_1": np.ones((T, 1)), "exponent_1": np.full((T, 1), 3.0)}
+    f = model.eval(truth, wi, wo) + noise * rng.standard_normal((T, S, 3))
+    valid = np.ones((T, S), bool)
+    form = model.fit_form()
+    objective = form.least_squares(f, valid.astype(np.float64), wi, wo)
+    guess = np.clip(form.pack(form.initial_guess(f, valid, wi, wo)), *form.bounds())
+    ranked = starting_points(form, objective, f, valid, wi, wo, 4, keep_first=False)
+    assert not any(np.array_equal(s, guess) for s in ranked), "the guess scores among the best: no test of keeping it"
+    starts = starting_points(form, objective, f, valid, wi, wo, 4)
+    assert len(starts) == 4 and np.array_equal(starts[0], guess)
+    costs = {n: fit_model(model, f, valid, wi, wo, starts=n)[2] for n in (1, 4)}
+    assert (costs[4] <= costs[1] * (1 + 1e-12)).all(), np.max(costs[4] / costs[1])
