@@ -150,8 +150,7 @@ SWEEP_SHAPES = [(c_xy, n) for c_xy in (-0.95, -0.7, -0.3, 0.3, 0.6, 0.8, 0.95) f
 
 def one_lobe_dataset(c_xy, exponent, side, train, seed):
     """Like :func:`make_dataset`, for a 1-lobe Lafortune truth of one shape (ρ_d and ρ_s per texel, made physical):
-    data ``lm`` at 1 lobe can fit to the noise, so a texel above 2σ is a fit that missed."""
-    from sbrdf_core.geometry import tile_directions
+    data ``lm`` at 1 lobe can fit to the noise, so a texel above 2σ is a fit that missed.  No held-out pairs."""
     from sbrdf_core.registry import Registry
     from sbrdf_fitters.sample_model import physical
 
@@ -161,16 +160,7 @@ def one_lobe_dataset(c_xy, exponent, side, train, seed):
     flat = {"rho_d": rng.uniform(0.02, 0.2, (T, 3)), "rho_s_1": rng.uniform(0.3, 1.0, (T, 1)) * np.ones((1, 3)),
             "c_xy_1": np.full((T, 1), c_xy), "c_z_1": np.ones((T, 1)), "exponent_1": np.full((T, 1), exponent)}
     maps = physical(model, {k: v.reshape(side, side, -1) for k, v in flat.items()})
-    truth = {k: v.reshape(T, -1) for k, v in maps.items()}
-    light, camera = pose_plan(rng, train)
-    light, camera = light * LIGHT_MM, camera * CAMERA_MM
-    wi, _, wo = tile_directions((side, side), SIZE_MM, (0, side), (0, side), light, camera)
-    f = model.eval(truth, wi, wo)
-    valid = (wi[..., 2] > MIN_COS) & (wo[..., 2] > MIN_COS)
-    noisy = np.where(valid[..., None], f + NOISE * rng.standard_normal(f.shape), 0.0).astype(np.float32)
-    return {"name": f"lobe({c_xy:g}, {exponent:g})", "side": side, "light": light, "camera": camera,
-            "f": noisy.reshape(side, side, train, 3), "valid": valid.reshape(side, side, train), "wi": wi, "wo": wo,
-            "held_wi": wi, "held_wo": wo, "held_f": f, "held_valid": valid}
+    return observe(f"lobe({c_xy:g}, {exponent:g})", model, maps, train, 0, rng)
 
 
 def shape_sweep(side, train=300):
@@ -196,7 +186,6 @@ def shape_sweep(side, train=300):
 
 def make_dataset(name, side, train, held, seed):
     """Samples ``(V, U, S, 3)`` float32, validity, positions, and noise-free held-out truth."""
-    from sbrdf_core.geometry import tile_directions
     from sbrdf_core.registry import Registry
     from sbrdf_fitters.sample_model import material_maps, physical
 
@@ -210,7 +199,16 @@ def make_dataset(name, side, train, held, seed):
     else:
         model = reg.create("brdf-model", "cook-torrance", {"distribution": "ggx"})
         maps = material_maps(model, (side, side))
-    truth = {k: v.reshape(T, -1) for k, v in maps.items()}
+    return observe(name, model, maps, train, held, rng)
+
+
+def observe(name, model, maps, train, held, rng):
+    """``model`` with ``(V, U, ·)`` parameter ``maps`` seen under one :func:`pose_plan` of ``train + held`` pairs,
+    noise σ on the training samples: the data set :func:`make_dataset` describes."""
+    from sbrdf_core.geometry import tile_directions
+
+    side = next(iter(maps.values())).shape[0]
+    truth = {k: v.reshape(side * side, -1) for k, v in maps.items()}
     light, camera = pose_plan(rng, train + held)
     light, camera = light * LIGHT_MM, camera * CAMERA_MM
     wi, _, wo = tile_directions((side, side), SIZE_MM, (0, side), (0, side), light, camera)
