@@ -247,7 +247,7 @@ def floor_child(store: str, block: int = 32) -> None:
     import cv2
 
     from sbrdf_core.store import open_artifact
-    from sbrdf_register.aruco import texel_maps
+    from sbrdf_register.aruco import subsample_offsets, texel_maps
 
     cv2.setNumThreads(1)  # as under the runner: the pool's threads are the parallelism (sbrdf_core.parallelism)
     capture, reg = open_artifact(f"{store}/capture"), open_artifact(f"{store}/register")
@@ -260,13 +260,13 @@ def floor_child(store: str, block: int = 32) -> None:
 
     def maps_of(k: int) -> list:
         n_u, n_v = (int(n) for n in subsamples[k])
-        return [texel_maps((U, V), size, ((a + 0.5) / n_u - 0.5, (b + 0.5) / n_v - 0.5), H[k], K, dist,
-                           2.0 ** -int(levels[k])) for a in range(n_u) for b in range(n_v)]
+        return [texel_maps((U, V), size, offset, H[k], K, dist, 2.0 ** -int(levels[k]))
+                for offset in subsample_offsets(n_u, n_v)]
 
     def resample(job) -> None:
         k, maps = job
         image = np.asarray(images[int(ids[k])], np.float32)
-        np.asarray(valid[int(ids[k])])
+        np.asarray(valid[int(ids[k])])  # read, as Register reads it, though only the remaps' time is wanted of it
         for _ in range(int(levels[k])):
             image = cv2.pyrDown(image)
         for mx, my in maps:

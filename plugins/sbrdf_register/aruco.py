@@ -658,7 +658,7 @@ class ArucoRegistration:
             hl, wl = (hl + 1) // 2, (wl + 1) // 2
         compiled = self.compiled_mapping
         n_u, n_v = (int(n) for n in reg.per_pose["subsamples"][k])
-        offsets = [((a + 0.5) / n_u - 0.5, (b + 0.5) / n_v - 0.5) for a in range(n_u) for b in range(n_v)]
+        offsets = subsample_offsets(n_u, n_v)
         r = BICUBIC_RADIUS + int(math.ceil(self.edge_margin_px))
 
         def maps_of(ou: float, ov: float) -> tuple[np.ndarray, np.ndarray]:
@@ -814,6 +814,12 @@ class ArucoRegistration:
         pts -= np.array(origin, np.int32) * 16  # whole pixels: the same raster, shifted
         cv2.fillPoly(mask, [pts], 0, lineType=cv2.LINE_8, shift=4)
         return mask
+
+
+def subsample_offsets(n_u: int, n_v: int) -> list[tuple[float, float]]:
+    """A pose's ``n_u × n_v`` sub-sample points, in texels from each texel's centre (:func:`texel_maps`' offset),
+    evenly inside the texel: what :meth:`ArucoRegistration.resample` averages."""
+    return [((a + 0.5) / n_u - 0.5, (b + 0.5) / n_v - 0.5) for a in range(n_u) for b in range(n_v)]
 
 
 def _texel_axes(texels_uv, size_mm, ou: float = 0.0, ov: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
