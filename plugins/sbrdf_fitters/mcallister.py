@@ -23,7 +23,7 @@ import numpy as np
 
 from sbrdf_core.brdf import above_horizon, luminance_weights
 from sbrdf_core.errors import ParameterError
-from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, rms_error, usable
+from sbrdf_core.nodes.fit import NONFINITE_INPUT, NONFINITE_RESULT, NOT_CONVERGED, FitResult, rms_error, usable
 from sbrdf_core.params import Param
 from sbrdf_lib.lm import diffuse_percentile, fit_model
 
@@ -127,6 +127,16 @@ class McAllisterFitter:
     def fit(self, model, f_r, valid, wi, wo) -> FitResult:
         T = f_r.shape[0]
         f_r, valid = usable(f_r, valid)
+        # A sample whose direction is not finite cannot be used: left in, its NaN reaches every product the line
+        # search and Eq 4.10 sum over (0 · NaN is NaN), and the whole texel comes out non-finite.
+        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+        aimed = np.isfinite(wi).all(axis=-1) & np.isfinite(wo).all(axis=-1)
+        dropped = (valid & ~aimed).any(axis=1)
+        if not aimed.all():
+            valid = valid & aimed
+            f_r = np.where(valid[..., None], f_r, 0.0)
+            up = np.array([0.0, 0.0, 1.0])
+            wi, wo = np.where(aimed[..., None], wi, up), np.where(aimed[..., None], wo, up)
         use = valid & above_horizon(wi, wo)
         rho_d = diffuse_estimate(f_r, use, wi, wo, self.diffuse, self.percentile)
         f_s = np.where(use[..., None], f_r - rho_d[:, None, :], 0.0)
@@ -158,8 +168,12 @@ class McAllisterFitter:
         if model.mirror:
             params["rho_m"] = np.zeros((T, 3))
         lo, hi = model.bounds()  # a degenerate line-search lobe (C ≈ 0) must still land inside the declaration
-        params = model.unpack(np.clip(model.pack({**model.defaults(T), **params}), lo, hi))
-        flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
+        x = np.clip(model.pack({**model.defaults(T), **params}), lo, hi)
+        broken = ~np.isfinite(x).all(axis=1)  # whatever still went wrong: the defaults, flagged, never NaN
+        x[broken] = model.pack(model.defaults(int(broken.sum())))
+        params = model.unpack(x)
+        flags = (np.where(converged, 0, NOT_CONVERGED) | np.where(dropped, NONFINITE_INPUT, 0)
+                 | np.where(broken, NONFINITE_RESULT, 0)).astype(np.uint8)
         return FitResult(params, rms_error(model, params, f_r, valid, wi, wo), valid.sum(axis=1), flags)
 
     def _lm_lobes(self, model, lum, use, wi, wo):
