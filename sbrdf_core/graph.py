@@ -46,7 +46,7 @@ from .store import NODE_NAME
 if TYPE_CHECKING:
     from .nodes.base import NodeKind
 
-TOP_KEYS = ("name", "store", "nodes", "description", "limits", "variables")
+TOP_KEYS = ("name", "store", "nodes", "description", "limits", "variables", "allow_outside_store")
 NODE_KEYS = ("kind", "plugin", "in", "params", "doc")
 
 
@@ -387,6 +387,7 @@ class _Validator:
         if not isinstance(name, str) or not name:
             self.problem("graph needs a 'name' (a string)", ("name",))
         store = self._store(doc)
+        self.doc, self.store_url = doc, store  # what output-path parameters are checked against (_params)
         raw_nodes = doc.get("nodes")
         if not isinstance(raw_nodes, dict) or not raw_nodes:
             self.problem("graph needs 'nodes': a mapping of node name -> {kind, plugin, in, params}", ("nodes",))
@@ -550,6 +551,8 @@ class _Validator:
             v = values.get(p.name)
             if p.extra.get("path") and isinstance(v, str):
                 values[p.name] = _yaml.relative_to(self.base, v)
+                if p.extra.get("output"):  # a path the plugin writes: confined to the store (sbrdf_core.outputs)
+                    self._output_path(values[p.name], path + (p.name,))
         # Parameters that name another plugin, and parameters that are that plugin's parameters.
         for p in declared:
             category = p.extra.get("plugin_category")
@@ -566,6 +569,38 @@ class _Validator:
                     sub = self.reg.get(category, other)
                     values[p.name] = self._params(list(sub.params or ()), values[p.name], f"{category} {other!r}", path + (p.name,))
         return values
+
+    def _output_path(self, value: str, path: tuple) -> None:
+        """One parameter declared ``extra={"output": True}``: inside the store, beside the artifacts, unless the
+        graph's ``allow_outside_store`` lets it out (which is logged, so ``validate`` shows it)."""
+        from . import outputs
+
+        doc, store = getattr(self, "doc", {}), getattr(self, "store_url", "")
+        if not store:
+            return  # no store: reported already
+        if not hasattr(self, "_allowed"):
+            self._allowed = outputs.allowed_folders(doc.get(outputs.OPT_IN), self.base)
+            self._outputs: dict[str, tuple] = {}
+            if self._allowed[2]:
+                self.problem(self._allowed[2], (outputs.OPT_IN,))
+        anywhere, folders, _ = self._allowed
+        nodes = doc.get("nodes") if isinstance(doc.get("nodes"), dict) else {}
+        where = f"node {path[1]!r}: parameter {'.'.join(map(str, path[3:]))!r}"
+        problem, outside = outputs.output_problem(value, store, map(str, nodes), anywhere, folders)
+        if problem:
+            self.problem(f"{where}: {problem}", path)
+            return
+        real = os.path.realpath(value)
+        if real in self._outputs:
+            self.problem(f"{where}: {value!r} is also written by {self._outputs[real][0]} (line "
+                         f"{self.loc.line(self._outputs[real][1])}); each output path belongs to one node", path)
+        self._outputs[real] = (where, path)
+        if outside:
+            import logging
+
+            logging.getLogger(__name__).warning("%s:%s: %s writes %s, outside the store: allowed by '%s' (line %s)",
+                                                self.file, self.loc.line(path), where, real, outputs.OPT_IN,
+                                                self.loc.line((outputs.OPT_IN,)))
 
     # -- edges ----------------------------------------------------------------
 

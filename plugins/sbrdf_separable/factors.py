@@ -11,7 +11,10 @@ Storage (``SeparableFactors`` zarr group, version 1): arrays ``g``, ``h``
 bias``: §6.1's biasing, which turns the negative values of later terms into
 textures of unsigned bytes) and attributes naming the parameterization, the
 method and its settings.  A store is written under a temporary name and
-renamed when complete, so a reader never sees a half-written one.
+renamed when complete, so a reader never sees a half-written one.  Only a
+``SeparableFactors`` store is ever replaced: any other file or directory at the
+path (a symbolic link, a store root, an artifact) is an error naming it, and
+nothing is removed (:func:`check_target`).
 """
 
 from __future__ import annotations
@@ -115,6 +118,7 @@ def save(factors: Factors, url: str, encoding: str = "float32") -> str:
     if not (np.isfinite(factors.g).all() and np.isfinite(factors.h).all()):
         raise ValueError(f"separable factors for {url!r} contain non-finite values; not writing them")
     path = os.path.abspath(os.path.expanduser(url))
+    check_target(path)
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     tmp = f"{path}.tmp-{uuid.uuid4().hex[:8]}"
     group = zarr.open_group(store=tmp, mode="w")
@@ -133,11 +137,34 @@ def save(factors: Factors, url: str, encoding: str = "float32") -> str:
         **factors.meta,
     }, default=float)))
     old = f"{path}.old-{uuid.uuid4().hex[:8]}"
-    if os.path.exists(path):
+    try:
+        check_target(path)  # again: something may have appeared there while the arrays were written
+    except Exception:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if os.path.lexists(path):
         os.rename(path, old)
     os.rename(tmp, path)
     shutil.rmtree(old, ignore_errors=True)
     return path
+
+
+def is_factors_store(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a directory holding a ``SeparableFactors`` group (what :func:`save` writes)."""
+    try:
+        with open(os.path.join(path, "zarr.json"), "rb") as f:
+            meta = json.loads(f.read(1 << 20))
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and isinstance(meta.get("attributes"), dict) and meta["attributes"].get("kind") == KIND
+
+
+def check_target(path: str | os.PathLike) -> None:
+    """Refuse (``OutputPathError`` naming ``path``) to write factors where :func:`save` would replace anything
+    but a ``SeparableFactors`` store: a file, a foreign directory, a symbolic link, a store root, an artifact."""
+    from sbrdf_core.outputs import check_replaceable
+
+    check_replaceable(path, is_factors_store, f"a {KIND} store")
 
 
 def load(url: str) -> Factors:

@@ -24,7 +24,7 @@ from sbrdf_core.nodes.fit import FitResult, rms_error
 from sbrdf_core.params import REQUIRED, Param
 
 from .decompose import nd, parameterization, svd
-from .factors import ENCODINGS, save
+from .factors import ENCODINGS, check_target, save
 from .parameterizations import MAP_PARAM
 from .sources import ScatteredBRDF
 
@@ -32,8 +32,9 @@ logger = logging.getLogger(__name__)
 
 #: Parameters both decompositions take.
 COMMON = (
-    Param("factors", "str", REQUIRED, "path of the SeparableFactors store to write (local; relative to the graph file); "
-          "the fitted model reads it from there", extra={"path": True}),
+    Param("factors", "str", REQUIRED, "path of the SeparableFactors store to write, inside the graph's store beside "
+          "the artifacts (e.g. <store>/nd.zarr; relative to the graph file); the fitted model reads it from there. "
+          "Only a SeparableFactors store there is ever replaced", extra={"path": True, "output": True}),
     Param("parameterization", "str", "gram-schmidt", "change of variables (a parameterization plugin)",
           extra={"plugin_category": "parameterization"}),
     MAP_PARAM,
@@ -65,6 +66,7 @@ class SeparableFitter:
         if "://" in factors:
             raise ValueError(f"factors {factors!r}: the separable fitters write local paths only")
         self.factors = os.path.abspath(os.path.expanduser(factors))
+        check_target(self.factors)  # fail before the decomposition, not after it
         self.parameterization, self.map = parameterization, map
         self.size, self.terms, self.p, self.clamp_max = size, terms, p, clamp_max
         self.encoding, self.neighbours, self.solver = encoding, neighbours, solver

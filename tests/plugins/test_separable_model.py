@@ -162,7 +162,7 @@ GRAPH = textwrap.dedent("""\
 
 
 def test_nd_fitter_in_a_graph_writes_a_model_the_registry_rebuilds(tmp_path):
-    factors = tmp_path / "factors" / "ward-nd.zarr"
+    factors = tmp_path / "store" / "ward-nd.zarr"  # beside the artifacts: outputs stay in the store
     run_graph(GRAPH.format(store=tmp_path / "store", factors=factors), progress=False)
     art = open_artifact(f"{tmp_path}/store/nd")
     assert art.attrs["model"] == "separable" and art.attrs["model_config"]["factors"] == str(factors)
