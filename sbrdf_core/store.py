@@ -36,13 +36,20 @@ attributes name this node.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import itertools
 import json
+import logging
 import math
 import os
 import posixpath
 import re
+import shutil
+import signal
+import stat
 import threading
+import uuid
 from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -70,6 +77,11 @@ __all__ = [
 ]
 
 MARKERS = "_done"
+
+#: Prefix of a directory :meth:`ArtifactWriter.remove` renamed aside before deleting it (hidden: not an artifact).
+TRASH = ".sbrdf-trash-"
+
+logger = logging.getLogger(__name__)
 
 #: What a node name may be: it becomes a directory of the store, so no path
 #: separators, no ``.``/``..``, nothing empty, and short enough for any file system.
@@ -130,6 +142,98 @@ def inside_store(store: str, url: str) -> str:
     if path == root or os.path.commonpath([root, path]) != root:
         raise ArtifactError(f"{url} resolves to {path}, outside the store {root}; refusing to write or delete there")
     return url
+
+
+def regular_file(path: str) -> bool:
+    """Whether ``path`` is a plain file (not a link, FIFO, socket, device or directory).
+
+    Metadata is opened only then: opening a FIFO put in place of a ``zarr.json``
+    blocks for ever, holding the store lock.
+    """
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _what(path: str, mode: int) -> str:
+    if stat.S_ISLNK(mode):
+        try:
+            return f"a symbolic link to {os.readlink(path)}"
+        except OSError:
+            return "a symbolic link"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "not a plain file"
+
+
+def special_entries(root: str) -> list[tuple[str, str]]:
+    """Entries below a local artifact directory that are neither plain files nor directories.
+
+    ``(path relative to root, what it is)``.  sbrdf writes only plain files and
+    directories there, so anything else was put there by something else: a link
+    would lead reads and writes (and a repair's deletes) out of the store, a FIFO
+    or device would block the reader.  Links are listed, never followed.
+    """
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
+        for name in dirnames + filenames:
+            path = os.path.join(dirpath, name)
+            try:
+                mode = os.lstat(path).st_mode
+            except OSError:
+                continue
+            if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+                out.append((os.path.relpath(path, root), _what(path, mode)))
+    return sorted(out)
+
+
+def no_space(e: OSError, store: str, what: str) -> ArtifactError | None:
+    """``e`` as a clear :class:`ArtifactError` when it is a full disk (or quota); else ``None``."""
+    if e.errno not in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
+        return None
+    full = "no space left on the device" if e.errno == errno.ENOSPC else "the disk quota is exhausted"
+    return ArtifactError(f"store {store}: {full} writing {what}. Free space on the file system of {store} (or run "
+                         f"with another --store), then re-run: what was already written is kept")
+
+
+@contextlib.contextmanager
+def disk_errors(store: str, what: str):
+    """Turn a full disk while writing ``what`` into :func:`no_space`'s error; other errors pass unchanged."""
+    try:
+        yield
+    except OSError as e:
+        clear = no_space(e, store, what)
+        if clear is None:
+            raise
+        raise clear from e
+
+
+def _kill_point(node: str, point: str) -> None:
+    """Test-only: ``SBRDF_TEST_KILL_AT=node:point:SIGNAL[:n]`` makes this process send itself SIGNAL the n-th
+    time ``node`` passes ``point``, so tests can kill a run exactly between two writes (tests/core/test_kill_resume.py)."""
+    spec = os.environ.get("SBRDF_TEST_KILL_AT")
+    if not spec:
+        return
+    want_node, want_point, sig, *nth = spec.split(":")
+    if (want_node, want_point) != (node, point):
+        return
+    with _ARRAYS_LOCK:
+        _KILL_COUNTS[point] = _KILL_COUNTS.get(point, 0) + 1
+        if _KILL_COUNTS[point] != int(nth[0] if nth else 1):
+            return
+    os.kill(os.getpid(), getattr(signal, sig))
+    if sig == "SIGINT":  # delivered to the main thread; this thread waits for it there
+        import time
+
+        time.sleep(5)
+
+
+_KILL_COUNTS: dict[str, int] = {}
 
 
 class ChunkError(ArtifactError):
@@ -305,7 +409,19 @@ def members(group: zarr.Group):
 
 
 def open_artifact(url: str, kind: ArtifactKind | str | tuple | None = None, require_complete: bool = True) -> Artifact:
-    """Open an artifact read-only, checking its kind and that it is complete."""
+    """Open an artifact read-only, checking its kind and that it is complete.
+
+    A local artifact holding anything but plain files and directories (a link,
+    a FIFO) is refused before anything in it is read: see :func:`special_entries`.
+    """
+    fs, root = _fs(url)
+    if _is_local(fs) and os.path.lexists(root):
+        odd = ([(".", _what(root, os.lstat(root).st_mode))] if os.path.islink(root) else special_entries(root))
+        if odd:
+            where = ", ".join(f"{rel} is {what}" for rel, what in odd[:3]) + (" ..." if len(odd) > 3 else "")
+            raise ArtifactError(f"damaged artifact {url}: {where}; sbrdf writes only plain files and directories "
+                                f"there and follows no link: `sbrdf verify --repair` removes them (not what a "
+                                f"link points to)")
     try:
         group = zarr.open_group(store=url, mode="r")
     except Exception as e:
@@ -365,6 +481,38 @@ def chunk_key(index: tuple[int, ...]) -> str:
     return ".".join(map(str, index)) or "0"
 
 
+def _all_keys(lay: ArrayLayout) -> set[str]:
+    return {chunk_key(i) for i in np.ndindex(*lay.grid)} if lay.shape else {"0"}
+
+
+def _clear_chunk_path(array_root: str, key: str, lay: ArrayLayout) -> None:
+    """Remove whatever stands where chunk ``key`` of a local array will be written, but is not a chunk file.
+
+    A directory (or a file where a directory of the key belongs) there makes
+    every write of the chunk fail.  Only entries inside the array's own ``c``
+    directory are touched, links are removed as links, and a chunk file that
+    is a plain file is left for the writer to replace.
+    """
+    parts = ["c", *key.split(".")] if lay.shape else ["c"]
+    path = array_root
+    for i, part in enumerate(parts):
+        path = os.path.join(path, part)
+        try:
+            mode = os.lstat(path).st_mode
+        except FileNotFoundError:
+            return
+        last = i == len(parts) - 1
+        if stat.S_ISDIR(mode) and not last:
+            continue
+        if stat.S_ISREG(mode) and last:
+            return
+        if stat.S_ISDIR(mode):
+            shutil.rmtree(path)
+        else:
+            os.unlink(path)
+        return
+
+
 _CHUNK_KEY = re.compile(r"\d+(\.\d+)*")
 
 
@@ -399,8 +547,19 @@ class ArtifactWriter:
         self.store = store if store is not None else url.rstrip("/").rsplit("/", 1)[0]
         self.node = node if node is not None else url.rstrip("/").rsplit("/", 1)[-1]
         self.fs, self.root = _fs(url)
+        self.local = _is_local(self.fs)
+
+    def _metadata(self, path: str) -> bool | None:
+        """Whether the metadata file at ``path`` exists (None: something that is not a plain file is there)."""
+        if not self.local:
+            return self.fs.exists(path)
+        if not os.path.lexists(path):
+            return False
+        return True if regular_file(path) else None
 
     def attrs(self) -> dict | None:
+        if not self._metadata(join(self.root, "zarr.json")):
+            return None
         try:
             return dict(zarr.open_group(store=self.url, mode="r").attrs)
         except Exception:
@@ -408,7 +567,7 @@ class ArtifactWriter:
 
     def state(self) -> str:
         """``missing``, ``complete`` (same token), ``partial`` (same token) or ``stale``."""
-        if not self.fs.exists(join(self.root, "zarr.json")):
+        if self._metadata(join(self.root, "zarr.json")) is False:
             return "missing"
         attrs = self.attrs()
         if attrs is None or attrs.get("token") != self.token or attrs.get("kind") != self.kind.kind:
@@ -418,32 +577,68 @@ class ArtifactWriter:
     def owned(self) -> bool:
         """Whether the directory is this node's artifact: its marker file, or (stores written
         before markers) group attributes of an sbrdf kind whose provenance names this node."""
+        marker = join(self.root, ARTIFACT_MARKER)
         try:
-            with self.fs.open(join(self.root, ARTIFACT_MARKER), "r") as f:
-                return json.load(f).get("node") == self.node
+            if self._metadata(marker):
+                with self.fs.open(marker, "r") as f:
+                    return json.load(f).get("node") == self.node
         except Exception:
             pass
         attrs = self.attrs() or {}
         node = attrs.get("node", (attrs.get("provenance") or {}).get("node"))
         return attrs.get("kind") in KINDS and node == self.node
 
-    def remove(self) -> None:
-        """Delete the artifact, once proven inside the store and this node's."""
+    def _confined(self) -> None:
+        """Refuse to write or delete unless the artifact path is inside the store and not itself a link."""
         inside_store(self.store, self.url)
+        if self.local and os.path.islink(self.root):
+            raise ArtifactError(f"{self.url} is a symbolic link to {os.readlink(self.root)}; sbrdf never writes or "
+                                f"deletes through a link: remove the link (`sbrdf verify --repair {self.store}` "
+                                f"removes it, not what it points to)")
+
+    def remove(self) -> None:
+        """Delete the artifact, once proven inside the store and this node's.
+
+        Locally the directory is first renamed aside (one atomic step) and then
+        deleted: a run killed while deleting leaves a hidden ``.sbrdf-trash-*``
+        directory, emptied by the next :meth:`remove` or :meth:`prepare` of the
+        node, never a half-deleted artifact that nothing proves is this node's.
+        """
+        self._confined()
         if not self.fs.exists(self.root) or (self.fs.isdir(self.root) and not self.fs.ls(self.root)):
             return  # nothing, or an empty directory: zarr creates the group in it
         if not self.owned():
             raise ArtifactError(f"{self.url} exists but is not the artifact of node {self.node!r} "
                                 f"(no {ARTIFACT_MARKER} naming it); refusing to delete it: move it away")
-        self.fs.rm(self.root, recursive=True)
+        if not self.local:
+            self.fs.rm(self.root, recursive=True)
+            return
+        trash = os.path.join(os.path.dirname(self.root), f"{TRASH}{self.node}-{uuid.uuid4().hex}")
+        os.rename(self.root, trash)
+        _kill_point(self.node, "removing")
+        shutil.rmtree(trash)  # removes links found inside, never what they point to
+
+    def _empty_trash(self) -> None:
+        if not self.local:
+            return
+        parent = os.path.dirname(self.root)
+        for name in os.listdir(parent) if os.path.isdir(parent) else ():
+            path = os.path.join(parent, name)
+            if name.startswith(f"{TRASH}{self.node}-") and not os.path.islink(path) and os.path.isdir(path):
+                shutil.rmtree(path)
 
     def prepare(self, layouts: Mapping[str, ArrayLayout], attrs: Mapping[str, Any]) -> dict[str, set[str]]:
         """Create the group and arrays (or keep a partial one); return done chunk keys per array."""
-        inside_store(self.store, self.url)
+        self._confined()
         for name in layouts:
             if not _ARRAY_NAME.fullmatch(name) or name.split("/")[0] == MARKERS:
                 raise ArtifactError(f"{self.url}: output array name {name!r} is not a relative name of "
                                     f"letters, digits, '_', '-' and '/'")
+        with disk_errors(self.store, f"the metadata of artifact {self.url}"):
+            return self._prepare(layouts, attrs)
+
+    def _prepare(self, layouts: Mapping[str, ArrayLayout], attrs: Mapping[str, Any]) -> dict[str, set[str]]:
+        self._empty_trash()
         record = {name: lay.record() for name, lay in layouts.items()}
         state = self.state()
         if state == "partial" and (self.attrs() or {}).get("layout") != record:
@@ -451,25 +646,78 @@ class ArtifactWriter:
             # begun before checksums and layouts were recorded: start it again.
             state = "stale"
         if state == "partial":
-            for leftover in (p for p in self.fs.find(self.root) if p.endswith(".partial")):
-                self.fs.rm(leftover)  # a killed writer's temporary file; its chunk is rewritten
-            from .integrity import written
-
-            # A marker whose chunk file is gone proves nothing any more: rewrite that chunk.
-            return {name: self.done(name) & written(self.fs, self.root, name, lay) for name, lay in layouts.items()}
-        if state != "missing" or self.fs.exists(self.root):
+            return self._resume(layouts)
+        if state != "missing" or self.fs.exists(self.root) or (self.local and os.path.lexists(self.root)):
             self.remove()
+        _kill_point(self.node, "group")
         group = zarr.open_group(store=self.url, mode="w", attributes={
             **attrs, "kind": self.kind.kind, "version": self.kind.version, "token": self.token, "complete": False,
             "node": self.node, "layout": record})
         self.fs.pipe(join(self.root, ARTIFACT_MARKER), json.dumps({"node": self.node, "kind": self.kind.kind}).encode())
+        _kill_point(self.node, "marker")
         for name, lay in layouts.items():
-            group.create_array(name, shape=lay.shape, chunks=lay.inner or lay.chunks, shards=lay.chunks if lay.inner else None,
-                               dtype=lay.dtype, fill_value=lay.fill_value, compressors=_codecs())
+            self._create(group, name, lay)
+        return {name: set() for name in layouts}
+
+    def _create(self, group: zarr.Group, name: str, lay: ArrayLayout, overwrite: bool = False) -> None:
+        """Create array ``name`` and its marker array (a kill between the two is resumed: see :meth:`_resume`)."""
+        import warnings
+
+        with warnings.catch_warnings():  # overwriting lists the group, whose marker file is no zarr node
+            warnings.filterwarnings("ignore", message=".*not recognized as a component of a Zarr hierarchy")
+            group.create_array(name, shape=lay.shape, chunks=lay.inner or lay.chunks,
+                               shards=lay.chunks if lay.inner else None, dtype=lay.dtype, fill_value=lay.fill_value,
+                               compressors=_codecs(), overwrite=overwrite)
+            _kill_point(self.node, "array")
             grid = lay.grid or (1,)
             group.create_array(_marker_name(name), shape=grid, chunks=(1,) * len(grid), dtype="uint32", fill_value=0,
-                               compressors=_codecs())
-        return {name: set() for name in layouts}
+                               compressors=_codecs(), overwrite=overwrite)
+        _kill_point(self.node, "markers")
+
+    def _resume(self, layouts: Mapping[str, ArrayLayout]) -> dict[str, set[str]]:
+        """Keep a partial artifact's written chunks; make whatever a killed or tampered run left unusable usable.
+
+        A run killed while the arrays were being created leaves some without
+        their ``zarr.json`` (or their marker array's): those are created now.
+        An array whose metadata is not what the node declares, or not a plain
+        file, is created again with its markers (its chunks are rewritten).
+        Links, FIFOs and the like inside the artifact are removed (the link, never
+        what it points to), and so is whatever stands where a chunk that is not
+        done will be written (a directory, say), so that writing it cannot fail.
+        """
+        from .integrity import written
+
+        if self.local:
+            for rel, what in special_entries(self.root):
+                logger.warning("artifact %s: removing %s, %s (sbrdf writes only plain files there)", self.url, rel, what)
+                os.unlink(os.path.join(self.root, rel))
+        for leftover in (p for p in self.fs.find(self.root) if p.endswith(".partial")):
+            self.fs.rm(leftover)  # a killed writer's temporary file; its chunk is rewritten
+        group = None
+        for name, lay in layouts.items():
+            if not (self._array_ok(name, lay) and self._array_ok(_marker_name(name), None, lay)):
+                group = group or zarr.open_group(store=self.url, mode="r+")
+                logger.info("artifact %s: creating array %r (and its done markers) again", self.url, name)
+                self._create(group, name, lay, overwrite=True)
+        # A marker whose chunk file is gone proves nothing any more: rewrite that chunk.
+        done = {name: self.done(name) & written(self.fs, self.root, name, lay) for name, lay in layouts.items()}
+        if self.local:
+            for name, lay in layouts.items():
+                for key in _all_keys(lay) - done[name]:
+                    _clear_chunk_path(os.path.join(self.root, name), key, lay)
+        return done
+
+    def _array_ok(self, name: str, lay: ArrayLayout | None, markers_of: ArrayLayout | None = None) -> bool:
+        """Whether array ``name``'s metadata is a plain file describing ``lay`` (or the marker grid of ``markers_of``)."""
+        if not self._metadata(join(self.root, name, "zarr.json")):
+            return False
+        try:
+            z = zarr.open_array(store=join(self.url, name), mode="r")
+        except Exception:
+            return False
+        if markers_of is not None:
+            return tuple(z.shape) == (markers_of.grid or (1,)) and z.dtype == np.uint32
+        return (tuple(z.shape), tuple(z.shards or z.chunks), np.dtype(z.dtype)) == (lay.shape, lay.chunks, np.dtype(lay.dtype))
 
     def done(self, name: str) -> set[str]:
         """Chunk keys (``"i.j.k"``) whose marker exists.  Only existence counts: a
@@ -481,6 +729,12 @@ class ArtifactWriter:
     def mark_complete(self, layouts: Mapping[str, ArrayLayout], attrs: Mapping[str, Any]) -> None:
         """Set ``complete`` only after checking every chunk's marker exists; record the
         size and digest of the files kept beside the arrays, so a lost one is noticed."""
+        _kill_point(self.node, "complete")
+        with disk_errors(self.store, f"the metadata of artifact {self.url}"):
+            self._mark_complete(layouts, attrs)
+        _kill_point(self.node, "completed")
+
+    def _mark_complete(self, layouts: Mapping[str, ArrayLayout], attrs: Mapping[str, Any]) -> None:
         for name, lay in layouts.items():
             missing = lay.nchunks - len(self.done(name))
             if missing:
@@ -520,13 +774,15 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
     # the block again in every writing thread, and such block-sized temporaries are what glibc's
     # arenas kept as freed memory (sbrdf_core.memory).
     data = block.astype(arr.dtype, copy=False)
-    if not write_direct(arr, region, data):  # part of a shard, another store or codec: zarr writes it
-        arr[region] = data
-    marker = _open_cached(url, _marker_name(name), token)
-    where = tuple(index) or (0,)
-    crc = np.full((1,) * len(where), chunk_crc(data), np.uint32)
-    if not write_direct(marker, tuple(slice(i, i + 1) for i in where), crc):
-        marker[where] = crc
+    with disk_errors(url.rstrip("/").rsplit("/", 1)[0], f"artifact {url}, array {name!r}, chunk {chunk_key(index)}"):
+        if not write_direct(arr, region, data):  # part of a shard, another store or codec: zarr writes it
+            arr[region] = data
+        marker = _open_cached(url, _marker_name(name), token)
+        where = tuple(index) or (0,)
+        crc = np.full((1,) * len(where), chunk_crc(data), np.uint32)
+        if not write_direct(marker, tuple(slice(i, i + 1) for i in where), crc):
+            marker[where] = crc
+    _kill_point(url.rstrip("/").rsplit("/", 1)[-1], "chunk")
     return int(block.nbytes)
 
 

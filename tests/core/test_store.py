@@ -115,3 +115,85 @@ def test_a_strided_block_is_written_without_a_copy_of_it(tmp_path):
     import google_crc32c
 
     assert crc == chunk_crc(view) == int(google_crc32c.value(np.ascontiguousarray(view).tobytes()))
+
+
+# -- a partial artifact always resumes ---------------------------------------------------------------
+
+
+def _killed_during_creation(url, lay, keep: int):
+    """The artifact a run killed in ``prepare`` leaves: group and marker file written, only the first
+    ``keep`` of the arrays and marker arrays created (in creation order: data, markers, data, ...)."""
+    import shutil
+    from pathlib import Path
+
+    ArtifactWriter(url, ParamMaps, "t").prepare(lay, {})
+    created = [p for name in lay for p in (name, f"{MARKERS}/{name.replace('/', '.')}")]
+    for rel in created[keep:]:
+        shutil.rmtree(Path(url) / rel)
+
+
+@pytest.mark.parametrize("keep", [0, 1, 2, 3])
+def test_an_artifact_killed_between_array_creations_resumes(tmp_path, keep):
+    """A kill after the marker file, between two ``create_array`` calls, left arrays without a
+    ``zarr.json``; every later run then failed with FileNotFoundError."""
+    url = str(tmp_path / "s" / "a")
+    lay = {"rms": ArrayLayout((4,), (2,), "float32"), "params/rho_d": ArrayLayout((2, 3), (1, 3), "float32")}
+    _killed_during_creation(url, lay, keep)
+    w = ArtifactWriter(url, ParamMaps, "t")
+    assert w.state() == "partial"
+    assert w.prepare(lay, {}) == {"rms": set(), "params/rho_d": set()}
+    for i in (0, 1):
+        write_chunk(np.full(2, i + 1.0), url, "rms", "t", (i,), (slice(2 * i, 2 * i + 2),))
+        write_chunk(np.full((1, 3), i), url, "params/rho_d", "t", (i, 0), (slice(i, i + 1), slice(0, 3)))
+    w.mark_complete(lay, {})
+    art = open_artifact(url)
+    assert art.read("rms").tolist() == [1, 1, 2, 2] and art.read("params/rho_d").tolist() == [[0] * 3, [1] * 3]
+
+
+def test_a_partial_artifacts_bad_metadata_or_a_directory_where_a_chunk_goes_is_fixed_on_resume(tmp_path):
+    import json
+    from pathlib import Path
+
+    url = str(tmp_path / "s" / "a")
+    lay = {"rms": ArrayLayout((4,), (2,), "float32"), "n": ArrayLayout((4,), (2,), "int32")}
+    w = ArtifactWriter(url, ParamMaps, "t")
+    w.prepare(lay, {})
+    write_chunk(np.ones(2), url, "rms", "t", (0,), (slice(0, 2),))
+    write_chunk(np.ones(2), url, "n", "t", (0,), (slice(0, 2),))
+    meta = Path(url) / "n" / "zarr.json"
+    meta.write_text(json.dumps({**json.loads(meta.read_text()), "data_type": "float64"}))
+    (Path(url) / "rms" / "c" / "1").mkdir(parents=True)  # where chunk 1 is written
+    (Path(url) / "rms" / "c" / "1" / "x").write_text("x")
+    from sbrdf_core import store as store_module
+
+    store_module._ARRAYS.clear()
+    done = ArtifactWriter(url, ParamMaps, "t").prepare(lay, {})
+    assert done == {"rms": {"0"}, "n": set()}  # n created again: its chunks are rewritten
+    write_chunk(np.full(2, 2.0), url, "rms", "t", (1,), (slice(2, 4),))
+    for i in (0, 1):
+        write_chunk(np.full(2, 3), url, "n", "t", (i,), (slice(2 * i, 2 * i + 2),))
+    w.mark_complete(lay, {})
+    assert open_artifact(url).read("rms").tolist() == [1, 1, 2, 2]
+    assert open_artifact(url).read("n").dtype == np.int32
+
+
+def test_a_run_killed_while_removing_an_artifact_leaves_nothing_half_deleted(tmp_path, monkeypatch):
+    """The old artifact is renamed aside before it is deleted: a kill during the delete leaves a hidden
+    trash directory, removed by the next prepare, never a half-deleted artifact without its marker."""
+    from pathlib import Path
+
+    url = str(tmp_path / "s" / "a")
+    lay = {"rms": ArrayLayout((4,), (2,), "float32")}
+    ArtifactWriter(url, ParamMaps, "t").prepare(lay, {})
+    import shutil
+
+    def killed(path, *a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(shutil, "rmtree", killed)
+    with pytest.raises(KeyboardInterrupt):
+        ArtifactWriter(url, ParamMaps, "u").prepare(lay, {})
+    monkeypatch.undo()
+    assert not Path(url).exists() and [p.name[:13] for p in (tmp_path / "s").iterdir()] == [".sbrdf-trash-"]
+    assert ArtifactWriter(url, ParamMaps, "u").prepare(lay, {}) == {"rms": set()}
+    assert [p.name for p in (tmp_path / "s").iterdir()] == ["a"]
