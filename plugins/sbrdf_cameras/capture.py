@@ -30,8 +30,11 @@ Caching and the folder:
 * A folder this source wrote with other parameters is derived data: it is
   re-rendered in place (the images its manifest lists are removed,
   ``capture.json`` is rewritten and the poses are taken again).  A
-  folder written by anything else (a real scan, ``gonio``, a script) is
-  never touched: the node fails and names it.
+  folder written by anything else (a real scan, ``gonio``, a script, or
+  any folder holding files but no ``capture.json``) is never touched: the
+  node fails and names it.  Only a missing folder, one holding no files,
+  or one this source wrote (its ``capture.json``, recorded before any
+  image) is written.
 """
 
 from __future__ import annotations
@@ -212,6 +215,8 @@ class VirtualFolderCapture:
         expected = parse_manifest({**header, "complete": False, "poses": []}, f"{self.path} ({SOURCE} header)").header_json()
         overwrite = False
         manifest = self.path / MANIFEST
+        if not manifest.exists() and not manifest.is_symlink():
+            self._refuse_foreign_folder()
         if manifest.exists():
             old = load_manifest(self.path)
             rig = old.extra.get("rig")
@@ -266,6 +271,29 @@ class VirtualFolderCapture:
             if bar is not None:
                 bar.close()
         self._ready = True
+
+    def _refuse_foreign_folder(self) -> None:
+        """Without a ``capture.json`` this source did not start the folder (its writer records the manifest before
+        any image): write only into a missing folder or one holding no files (empty folders are what a run
+        killed before its manifest leaves); anything else is someone's data and an error naming it."""
+        from sbrdf_lib.capture_folder import MANIFEST, CaptureFolderError
+
+        if self.path.exists() and not self.path.is_dir():
+            raise CaptureFolderError(f"{self.path}: {SOURCE} path is a file, not a folder; it is left alone - give "
+                                     f"{SOURCE} a missing or empty folder")
+        if not self.path.exists():
+            return
+        found = []
+        for entry in sorted(self.path.rglob("*")):
+            if entry.is_symlink() or not entry.is_dir():
+                found.append(str(entry.relative_to(self.path)))
+                if len(found) == 3:
+                    break
+        if found:
+            raise CaptureFolderError(
+                f"{self.path}: the folder holds files ({', '.join(found)}{', ...' if len(found) == 3 else ''}) but no "
+                f"{MANIFEST} of a {SOURCE} capture; {SOURCE} writes only into a missing or empty folder, or one it "
+                f"wrote itself: it is left alone - give {SOURCE} another path")
 
     # -- capture source protocol ------------------------------------------------------------------
 
