@@ -116,25 +116,54 @@ class FolderCapture:
     # -- protocol ------------------------------------------------------------------
 
     def fingerprint(self) -> str:
-        """Changes when capture.json or any image file changes (size, mtime)."""
+        """Changes when any file the capture reads changes: ``capture.json`` and the journal (their bytes), and
+        (size, mtime) of every image the manifest or journal names, wherever in the folder it lies, of every file
+        below ``images/`` (subfolders included) and of the dark frame."""
+        import json
+
+        from sbrdf_lib.capture_folder import JOURNAL
+
         h = hashlib.sha256()
         try:
             manifest = inside_folder(self.path, MANIFEST, "manifest capture.json")
-            h.update(manifest.read_bytes())
+            text = manifest.read_bytes()
+            journal = inside_folder(self.path, JOURNAL, "journal capture.journal")
+            extra = journal.read_bytes() if journal.is_file() else b""
         except CaptureFolderError:
             return "outside"  # never read a file outside the folder; describe() reports it
         except OSError:
             return "missing"
+        h.update(text)
+        h.update(b"\0journal\0" + extra)
+        names: set[str] = set()
+        records: list = []
+        try:
+            doc = json.loads(text)
+            records = list(doc.get("poses") or []) if isinstance(doc, dict) else []
+        except ValueError:
+            pass  # describe() reports it
+        for line in extra.splitlines():
+            try:
+                records.append(json.loads(line))
+            except ValueError:
+                pass  # a torn last line: the reader drops it too
+        for pose in records:
+            for e in (pose.get("exposures") or []) if isinstance(pose, dict) else []:
+                if isinstance(e, dict) and isinstance(e.get("file"), str):
+                    names.add(e["file"])
         images = self.path / "images"
         if images.is_dir():
-            for entry in sorted(os.scandir(images), key=lambda e: e.name):
-                st = entry.stat()
-                h.update(f"{entry.name}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+            for root, dirs, files in os.walk(images):
+                dirs.sort()
+                names.update(os.path.relpath(os.path.join(root, f), self.path) for f in files)
         if self.dark_frame_name:
-            dark = self.path / self.dark_frame_name
-            if dark.exists():
-                st = dark.stat()
-                h.update(f"dark:{st.st_size}:{st.st_mtime_ns}".encode())
+            names.add(self.dark_frame_name)
+        for name in sorted(names):
+            try:
+                st = os.stat(self.path / name)
+                h.update(f"{name}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+            except (OSError, ValueError):
+                h.update(f"{name}:missing\n".encode())
         return h.hexdigest()
 
     def describe(self) -> CaptureDescription:

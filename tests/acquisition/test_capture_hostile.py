@@ -62,3 +62,76 @@ def test_virtual_folder_writes_into_an_empty_folder_and_resumes_its_own(tmp_path
     again = registry.create("capture", "virtual-folder", params(folder))
     again.bind(registry)
     assert again.describe().n_poses == 3 and again.rendered == 0
+
+
+# -- the cache fingerprint covers every file a capture reads ------------------------------------------------------
+
+
+def nested_folder(tmp_path, registry) -> Path:
+    """A small complete capture whose manifest names its images in subfolders of images/."""
+    import json
+
+    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+
+    cam = registry.create("device", "virtual-camera", {"width": 96, "height": 72, "focal_px": 130.0,
+                                                       "texels": [8, 8]})
+    cam.bind(registry)
+    folder = tmp_path / "scan"
+    light, R, t = orbit_poses(3)
+    capture_to_folder(cam, folder, light, R, t, 1.0, durable=False)
+    doc = json.loads((folder / "capture.json").read_text())
+    for pose in doc["poses"]:
+        for e in pose["exposures"]:
+            new = f"images/pose{pose['id']}/deeper/{Path(e['file']).name}"
+            (folder / new).parent.mkdir(parents=True)
+            (folder / e["file"]).rename(folder / new)
+            e["file"] = new
+    (folder / "capture.json").write_text(json.dumps(doc))
+    return folder
+
+
+def test_replacing_an_image_in_a_subfolder_recomputes_the_capture(tmp_path, registry):
+    import numpy as np
+    import yaml
+
+    from sbrdf_core.runner import run_graph
+    from sbrdf_core.store import open_artifact
+    from sbrdf_lib.capture_folder import encode_image, read_image
+
+    folder = nested_folder(tmp_path, registry)
+    g = tmp_path / "g.yaml"
+    g.write_text(yaml.safe_dump({"name": "nested", "store": str(tmp_path / "store"), "nodes": {
+        "capture": {"kind": "Capture", "plugin": "folder", "params": {"path": str(folder), "response": "linear"}}}}))
+    assert [n.status for n in run_graph(str(g)).nodes] == ["computed"]
+    first = open_artifact(str(tmp_path / "store" / "capture")).read("images")[1]
+
+    (image,) = (folder / "images" / "pose1" / "deeper").iterdir()
+    pixels = read_image(image, "test")
+    stat = image.stat()
+    image.write_bytes(encode_image((pixels / 2).astype(pixels.dtype), image.suffix))
+    os.utime(image, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))  # a replacement: a new mtime
+    rep = run_graph(str(g))
+    assert [n.status for n in rep.nodes] == ["computed"]
+    second = open_artifact(str(tmp_path / "store" / "capture")).read("images")[1]
+    assert not np.allclose(first, second)
+    assert [n.status for n in run_graph(str(g)).nodes] == ["cached"]
+
+
+def test_the_fingerprint_sees_files_named_anywhere_in_the_folder_and_the_journal(tmp_path, registry):
+    import json
+
+    folder = nested_folder(tmp_path, registry)
+    doc = json.loads((folder / "capture.json").read_text())
+    outside_images = "raw/p0.png"  # a manifest may name an image outside images/ (still inside the folder)
+    (folder / "raw").mkdir()
+    (folder / doc["poses"][0]["exposures"][0]["file"]).rename(folder / outside_images)
+    doc["poses"][0]["exposures"][0]["file"] = outside_images
+    (folder / "capture.json").write_text(json.dumps(doc))
+    src = registry.create("capture", "folder", {"path": str(folder)})
+    before = src.fingerprint()
+    st = (folder / outside_images).stat()
+    os.utime(folder / outside_images, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    assert src.fingerprint() != before
+    before = src.fingerprint()
+    (folder / "capture.journal").write_text('{"id": 9}\n')
+    assert src.fingerprint() != before
