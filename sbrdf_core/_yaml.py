@@ -11,7 +11,11 @@ everything a hostile or damaged file could do to the loader ends in a
 - aliases that expand to more than :data:`MAX_ALIAS_VALUES` values ("billion
   laughs"), and an alias inside its own anchor (a recursive document);
 - a list or mapping used as a mapping key;
-- any tag other than plain YAML data (:data:`ALLOWED_TAGS`), e.g. ``!!python/object``.
+- any tag other than plain YAML data (:data:`ALLOWED_TAGS`), e.g. ``!!python/object``;
+- a scalar its constructor cannot convert (an integer of more digits than
+  Python converts to ``int``, a date that does not exist);
+- a path that is not a regular file, or larger than the text limit
+  (:mod:`sbrdf_core.input_files`).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from typing import Any
 
 import yaml
 
+from . import input_files
 from .errors import Problem
 
 Path = tuple[Any, ...]
@@ -85,9 +90,12 @@ def read_text(path: str | _FilePath) -> str:
 
     UTF-8 (with or without a byte-order mark) is read, and UTF-16 or UTF-32
     with a byte-order mark as YAML allows; anything else is refused, naming the
-    first byte that cannot be decoded.  ``OSError`` passes through.
+    first byte that cannot be decoded.  ``OSError`` passes through, including
+    :class:`~sbrdf_core.input_files.InputFileError` for a path that is not a
+    regular file (``/dev/zero``, a FIFO: read whole or blocking) or is larger
+    than the text limit (:func:`sbrdf_core.input_files.limit`).
     """
-    data = _FilePath(path).read_bytes()
+    data = input_files.read_bytes(path, text=True)
     for bom, encoding in ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (codecs.BOM_UTF8, "utf-8-sig"),
                           (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16")):
         if data.startswith(bom):
@@ -205,6 +213,10 @@ class _Converter:
             return self.ctor.construct_object(node, deep=True)
         except yaml.constructor.ConstructorError as e:
             self.refuse(node, f"{e.problem}")
+        except (ValueError, OverflowError) as e:  # int() of more digits than Python converts, a date out of range
+            value = node.value if len(node.value) <= 40 else f"{node.value[:20]}...({len(node.value)} characters)"
+            reason = str(e).split(";")[0]  # not Python's advice on raising its own limit
+            self.refuse(node, f"value {value!r} cannot be read as {_tag_name(node.tag)[2:]}: {reason}")
 
 
 def syntax_problem(error: yaml.YAMLError, file: str) -> Problem:

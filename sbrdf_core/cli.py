@@ -461,7 +461,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except SbrdfError as e:
-        print(f"sbrdf: error: {e}", file=sys.stderr)
+        full = _no_space(e, args)
+        print(f"sbrdf: error: {e}" + (f" ({full})" if full else ""), file=sys.stderr)
+        _traceback_if_verbose(args)
         return 2
     except KeyboardInterrupt:
         if args.command == "bench":
@@ -470,6 +472,67 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print("sbrdf: interrupted; re-run to resume from the chunks already written", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001  (no input gets a traceback: one line, the traceback with -v)
+        print(f"sbrdf: error: {_one_line(e, args)}", file=sys.stderr)
+        if not _traceback_if_verbose(args):
+            print("sbrdf: (an unexpected error: run with -v for the traceback)", file=sys.stderr)
+        return 1
+
+
+def _no_space(error: BaseException, args=None) -> str | None:
+    """"out of disk space on PATH" where ``error`` or an exception it was raised from is ENOSPC (or EDQUOT)."""
+    import errno
+
+    seen: set[int] = set()
+    e: BaseException | None = error
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError) and e.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
+            what = "out of disk space" if e.errno == errno.ENOSPC else "over the disk quota"
+            where = e.filename or _store_of(args)
+            return f"{what} on {where}" if where else what
+        e = e.__cause__ or e.__context__
+    return None
+
+
+def _store_of(args) -> str | None:
+    """The store a command writes (``--store``, a command's STORE, or the graph's ``store:``), if it can be told."""
+    store = getattr(args, "store", None)
+    if store:
+        return str(store)
+    graph = getattr(args, "graph", None)
+    if graph:
+        try:
+            from .graph import graph_store
+
+            return graph_store(graph)
+        except Exception:  # noqa: BLE001  (only a better message was at stake)
+            return None
+    return None
+
+
+def _one_line(error: BaseException, args=None) -> str:
+    """An unexpected exception as one line: disk full said plainly, else its type and first line."""
+    full = _no_space(error, args)
+    if full:
+        return full
+    if isinstance(error, MemoryError):
+        return "out of memory (MemoryError); a smaller graph, fewer workers, or limits: {max_memory} may help"
+    text = str(error).strip().splitlines()
+    first = text[0] if text else ""
+    if len(first) > 500:
+        first = first[:500] + "..."
+    return f"{type(error).__name__}: {first}" if first else type(error).__name__
+
+
+def _traceback_if_verbose(args) -> bool:
+    """Print the current exception's traceback when ``-v`` was given; whether it was."""
+    if getattr(args, "verbose", 0) <= 0:
+        return False
+    import traceback
+
+    traceback.print_exc(file=sys.stderr)
+    return True
 
 
 def _plugin_commands(sub, argv: list[str] | None) -> None:

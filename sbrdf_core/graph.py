@@ -39,12 +39,15 @@ import yaml
 from . import _yaml
 from .contracts import optional
 from .errors import GraphError, Problem
-from .params import Param, resolve
+from .params import Param, check_model_values, resolve
 from .registry import Registry, default_registry
 from .store import NODE_NAME
 
 if TYPE_CHECKING:
     from .nodes.base import NodeKind
+
+#: fsspec protocols that can only be read: a store on one passes ``exists`` and fails at the first write.
+READ_ONLY_PROTOCOLS = frozenset({"http", "https", "github", "git", "tar", "libarchive", "reference", "data", "zip"})
 
 TOP_KEYS = ("name", "store", "nodes", "description", "limits", "variables", "allow_outside_store")
 NODE_KEYS = ("kind", "plugin", "in", "params", "doc")
@@ -447,6 +450,10 @@ class _Validator:
             elif not os.access(probe, os.W_OK | os.X_OK):
                 self.problem(f"store {raw!r} cannot be opened: {probe} is not writable", ("store",))
             return url
+        if protocol.lower() in READ_ONLY_PROTOCOLS:
+            self.problem(f"store {raw!r} cannot be written: {protocol}:// is a read-only file system; a store is a "
+                         f"local path or a writable URL (s3://, gs://, az://, memory://, ...)", ("store",))
+            return raw
         try:
             fs_cls = fsspec.get_filesystem_class(protocol)
         except (ValueError, ImportError) as e:
@@ -568,7 +575,28 @@ class _Validator:
                 if category and other in self.reg.specs[category]:
                     sub = self.reg.get(category, other)
                     values[p.name] = self._params(list(sub.params or ()), values[p.name], f"{category} {other!r}", path + (p.name,))
+        for p in declared:  # values of a BRDF model's parameters: checked against the model's own declarations
+            of = p.extra.get("model_values_of")
+            if of and isinstance(values.get(p.name), dict) and values[p.name]:
+                self._model_values(p.name, values, of, owner, path)
         return values
+
+    def _model_values(self, name: str, values: dict, of: tuple[str, str], owner: str, path: tuple) -> None:
+        """``params: {rho_d: 0.2}`` of the model named by parameter ``of[0]``, configured by ``of[1]``: each
+        name one of the model's parameters, each value a finite number (or one per channel) within its bounds."""
+        model_name, config = values.get(of[0]), values.get(of[1]) or {}
+        if not isinstance(model_name, str) or model_name not in self.reg.specs["brdf-model"] or not isinstance(config, dict):
+            return  # an unknown model or a bad configuration is reported already
+        before = len(self.problems)
+        try:
+            model = self.reg.create("brdf-model", model_name, dict(config))
+        except Exception as e:  # noqa: BLE001  (a configuration the declarations let through but the model refuses)
+            if len(self.problems) == before:
+                self.problem(f"{owner}: brdf-model {model_name!r} with {of[1]} {config!r} cannot be built: {e}",
+                             path + (of[1],))
+            return
+        for key, msg in check_model_values(model, values[name], f"{name}"):
+            self.problem(f"{owner}: {msg}", path + (name,) + ((key,) if key is not None else ()))
 
     def _output_path(self, value: str, path: tuple) -> None:
         """One parameter declared ``extra={"output": True}``: inside the store, beside the artifacts, unless the

@@ -146,13 +146,13 @@ class Param:
                                          f"{', '.join(p.name for p in self.values)}; got {sub!r}")
                 _check_keys(self.values, sub, f"{self.name}.{key}")
         if self.choices is not None and value not in self.choices:
-            raise ParameterError(f"parameter {self.name!r} is {value!r}; expected one of {list(self.choices)}")
+            raise ParameterError(f"parameter {self.name!r} is {_short(value)}; expected one of {list(self.choices)}")
         if self.bounds is not None:
             items = value if self.type == "list" else [value]
             lo, hi = self.bounds
             for v in items:
                 if (lo is not None and v < lo) or (hi is not None and v > hi):
-                    raise ParameterError(f"parameter {self.name!r} = {v!r} is outside [{lo}, {hi}]")
+                    raise ParameterError(f"parameter {self.name!r} = {_short(v)} is outside [{lo}, {hi}]")
         return value
 
 
@@ -194,6 +194,21 @@ def _nonfinite(value: Any, where: str = "", depth: int = 0) -> tuple[str, float]
     return None
 
 
+#: Integers a parameter may hold: numpy's int64, what every array, seed and size is made of.
+INT_RANGE = (-(2**63), 2**63 - 1)
+
+
+def _short(value: Any) -> str:
+    """``repr(value)``, shortened: a 5000-digit integer in an error message helps nobody."""
+    if isinstance(value, numbers.Integral) and abs(value) >= 10**40:
+        try:
+            return f"an integer of {len(str(abs(int(value))))} digits"
+        except ValueError:  # more digits than Python converts to text
+            return f"an integer of about {int(int(value).bit_length() * 0.30103)} digits"
+    text = repr(value)
+    return text if len(text) <= 200 else text[:200] + "..."
+
+
 _YAML11_FLOAT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
@@ -210,16 +225,69 @@ def _coerce(type_: str, value: Any, name: str) -> Any:
         "any": True,
     }[type_]
     if not ok:
-        raise ParameterError(f"parameter {name!r} should be {type_}, got {type(value).__name__} {value!r}")
+        raise ParameterError(f"parameter {name!r} should be {type_}, got {type(value).__name__} {_short(value)}")
     if type_ == "float":
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:  # an integer literal beyond the largest float (about 1.8e308)
+            raise ParameterError(f"parameter {name!r} = {_short(value)} is too large for a float") from None
     if type_ == "int":
+        if not INT_RANGE[0] <= value <= INT_RANGE[1]:  # arrays, seeds and sizes downstream are 64-bit
+            raise ParameterError(f"parameter {name!r} = {_short(value)} does not fit in a 64-bit integer")
         return int(value)
     if type_ == "list":
         return list(value)
     if type_ == "dict":
         return dict(value)
     return value
+
+
+def check_model_values(model: Any, values: Mapping[Any, Any], where: str = "params") -> list[tuple[Any, str]]:
+    """Problems of ``values``, a mapping of a BRDF model's parameter name to a value, as ``(key, message)``.
+
+    Each name must be one of the model's parameters (its ``parameters``
+    declarations), each value a number or a list of one number per channel
+    (or a single number for all), finite, inside the parameter's ``bounds``
+    (the physically valid range the fitters enforce).
+    """
+    declared = {p.name: p for p in getattr(model, "parameters", ())}
+    problems: list[tuple[Any, str]] = []
+    for key, value in values.items():
+        p = declared.get(key)
+        if p is None:
+            problems.append((key, f"{where}.{key}: model {getattr(model, 'name', '?')!r} has no parameter {key!r}; "
+                                  f"its parameters: {', '.join(declared) or 'none'}"))
+            continue
+        channels = int(getattr(p, "channels", 1))
+        shape = "a number" if channels == 1 else f"a number or a list of {channels} numbers (one per channel)"
+        items = value if isinstance(value, list) else [value]
+        if isinstance(value, list) and len(value) not in (1, channels):
+            problems.append((key, f"{where}.{key} has {len(value)} values; expected {shape}"))
+            continue
+        numbers_: list[float] = []
+        for v in items:
+            if isinstance(v, bool) or not isinstance(v, (numbers.Real, str)) or \
+                    (isinstance(v, str) and not _YAML11_FLOAT.match(v)):
+                problems.append((key, f"{where}.{key} should be {shape}, got {type(v).__name__} {_short(v)}"))
+                break
+            try:
+                numbers_.append(float(v))
+            except OverflowError:  # an integer literal beyond the largest float
+                problems.append((key, f"{where}.{key} = {_short(v)} is too large for a float"))
+                break
+        if len(numbers_) != len(items):
+            continue
+        lo, hi = (float(b) for b in getattr(p, "bounds", (-math.inf, math.inf)))
+        for v in numbers_:
+            if not math.isfinite(v):
+                problems.append((key, f"{where}.{key} is not a finite number: {v!r}"))
+                break
+            if not lo <= v <= hi:
+                unit = f" {p.unit}" if getattr(p, "unit", "") else ""
+                problems.append((key, f"{where}.{key} = {v:g} is outside the parameter's valid range "
+                                      f"[{lo:g}, {hi:g}]{unit}"))
+                break
+    return problems
 
 
 def plugin_reference(category: str, what: str) -> tuple[Param, Param]:

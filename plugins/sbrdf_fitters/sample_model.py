@@ -106,7 +106,9 @@ class SampleModel(NodeKind):
     params = (
         Param("model", "str", "lafortune", "BRDF model the material follows", extra={"plugin_category": "brdf-model"}),
         Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
-        Param("params", "dict", {}, "parameter values used at every texel (others vary over their typical range)"),
+        Param("params", "dict", {}, "parameter values used at every texel (others vary over their typical range): "
+              "each a parameter of the model, a number (or one per channel) within its bounds",
+              extra={"model_values_of": ("model", "model_params")}),
         Param("texels", "list", [64, 64], "texel grid [U, V]", length=2, item="int", bounds=(1, 16384)),
         Param("size_mm", "list", [100.0, 100.0], "sample size [x, y]", length=2, item="float", bounds=(1e-3, None),
               unit="mm"),
