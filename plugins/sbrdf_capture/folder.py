@@ -39,6 +39,7 @@ import hashlib
 import logging
 import os
 from pathlib import Path
+from struct import error as struct_error
 
 import numpy as np
 
@@ -50,6 +51,7 @@ from sbrdf_lib.capture_folder import (
     Exposure,
     Manifest,
     PoseRecord,
+    image_size,
     inside_folder,
     manifest_sections,
     read_image,
@@ -211,10 +213,7 @@ class FolderCapture:
         float_pose = False  # local: dask threads read poses of one capture concurrently
         for k, e in enumerate(pose.exposures):
             at = f"{where}.exposures[{k}]"
-            img = read_image(resolve_image(self.path, e, at + ".file"), at)
-            if img.shape[:2] != (m.camera.height, m.camera.width):
-                raise CaptureFolderError(f"{self.path / e.file}: image is {img.shape[1]}x{img.shape[0]} but the camera is "
-                                         f"{m.camera.width}x{m.camera.height} ({at})")
+            img = self._read(resolve_image(self.path, e, at + ".file"), at, m)
             signal, level = self._linearize(img, at)
             float_pose = float_pose or img.dtype.kind == "f"
             signals.append(subtract_dark(signal, self._dark, self.dark_time_s or 1.0, e.time_s))
@@ -279,6 +278,24 @@ class FolderCapture:
             self.attach(validate_folder(self.path, allow_incomplete=self.allow_incomplete))
         return self.manifest
 
+    def _read(self, path: Path, where: str, m: Manifest) -> np.ndarray:
+        """Decode one image once its header says it has the camera's size: a file whose header claims more
+        pixels (a decompression bomb, a stray photograph) fails at once, before a byte of it is inflated."""
+        try:
+            width, height = image_size(path)
+        except FileNotFoundError:
+            raise CaptureFolderError(f"{path}: image is missing ({where})") from None
+        except (OSError, ValueError, struct_error) as e:
+            raise CaptureFolderError(f"{path}: unreadable image ({where}): {e}") from None
+        if (width, height) != (m.camera.width, m.camera.height):
+            raise CaptureFolderError(f"{path}: the image header says {width}x{height} pixels but the camera is "
+                                     f"{m.camera.width}x{m.camera.height} ({where}); not decoded")
+        img = read_image(path, where)
+        if img.shape[:2] != (m.camera.height, m.camera.width):  # a header that lied
+            raise CaptureFolderError(f"{path}: image is {img.shape[1]}x{img.shape[0]} but the camera is "
+                                     f"{m.camera.width}x{m.camera.height} ({where})")
+        return img
+
     def _linearize(self, img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
         """Pixels -> (linear signal, normalised level judged for saturation)."""
         if img.dtype.kind == "f":
@@ -308,8 +325,8 @@ class FolderCapture:
             raise CaptureFolderError(f"{self.path / MANIFEST}: camera.response: absent, but the folder plugin was told "
                                      "response: manifest")
         # Recover from brackets ("auto" without a curve, or "recover").
-        first = read_image(resolve_image(self.path, m.poses[0].exposures[0], "poses[0].exposures[0].file"),
-                           "poses[0].exposures[0]")
+        first = self._read(resolve_image(self.path, m.poses[0].exposures[0], "poses[0].exposures[0].file"),
+                           "poses[0].exposures[0]", m)
         if first.dtype.kind == "f":
             self.linear = True  # float images are linear by definition
             return
@@ -325,7 +342,7 @@ class FolderCapture:
         max_code = int(np.iinfo(first.dtype).max)
         brackets, times = [], []
         for p in chosen:
-            imgs = [read_image(resolve_image(self.path, e, f"pose {p.id}"), f"pose {p.id}") for e in p.exposures]
+            imgs = [self._read(resolve_image(self.path, e, f"pose {p.id}"), f"pose {p.id}", m) for e in p.exposures]
             order = np.argsort([e.time_s for e in p.exposures])
             brackets.append([imgs[i] for i in order])
             times.append([p.exposures[i].time_s for i in order])
@@ -348,8 +365,6 @@ class FolderCapture:
     def _load_dark(self, m: Manifest) -> None:
         e = Exposure(self.dark_frame_name, self.dark_time_s or 1.0)
         path = resolve_image(self.path, e, "dark_frame")
-        img = read_image(path, "dark_frame")
-        if img.shape[:2] != (m.camera.height, m.camera.width):
-            raise CaptureFolderError(f"{path}: dark frame is {img.shape[1]}x{img.shape[0]}, camera is {m.camera.width}x{m.camera.height}")
+        img = self._read(path, "dark_frame", m)
         self.manifest = m
         self._dark = self._linearize(img, "dark_frame")[0]

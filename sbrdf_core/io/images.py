@@ -44,8 +44,16 @@ def write_exr(url: str, image: np.ndarray) -> None:
     _put(url, lambda p: OpenEXR.File(header, {"RGB": rgb}).write(p))
 
 
-def read_exr(url: str) -> np.ndarray:
-    """Read an OpenEXR file's RGB (or R, G, B, or Y) channels as ``(H, W, 3)`` float32."""
+#: Most pixels :func:`read_exr` decodes (a 16k x 16k image): a header claiming more is refused before its
+#: pixels are read, so a small hostile file cannot make the reader allocate gigabytes.
+MAX_PIXELS = 1 << 28
+
+
+def read_exr(url: str, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """Read an OpenEXR file's RGB (or R, G, B, or Y) channels as ``(H, W, 3)`` float32.
+
+    The header is read first: an image of more than ``max_pixels`` pixels is a ``ValueError`` naming its size.
+    """
     import OpenEXR
 
     fs, path = fsspec.core.url_to_fs(url)
@@ -53,6 +61,12 @@ def read_exr(url: str) -> np.ndarray:
         local = path if _is_local(fs) else os.path.join(d, "x.exr")
         if local != path:
             fs.get_file(path, local)
+        with OpenEXR.File(local, header_only=True) as f:
+            (x0, y0), (x1, y1) = f.header()["dataWindow"]
+        width, height = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+        if width <= 0 or height <= 0 or width * height > max_pixels:
+            raise ValueError(f"{url}: the header says {width}x{height} pixels, more than the {max_pixels} this "
+                             f"reader decodes; not decoded")
         with OpenEXR.File(local) as f:
             ch = f.channels()
             if "RGB" in ch:

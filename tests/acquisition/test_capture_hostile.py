@@ -135,3 +135,73 @@ def test_the_fingerprint_sees_files_named_anywhere_in_the_folder_and_the_journal
     before = src.fingerprint()
     (folder / "capture.journal").write_text('{"id": 9}\n')
     assert src.fingerprint() != before
+
+
+# -- a decompression bomb fails at once -------------------------------------------------------------------------
+
+
+def png_bomb(path: Path, side: int) -> None:
+    """An 8-bit grey PNG of ``side`` x ``side`` zero pixels: a few hundred kB that inflate to side² bytes."""
+    import zlib
+
+    comp = zlib.compressobj(1)
+    row = b"\x00" * (side + 1)
+    data = b"".join(comp.compress(row) for _ in range(side)) + comp.flush()
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
+
+    ihdr = side.to_bytes(4, "big") + side.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", data) + chunk(b"IEND", b""))
+
+
+def png_folder(tmp_path, registry) -> Path:
+    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+
+    cam = registry.create("device", "virtual-camera", {"width": 96, "height": 72, "focal_px": 130.0,
+                                                       "texels": [8, 8], "effects": ["response", "falloff"]})
+    cam.bind(registry)
+    light, R, t = orbit_poses(3)
+    folder = tmp_path / "scan"
+    capture_to_folder(cam, folder, light, R, t, [[0.5, 2.0]] * 3, durable=False)
+    return folder
+
+
+def test_a_decompression_bomb_png_fails_at_once_naming_it(tmp_path, registry):
+    import time
+
+    import yaml
+
+    from sbrdf_core.errors import SbrdfError
+    from sbrdf_core.runner import run_graph
+
+    folder = png_folder(tmp_path, registry)
+    source = registry.create("capture", "folder", {"path": str(folder)})
+    source.describe()  # the folder was fine when described; the bomb arrives before the pose is read
+    bomb = folder / "images" / "p00001_e1.png"
+    png_bomb(bomb, 20000)
+    t0 = time.perf_counter()
+    with pytest.raises(CaptureFolderError) as e:
+        source.read_pose(1)
+    assert time.perf_counter() - t0 < 2.0  # decoding it takes seconds and 400 MB
+    assert str(bomb) in str(e.value) and "20000x20000" in str(e.value) and "not decoded" in str(e.value)
+
+    g = tmp_path / "g.yaml"
+    g.write_text(yaml.safe_dump({"name": "bomb", "store": str(tmp_path / "store"), "nodes": {
+        "capture": {"kind": "Capture", "plugin": "folder", "params": {"path": str(folder)}}}}))
+    t0 = time.perf_counter()
+    with pytest.raises(SbrdfError, match="20000x20000"):
+        run_graph(str(g))
+    assert time.perf_counter() - t0 < 20.0
+
+
+def test_an_exr_header_claiming_too_many_pixels_is_not_decoded(tmp_path):
+    import numpy as np
+
+    from sbrdf_core.io.images import read_exr, write_exr
+
+    path = tmp_path / "big.exr"
+    write_exr(str(path), np.zeros((64, 64, 3), np.float32))
+    with pytest.raises(ValueError, match=r"64x64 pixels, more than the 1000 .*not decoded"):
+        read_exr(str(path), max_pixels=1000)
+    assert read_exr(str(path)).shape == (64, 64, 3)
