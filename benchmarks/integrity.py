@@ -18,11 +18,18 @@ What it does
 
    A case is *detected* when verify or the run noticed it, *silent* otherwise.
    A raw traceback (anything but an sbrdf error) is reported as ``CRASH`` and
-   counted silent: it names nothing.
+   counted as a traceback.
+
+3. Then the hostile and unlucky inputs of ``benchmarks/hostile.py``, each
+   through the real ``sbrdf`` command in a subprocess with a sentinel folder
+   beside the store (see there for the verdicts).
 
 Sizes: full (no arguments) is texels [64, 64] x 24 poses and every case;
-``--quick`` is texels [24, 20] x 12 poses and the first 8 cases (~30 s on 2
-cores).  The last line is ``integrity: cases=N detected=D silent=S repaired=R``.
+``--quick`` is texels [24, 20] x 12 poses, the first 8 damage cases and the
+quick hostile cases (about a minute on 2 cores once the fitting kernels are
+compiled).  The last line counts both parts: ``integrity: tried=N clear=C
+silent=S outside=O stuck=K tracebacks=T hangs=H repaired=R`` (``repaired``:
+damage cases whose store ends equal to the undamaged one).
 
 How to run
 ----------
@@ -57,6 +64,9 @@ from sbrdf_core.graph import load_graph
 from sbrdf_core.registry import Registry
 from sbrdf_core.runner import Runner
 from sbrdf_core.store import members
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import hostile  # noqa: E402
 
 GRAPH = """\
 name: integrity
@@ -212,7 +222,7 @@ def rerun(graph: Path, registry: Registry, node: str) -> tuple[str, bool]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="smaller store, first 8 cases")
+    ap.add_argument("--quick", action="store_true", help="smaller store, first 8 damage cases, quick hostile cases")
     ap.add_argument("--keep", default=None, help="keep the stores under this folder")
     args = ap.parse_args(argv)
     texels, poses = ([24, 20], 12) if args.quick else ([64, 64], 24)
@@ -226,7 +236,7 @@ def main(argv=None) -> int:
         Runner(registry).run(load_graph(root / "original.yaml", registry))
         original = read_store(root / "original")
         texture = next(p.name for p in (root / "original" / "quantize" / "textures").iterdir() if p.is_dir())
-        detected = silent = repaired = 0
+        detected = silent = crashes = repaired = 0
         print(f"store: texels {texels} x {poses} poses; {len(cases)} cases\n")
         print(f"{'case':<56} {'verify':<9} {'re-run':<44} {'repaired'}")
         for i, (case, node, damage) in enumerate(cases):
@@ -248,7 +258,9 @@ def main(argv=None) -> int:
             ok = rc_final == 0 and same(read_store(store), original) and (store / "render" / "image.png").exists()
             noticed = by_verify or by_run
             detected += noticed
-            silent += not noticed or "CRASH" in said
+            crashed = "CRASH" in said
+            silent += not noticed and not crashed
+            crashes += crashed
             repaired += ok
             print(f"{case:<56} {'found' if by_verify else 'MISSED':<9} {said[:44]:<44} {'yes' if ok else 'NO'}")
             if "CRASH" in said or not ok:
@@ -262,8 +274,15 @@ def main(argv=None) -> int:
         verify: `sbrdf verify` (reads every chunk); re-run: what the same graph's next run did to the damaged node
         (cached, resumed = only the damaged chunks rewritten, computed = whole artifact); repaired: final verify clean
         and every array equal to the undamaged store's."""))
-    print(f"integrity: cases={len(cases)} detected={detected} silent={silent} repaired={repaired}")
-    return 0 if silent == 0 else 1
+    print(f"\ndamage: cases={len(cases)} detected={detected} silent={silent} crashes={crashes} repaired={repaired}\n")
+    counts = hostile.run(args.quick, f"{args.keep}/hostile" if args.keep else None)
+    print(f"\nhostile: {hostile.summary(counts)}")
+    counts["tried"] += len(cases)
+    counts["clear"] += len(cases) - silent - crashes
+    counts["silent"] += silent
+    counts["traceback"] += crashes
+    print(f"integrity: {hostile.summary(counts)} repaired={repaired}")
+    return 0 if counts["clear"] == counts["tried"] else 1
 
 
 if __name__ == "__main__":
