@@ -28,8 +28,10 @@ the pose's longest exposure (normalised code 1 through the response, or
 brightest value).  Smaller negatives are sensor noise around zero (e.g.
 after dark-frame subtraction) and stay as measured, unclamped, so averages
 stay unbiased.  A pose where more than ``negative_max_fraction`` of the pixels
-are negative beyond the tolerance (every pixel, in a sign-flipped image) is
-not noise but a broken image or calibration: a :class:`CaptureFolderError`
+are negative beyond the tolerance (every pixel, in a sign-flipped image), or
+more than that fraction of the pixels that stand out of the noise (a
+sign-flipped image whose background is dark: :meth:`FolderCapture._significant`),
+is not noise but a broken image or calibration: a :class:`CaptureFolderError`
 naming the pose and its files.
 """
 
@@ -93,7 +95,7 @@ class FolderCapture:
         Param("negative_tolerance", "float", 0.01, "noise tolerance for negative radiance, a fraction of full scale: a "
               "pixel below -tolerance is invalid and counted (docs/capture-folders.md)", bounds=(0.0, 1.0)),
         Param("negative_max_fraction", "float", 0.5, "a pose with more than this fraction of its pixels negative beyond "
-              "the tolerance is an error, not noise", bounds=(0.0, 1.0)),
+              "the tolerance, or of its pixels above the noise floor, is an error, not noise", bounds=(0.0, 1.0)),
     )
 
     def __init__(self, *, path: str, response: str = "auto", response_method: str = "cubic", response_poses: int = 8,
@@ -256,13 +258,20 @@ class FolderCapture:
             return valid
         total = int(negative.size)
         files = ", ".join(e.file for e in pose.exposures)
-        if n == total or n > self.negative_max_fraction * total:
+        significant = self._significant(radiance, below, tolerance)
+        if n == total or n > self.negative_max_fraction * total or significant:
+            how = (f"{n} of {total} pixels ({100.0 * n / total:.1f}%) have negative radiance beyond the noise "
+                   f"tolerance {tolerance:.3g}")
+            if significant and not (n == total or n > self.negative_max_fraction * total):
+                neg, sig, floor = significant
+                how = (f"{neg} of the {sig} pixels above the noise floor {floor:.3g} ({100.0 * neg / sig:.1f}%; the "
+                       f"rest of the image is dark) have negative radiance")
             raise CaptureFolderError(
-                f"{self.path / MANIFEST}: {where}: {n} of {total} pixels ({100.0 * n / total:.1f}%) have negative "
-                f"radiance beyond the noise tolerance {tolerance:.3g} (min {float(below.min()):.3g}) in {files}: "
+                f"{self.path / MANIFEST}: {where}: {how} (min {float(below.min()):.3g}) in {files}: "
                 f"radiance cannot be negative, so the image or its calibration is broken (a dark frame brighter than "
                 f"the image, a wrong dark_time_s, a sign error in whatever wrote it); at most "
-                f"{self.negative_max_fraction:g} of a pose may be negative (negative_max_fraction)")
+                f"{self.negative_max_fraction:g} of a pose, or of its pixels above the noise, may be negative "
+                f"(negative_max_fraction)")
         if pose.id in self.negative_pixels:  # the same pose read again (Register reads a pose more than once)
             return valid & ~negative
         self.negative_pixels[pose.id] = n
@@ -270,6 +279,27 @@ class FolderCapture:
                     "negative_tolerance %g of full scale) in %s; marked invalid", self.path, where, n, total, tolerance,
                     self.negative_tolerance, files)
         return valid & ~negative
+
+    def _significant(self, radiance: np.ndarray, below: np.ndarray, tolerance: float) -> tuple[int, int, float] | None:
+        """``(negative, significant, floor)`` when more than ``negative_max_fraction`` of the pixels that stand out
+        of the noise are negative (a sign-flipped image whose background is dark), else ``None``.
+
+        A pixel stands out when a channel's magnitude exceeds the noise floor: the tolerance, or five robust
+        standard deviations (1.4826 MAD, over a subsample) of the pose's values, whichever is larger, so the
+        symmetric noise of a dark pose never looks like a majority.  At least 0.1 % of the pixels (and 16) must
+        stand out, so a few hot pixels on a black pose do not decide.
+        """
+        finite = np.where(np.isfinite(radiance), radiance, 0.0)
+        flat = finite.reshape(-1)
+        sample = flat[:: max(1, flat.size // 1_000_000)]
+        mad = float(np.median(np.abs(sample - np.median(sample))))
+        floor = max(float(tolerance), 5.0 * 1.4826 * mad)
+        neg = below < -floor
+        pos = (finite.max(axis=-1) > floor) & ~neg
+        n_neg, n_sig = int(neg.sum()), int(neg.sum() + pos.sum())
+        if n_sig < max(16, below.size // 1000) or n_neg <= self.negative_max_fraction * n_sig:
+            return None
+        return n_neg, n_sig, floor
 
     # -- internals -------------------------------------------------------------------------
 

@@ -205,3 +205,36 @@ def test_an_exr_header_claiming_too_many_pixels_is_not_decoded(tmp_path):
     with pytest.raises(ValueError, match=r"64x64 pixels, more than the 1000 .*not decoded"):
         read_exr(str(path), max_pixels=1000)
     assert read_exr(str(path)).shape == (64, 64, 3)
+
+
+# -- a sign-flipped image on a dark background is an error -------------------------------------------------------
+
+
+def dark_background_pose(rng, flipped: bool, noise: float = 0.002):
+    """48 x 64 pixels of zero-mean background noise with a lit square covering 12 % of the image."""
+    import numpy as np
+
+    img = rng.normal(0.0, noise, (48, 64, 3))
+    img[18:30, 22:46] += 0.2 + 0.7 * rng.random((12, 24, 3))
+    return (-img if flipped else img).astype(np.float32)
+
+
+@pytest.mark.parametrize("white_level", [None, 1.0], ids=["no-white-level", "white-level"])
+def test_a_sign_flipped_exr_with_a_dark_background_is_an_error_naming_it(registry, tmp_path, white_level):
+    import numpy as np
+
+    from tests.acquisition.test_folder_format import _float_folder
+
+    rng = np.random.default_rng(7)
+    poses = [dark_background_pose(rng, False), dark_background_pose(rng, True)]
+    if white_level is not None:  # pure noise under a known full scale: symmetric, never a majority above the floor
+        poses.append(rng.normal(0.0, 0.002, (48, 64, 3)).astype(np.float32))
+    folder = _float_folder(tmp_path / "scan", poses, white_level=white_level)
+    src = registry.create("capture", "folder", {"path": str(folder)})
+    src.describe()
+    src.read_pose(0)
+    if white_level is not None:
+        src.read_pose(2)
+    with pytest.raises(CaptureFolderError, match=r"poses\[1\] \(id 1\): 288 of the 288 pixels above the noise floor "
+                                                 r".* have negative radiance .* in images/p00001_e0.exr"):
+        src.read_pose(1)
