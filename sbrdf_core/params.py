@@ -63,6 +63,15 @@ class Param:
         Unit of the value (``mm``, ``s``, ``sr^-1``), shown in docs.
     nullable
         Whether ``null`` is accepted (meaning "not set").
+    extra
+        Free-form flags read by the validator and tools: ``path`` (a file
+        name, resolved from the graph or scene file's folder), ``output``
+        (with ``path``: a path the plugin *writes*, held inside the graph's
+        store beside the artifacts unless the graph's ``allow_outside_store``
+        lets it out: :mod:`sbrdf_core.outputs`), ``plugin_category`` (the
+        value names a plugin of that category), ``params_of`` (the value is
+        the parameters of the plugin another parameter names); the validator
+        (:mod:`sbrdf_core.graph`) reads the rest.
     schema
         For a ``dict`` with fixed keys: the declaration of each key.  Unknown
         keys and missing required ones are errors naming the path
