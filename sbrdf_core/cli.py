@@ -20,6 +20,7 @@ import argparse
 import functools
 import json
 import logging
+import os
 import sys
 import time
 from pathlib import Path
@@ -100,46 +101,61 @@ def cmd_verify(args) -> int:
 
     Exit status 1 when anything is damaged (0 when all is sound).  With
     ``--repair`` the damage is turned into work for the next run (done markers
-    of bad chunks dropped, broken artifacts removed); without it nothing is written.
+    of bad chunks dropped, broken artifacts removed, links and FIFOs inside
+    artifacts removed as themselves); without it nothing is written, and a
+    store this process cannot write is verified read-only.
     """
-    from .integrity import StoreLock, artifact_dirs, check_artifact, repair
-    from .store import ARTIFACT_MARKER, open_artifact
+    from .errors import ArtifactError
+    from .integrity import StoreLock, artifact_dirs, check_artifact, repair, stray_entries
+    from .store import ARTIFACT_MARKER, disk_errors
 
     urls, unproven = artifact_dirs(args.store)
-    if not urls and not unproven:
+    strays = stray_entries(args.store)
+    if not urls and not unproven and not strays:
         raise SbrdfError(f"{args.store}: no sbrdf artifacts here")
-    damaged = len(unproven)
-    with StoreLock(args.store, _wait(args), "sbrdf verify"):
+    damaged = len(unproven) + len(strays)
+    lock = StoreLock(args.store, _wait(args), "sbrdf verify", read_only=not args.repair)
+    with lock:
+        if lock.note:
+            print(lock.note)
         for url in unproven:
             print(f"{url}  ?  DAMAGED\n    holds zarr arrays but no group zarr.json and no {ARTIFACT_MARKER}: nothing "
                   f"proves it is an artifact, so a run refuses to delete it; move it away, then a re-run recomputes it")
+        for url, why, removable in strays:
+            print(f"{url}  ?  DAMAGED\n    {why}")
+            if removable and args.repair:
+                os.unlink(url if "://" not in url else url.split("://", 1)[1])
+                print("    repaired: the link was removed (not what it points to); the next run computes the node")
+            elif removable:
+                print(f"    `sbrdf verify --repair {args.store}` removes the link (not what it points to)")
+            else:
+                print("    not sbrdf's to delete: move it away, then a re-run computes the node")
         for url in urls:
             node = url.rstrip("/").rsplit("/", 1)[-1]
-            try:
-                art = open_artifact(url, require_complete=False)
-                kind, complete = art.kind, art.complete
-            except SbrdfError:
-                kind, complete = "?", True
-            if not complete:
-                print(f"{url}  {kind}  incomplete (an interrupted run): a re-run resumes it")
-                continue
             d = check_artifact(url, full=True)
+            kind = d.kind or "?"
             if not d:
-                print(f"{url}  {kind}  ok")
+                state = "ok" if d.complete else "incomplete (an interrupted run): a re-run resumes it"
+                print(f"{url}  {kind}  {state}" + "".join(f"\n    {n}" for n in d.notes))
                 continue
             damaged += 1
-            print(f"{url}  {kind}  DAMAGED")
+            print(f"{url}  {kind}  DAMAGED" + ("" if d.complete else " (and incomplete: an interrupted run)"))
             for p in d.problems:
                 print(f"    {p}")
             if args.repair:
-                repair(d, args.store, node)
+                try:
+                    with disk_errors(args.store, f"the repair of artifact {url}"):
+                        repair(d, args.store, node)
+                except ArtifactError as e:
+                    print(f"    NOT repaired: {e}")
+                    continue
                 print(f"    repaired: the next run recomputes {d.plan()} of node {node!r}")
             elif d.deep:
                 print(f"    a re-run does not see this (it reads no chunk of a cached artifact): "
                       f"`sbrdf verify --repair {args.store}` marks it, then a re-run recomputes {d.plan()} of node {node!r}")
             else:
                 print(f"    a re-run recomputes {d.plan()} of node {node!r}")
-    print(f"{args.store}: {len(urls) + len(unproven)} artifacts, {damaged} damaged"
+    print(f"{args.store}: {len(urls) + len(unproven) + len(strays)} artifacts, {damaged} damaged"
           + ("; nodes downstream of a recomputed one stay cached (same inputs, same token)" if damaged else ""))
     return 1 if damaged else 0
 
@@ -241,9 +257,22 @@ def _describe_artifact(url: str, art) -> None:
     print(f"  parameters: {json.dumps(prov.get('parameters', {}))}")
     for port, i in prov.get("inputs", {}).items():
         print(f"  input {port}: {i['kind']} {i['url']} (token {i['token']})")
+    from .errors import ArtifactError
+
+    declared = art.attrs.get("layout") or {}
     for name in art.names():
-        z: zarr.Array = art.zarr_array(name)
-        print(f"  {name:<22} {str(z.shape):<22} {str(z.dtype):<8} chunks {z.chunks}")
+        try:
+            z: zarr.Array = art.zarr_array(name)
+            shape, dtype, chunks = z.shape, z.dtype, z.chunks
+        except ArtifactError as e:  # a damaged zarr.json (an edited dtype, say): say so, describe the rest
+            print(f"  {name:<22} DAMAGED: {str(e).split(': ', 1)[-1]}; `sbrdf verify` reports it and "
+                  f"`sbrdf verify --repair` has the next run recompute it")
+            continue
+        print(f"  {name:<22} {str(shape):<22} {str(dtype):<8} chunks {chunks}")
+        want = declared.get(name)
+        if want and (list(shape) != want.get("shape") or str(dtype) != want.get("dtype")):
+            print(f"  {'':<22} DAMAGED: its node declared shape {tuple(want.get('shape') or ())} "
+                  f"{want.get('dtype')}; `sbrdf verify --repair` has the next run recompute it")
     skip = {"provenance", "kind", "version", "token", "complete", "node", "layout", "file_digests"}
     for k, v in art.attrs.items():
         if k not in skip:

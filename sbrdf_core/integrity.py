@@ -22,12 +22,15 @@ again, and damaged metadata makes the node recompute the whole artifact.
 
 from __future__ import annotations
 
+import errno
 import getpass
 import hashlib
 import json
 import logging
 import os
+import shutil
 import socket
+import stat
 import threading
 import time
 from dataclasses import dataclass, field
@@ -42,16 +45,21 @@ from .store import (
     _CHUNK_KEY,
     ARTIFACT_MARKER,
     MARKERS,
+    NODE_NAME,
     ArrayLayout,
     _fs,
     _is_local,
     _marker_name,
+    _what,
     chunk_crc,
     chunk_key,
+    disk_errors,
     done_keys,
     inside_store,
     join,
     members,
+    regular_file,
+    special_entries,
 )
 
 LOCK_FILE = ".sbrdf.lock"
@@ -98,6 +106,9 @@ class Damage:
     rebuild: bool = False  # metadata damaged: recompute the whole artifact
     files: bool = False  # side files lost: finish the node again
     deep: bool = False  # found only by reading chunks (the runner's reuse check cannot see it)
+    unlink: list[str] = field(default_factory=list)  # links, FIFOs...: removed themselves, never followed
+    complete: bool = True  # False: an interrupted run's artifact, resumed by the next run
+    notes: list[str] = field(default_factory=list)  # not damage: what a resuming run will do
 
     def __bool__(self) -> bool:
         return bool(self.problems)
@@ -117,7 +128,7 @@ class Damage:
         parts = [f"{len(k)} chunk{'s' if len(k) != 1 else ''} of {a!r}" for a, k in sorted(self.chunks.items()) if k]
         if self.files:
             parts.append("its side files")
-        return ", ".join(parts) or "nothing"
+        return ", ".join(parts) or ("the rest of the artifact" if not self.complete else "nothing")
 
 
 def _layouts(attrs: dict) -> dict[str, ArrayLayout]:
@@ -130,19 +141,73 @@ def _keys(lay: ArrayLayout) -> set[str]:
     return {chunk_key(i) for i in np.ndindex(*lay.grid)} if lay.shape else {"0"}
 
 
+def _metadata_file(fs, path: str) -> bool | None:
+    """Whether a metadata file exists (None: something that is not a plain file stands there)."""
+    if not _is_local(fs):
+        return fs.exists(path)
+    if not os.path.lexists(path):
+        return False
+    return True if regular_file(path) else None
+
+
+def _odd_entries(d: Damage, root: str, layouts: dict[str, ArrayLayout]) -> None:
+    """Links, FIFOs, devices inside a local artifact: damage, repaired by removing them (never what a link
+    points to).  Inside an array's chunk folder its chunks are rewritten; elsewhere the artifact is."""
+    for rel, what in special_entries(root):
+        d.unlink.append(rel)
+        path = rel.replace(os.sep, "/")
+        for name, lay in layouts.items():
+            for array in (name, _marker_name(name)):
+                if path == f"{array}/c" or path.startswith(f"{array}/c/"):
+                    d.add(f"{rel} is {what}: sbrdf writes only plain files there and follows no link out of "
+                          f"an artifact", array=name, keys=_keys(lay))
+                    break
+            else:
+                continue
+            break
+        else:
+            d.add(f"{rel} is {what}: sbrdf writes only plain files and directories in an artifact and follows "
+                  f"no link", rebuild=True)
+
+
 def check_artifact(url: str, full: bool = False) -> Damage:
-    """Check one artifact (see the module docstring); an empty :class:`Damage` means sound."""
+    """Check one artifact (see the module docstring); an empty :class:`Damage` means sound.
+
+    An incomplete artifact (an interrupted run's) is checked for what would stop
+    or mislead the run that resumes it: its metadata, and, with ``full``, the
+    chunks it already counts as done.  Chunks not written yet are not damage.
+    """
     fs, root = _fs(url)
     d = Damage(url)
-    if not fs.exists(join(root, "zarr.json")):
-        d.add("its group's zarr.json is missing", rebuild=True)
+    local = _is_local(fs)
+    if local and os.path.islink(root):
+        d.unlink.append(".")
+        d.add(f"the artifact directory is a symbolic link to {os.readlink(root)}: a run refuses to write through it",
+              rebuild=True)
+        return d
+    if local and os.path.lexists(root) and not os.path.isdir(root):
+        d.add("the artifact path is not a directory", rebuild=True)
+        return d
+    group_meta = _metadata_file(fs, join(root, "zarr.json"))
+    if group_meta is None or not group_meta:
+        if local:
+            _odd_entries(d, root, {})
+        if not d.problems:
+            d.add("its group's zarr.json is missing", rebuild=True)
         return d
     try:
         attrs = dict(zarr.open_group(store=url, mode="r").attrs)
     except Exception as e:
         d.add(f"its group's zarr.json cannot be read ({type(e).__name__})", rebuild=True)
+        if local:
+            _odd_entries(d, root, {})
         return d
+    if local:  # before any other read: a FIFO blocks its reader, a link leads out of the store
+        _odd_entries(d, root, _layouts(attrs))
+        if d:
+            return d
     d.kind = attrs.get("kind")
+    d.complete = bool(attrs.get("complete"))
     layouts = _layouts(attrs)
     if not layouts:  # written before layouts were recorded: no inventory, chunks read as they are
         layouts = {n: ArrayLayout(tuple(z.shape), tuple(z.shards or z.chunks), str(z.dtype))
@@ -152,9 +217,16 @@ def check_artifact(url: str, full: bool = False) -> Damage:
     else:
         legacy = False
     for name, lay in sorted(layouts.items()):
+        metas = (name,) if legacy else (name, _marker_name(name))
+        present = [_metadata_file(fs, join(root, m, "zarr.json")) for m in metas]
+        if not d.complete and not legacy and all(p is False for p in present):
+            d.notes.append(f"array {name!r} not created yet: the resuming run creates it")
+            continue
         try:
+            if not all(present):
+                raise FileNotFoundError("zarr.json missing" if None not in present else "zarr.json not a plain file")
             z = zarr.open_array(store=join(url, name), mode="r")
-            zarr.open_array(store=join(url, _marker_name(name)), mode="r") if not legacy else None
+            m = zarr.open_array(store=join(url, _marker_name(name)), mode="r") if not legacy else None
         except Exception as e:
             d.add(f"array {name!r}: metadata missing or unreadable ({type(e).__name__})", rebuild=True)
             continue
@@ -164,9 +236,14 @@ def check_artifact(url: str, full: bool = False) -> Damage:
             d.add(f"array {name!r} is shape {got[0]} chunks {got[1]} {got[2]}; its node declared "
                   f"shape {want[0]} chunks {want[1]} {want[2]}", rebuild=True)
             continue
+        if m is not None and (tuple(m.shape) != (lay.grid or (1,)) or m.dtype != np.uint32):
+            d.add(f"array {name!r}: its done markers are shape {tuple(m.shape)} {m.dtype}, not the chunk grid "
+                  f"{lay.grid or (1,)} uint32", rebuild=True)
+            continue
         if not legacy:
-            lost = _keys(lay) - (done_keys(fs, root, name) & written(fs, root, name, lay))
-            if lost:
+            have = done_keys(fs, root, name) & written(fs, root, name, lay)
+            lost = _keys(lay) - have
+            if lost and d.complete:
                 d.add(f"array {name!r}: {len(lost)} chunk{'s' if len(lost) > 1 else ''} lost "
                       f"(file missing or truncated, or no done marker): {', '.join(sorted(lost)[:5])}"
                       + (" ..." if len(lost) > 5 else ""), array=name, keys=lost)
@@ -174,8 +251,8 @@ def check_artifact(url: str, full: bool = False) -> Damage:
             crcs = _marker_crcs(url, name, d) if not legacy else None
             for index in (np.ndindex(*lay.grid) if lay.shape else [()]):
                 key = chunk_key(index)
-                if key in d.chunks.get(name, ()):
-                    continue
+                if key in d.chunks.get(name, ()) or (not legacy and key not in have):
+                    continue  # lost, or (an incomplete artifact) not written yet: the next run writes it
                 region = tuple(slice(i * c, min((i + 1) * c, n)) for i, c, n in zip(index, lay.chunks, lay.shape))
                 try:
                     values = z[region]
@@ -186,6 +263,8 @@ def check_artifact(url: str, full: bool = False) -> Damage:
                 if crcs is not None and chunk_crc(values) != crcs[index or (0,)]:
                     d.add(f"array {name!r}, chunk {key}: its values are not the ones written there (crc32c differs "
                           f"from its done marker's)", array=name, keys=[key], deep=True)
+    if not d.complete:
+        return d  # side files are written when the node finishes
     recorded = attrs.get("file_digests") or {}
     for f in attrs.get("files") or []:
         path = join(root, str(f))
@@ -225,14 +304,43 @@ def _marker_crcs(url: str, name: str, d: Damage) -> np.ndarray | None:
         return out
 
 
+def _remove_local(root: str, rel: str) -> None:
+    """Remove ``rel`` below the local directory ``root`` without following a link on the way.
+
+    Every directory between ``root`` and it must be a real directory (not a
+    link): where one is not, that entry is removed instead (as a link, never
+    what it points to) and the path below it is gone with it.  A directory at
+    the end is removed with its contents (links inside it as links).
+    """
+    path = root
+    parts = [p for p in rel.split("/") if p]
+    for i, part in enumerate(parts):
+        path = os.path.join(path, part)
+        try:
+            mode = os.lstat(path).st_mode
+        except FileNotFoundError:
+            return
+        if stat.S_ISDIR(mode) and i < len(parts) - 1:
+            continue
+        if stat.S_ISDIR(mode):
+            shutil.rmtree(path)
+        else:
+            os.unlink(path)
+        return
+
+
 def drop_chunks(url: str, chunks: dict[str, set[str] | None]) -> None:
     """Mark chunks for rewriting: delete their done markers and data, and the ``complete`` flag.
 
     ``None`` for an array drops every chunk of it.  The next run with the same
     token resumes the artifact and writes exactly these chunks (and finishes
-    the node again: its side files are rewritten).
+    the node again: its side files are rewritten).  Locally no link is followed:
+    a chunk directory linked out of the store is removed as a link.
     """
     fs, root = _fs(url)
+    local = _is_local(fs)
+    if local and os.path.islink(root):
+        raise ArtifactError(f"{url} is a symbolic link; refusing to delete through it")
     group = zarr.open_group(store=url, mode="r+")
     layouts = _layouts(dict(group.attrs))
     for name, keys in chunks.items():
@@ -240,44 +348,94 @@ def drop_chunks(url: str, chunks: dict[str, set[str] | None]) -> None:
             raise ArtifactError(f"{url}: {name!r} is not an array name")
         if keys is None:
             keys = _keys(layouts[name]) if name in layouts else set()
+        scalar = name in layouts and not layouts[name].shape
         for key in keys:
             if not _CHUNK_KEY.fullmatch(key):
                 raise ArtifactError(f"{url}: {key!r} is not a chunk key")
-            for path in (join(root, _marker_name(name), "c", *key.split(".")), join(root, name, "c", *key.split("."))):
-                if fs.isfile(path):
-                    fs.rm(path)
+            parts = [] if scalar else key.split(".")
+            for array in (_marker_name(name), name):
+                if local:
+                    _remove_local(root, "/".join([array, "c", *parts]))
+                else:
+                    path = join(root, array, "c", *parts)
+                    if fs.isfile(path):
+                        fs.rm(path)
     group.attrs["complete"] = False
 
 
 def repair(damage: Damage, store: str, node: str) -> None:
-    """Turn ``damage`` into work for the next run (see :func:`drop_chunks`); a rebuild removes the artifact."""
+    """Turn ``damage`` into work for the next run (see :func:`drop_chunks`); a rebuild removes the artifact.
+
+    Links, FIFOs and devices inside the artifact (or the artifact path itself
+    when it is a link) are removed first, each as itself: what a link points to
+    is never touched.
+    """
     from .store import ArtifactWriter
 
+    fs, root = _fs(damage.url)
+    if _is_local(fs) and damage.unlink:
+        if damage.unlink == ["."]:
+            if os.path.islink(root):
+                os.unlink(root)  # the link only: the store inside_store would resolve it to is not ours
+            return
+        inside_store(store, damage.url)
+        for rel in damage.unlink:
+            _remove_local(root, rel.replace(os.sep, "/"))
     inside_store(store, damage.url)
-    if damage.rebuild:
-        w = ArtifactWriter(damage.url, None, "", store=store, node=node)  # type: ignore[arg-type]
-        w.remove()
-    else:
-        drop_chunks(damage.url, damage.chunks)
+    with disk_errors(store, f"the repair of artifact {damage.url}"):
+        if damage.rebuild:
+            w = ArtifactWriter(damage.url, None, "", store=store, node=node)  # type: ignore[arg-type]
+            w.remove()
+        else:
+            drop_chunks(damage.url, damage.chunks)
 
 
 def artifact_dirs(store: str) -> tuple[list[str], list[str]]:
     """URLs of the store's artifacts (directories with a ``zarr.json`` or an artifact marker),
-    and of directories holding zarr data but neither: broken beyond proof of whose they are."""
+    and of directories holding zarr data but neither: broken beyond proof of whose they are.
+    Links are neither: see :func:`stray_entries`."""
     fs, root = _fs(store)
     if not fs.exists(root):
         return [], []
+    local = _is_local(fs)
     ours, unproven = [], []
     for p in sorted(fs.ls(root, detail=False)):
         name = p.rstrip("/").rsplit("/", 1)[-1]
-        if not fs.isdir(p) or name.startswith("."):
+        if name.startswith(".") or (local and os.path.islink(p)) or not fs.isdir(p):
             continue
         url = store.rstrip("/") + "/" + name
-        if fs.exists(join(p, "zarr.json")) or fs.exists(join(p, ARTIFACT_MARKER)):
+        if fs.exists(join(p, "zarr.json")) or fs.exists(join(p, ARTIFACT_MARKER)) or (
+                local and os.path.lexists(join(p, "zarr.json"))):
             ours.append(url)
         elif fs.glob(join(p, "*", "zarr.json")):
             unproven.append(url)
     return ours, unproven
+
+
+def stray_entries(store: str) -> list[tuple[str, str, bool]]:
+    """What stands in a local store where an artifact directory would, but is none: ``(url, why, removable)``.
+
+    A link (to another store, say) is followed by nothing sbrdf does and is
+    removable (the link only).  A plain file or a FIFO named like a node makes
+    a run of that node refuse; it is not sbrdf's to delete.
+    """
+    fs, root = _fs(store)
+    if not _is_local(fs) or not os.path.isdir(root):
+        return []
+    out = []
+    for name in sorted(os.listdir(root)):
+        path = os.path.join(root, name)
+        url = store.rstrip("/") + "/" + name
+        if name.startswith("."):
+            continue
+        if os.path.islink(path):
+            out.append((url, f"a symbolic link to {os.readlink(path)}, not an artifact: a run of node {name!r} "
+                             f"refuses to write through it", True))
+        elif not os.path.isdir(path) and NODE_NAME.fullmatch(name):
+            out.append((url, f"{_what(path, os.lstat(path).st_mode) if not regular_file(path) else 'a plain file'} "
+                             f"where node {name!r}'s artifact directory would be: a run of that node refuses to "
+                             f"replace it", False))
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -304,10 +462,15 @@ class StoreLock:
     ``wait``: ``False`` refuses at once, ``True`` waits for ever, a number waits that many seconds.
     """
 
-    def __init__(self, store: str, wait: bool | float = False, what: str = ""):
+    def __init__(self, store: str, wait: bool | float = False, what: str = "", read_only: bool = False):
         self.store, self.what = store, what
         self.timeout = -1 if wait is True else (0 if wait is False else float(wait))
         self.lock = None
+        #: Whether a store this process cannot write may be used without writing (``sbrdf verify``):
+        #: then a shared lock is taken on the existing lock file, read-only, and :attr:`note` says so.
+        self.read_only = read_only
+        self.note: str | None = None
+        self._shared: int | None = None
 
     def __enter__(self) -> StoreLock:
         from filelock import FileLock, Timeout
@@ -321,9 +484,17 @@ class StoreLock:
                 logger.warning("store %s is not locked: only local paths and s3:// stores can be; make sure no "
                                "other run writes it at the same time", self.store)
             return self
-        os.makedirs(root, exist_ok=True)
         self.holder = os.path.join(root, HOLDER_FILE)
-        self.lock = FileLock(os.path.join(root, LOCK_FILE), timeout=self.timeout)
+        lock_path = os.path.join(root, LOCK_FILE)
+        for path in (lock_path, self.holder):
+            if os.path.lexists(path) and not regular_file(path):
+                raise RunError(f"store {root}: {os.path.basename(path)} is {_what(path, os.lstat(path).st_mode)}, "
+                               f"not the lock file sbrdf writes; refusing to lock through it (it would write "
+                               f"or block where it leads). Remove it (the link, not what it points to) and run again")
+        if self.read_only and os.path.isdir(root) and not os.access(root, os.W_OK):
+            return self._enter_read_only(root, lock_path)
+        os.makedirs(root, exist_ok=True)
+        self.lock = FileLock(lock_path, timeout=self.timeout)
         try:
             self.lock.acquire()
         except Timeout:
@@ -331,17 +502,58 @@ class StoreLock:
             waited = f" (waited {self.timeout:g} s)" if self.timeout > 0 else ""
             raise StoreBusy(f"store {root} is in use by {self._holder_text()}{waited}; wait for that run to "
                             f"finish, or run with --wait") from None
+        except OSError as e:
+            self.lock = None
+            if self.read_only and e.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+                return self._enter_read_only(root, lock_path)
+            raise RunError(f"store {root}: cannot take the lock {lock_path}: {e.strerror or e}") from None
         self.me = {"pid": os.getpid(), "host": socket.gethostname(), "user": _user(), "what": self.what,
                    "started": datetime.now(UTC).isoformat(timespec="seconds")}
         tmp = f"{self.holder}.{os.getpid()}.{id(self)}.tmp"
-        with open(tmp, "w") as f:
-            json.dump(self.me, f)
-        os.replace(tmp, self.holder)
+        try:
+            with disk_errors(self.store, f"the lock holder file {self.holder}"):
+                with open(tmp, "w") as f:
+                    json.dump(self.me, f)
+                os.replace(tmp, self.holder)  # replaces a name, never writes through a link
+        except BaseException:
+            if os.path.lexists(tmp):
+                os.unlink(tmp)
+            self.lock.release()
+            self.lock = None
+            raise
+        return self
+
+    def _enter_read_only(self, root: str, lock_path: str) -> StoreLock:
+        """A store this process cannot write: a shared ``flock`` on the existing lock file, opened read-only
+        (a run holds it exclusively, so this still waits for or refuses a running run); no lock file, no lock."""
+        import fcntl
+
+        try:
+            fd = os.open(lock_path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        except FileNotFoundError:
+            self.note = (f"store {root} cannot be written by this process: verified read-only, without a lock (it "
+                         f"has no lock file; no run by this user can be writing it)")
+            return self
+        start = time.monotonic()
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if self.timeout == 0 or (self.timeout > 0 and time.monotonic() - start >= self.timeout):
+                    os.close(fd)
+                    raise StoreBusy(f"store {root} is in use by {self._holder_text()}; wait for that run to "
+                                    f"finish, or use --wait") from None
+                time.sleep(0.1)
+        self._shared = fd
+        self.note = f"store {root} cannot be written by this process: verified read-only, under a shared lock"
         return self
 
     def _holder_text(self) -> str:
         for _ in range(20):  # the holder writes its file just after taking the lock
             try:
+                if not regular_file(self.holder):
+                    raise OSError("not a plain file")
                 with open(self.holder) as f:
                     h = json.load(f)
                 return (f"pid {h.get('pid')} on {h.get('host')} (user {h.get('user')}, {h.get('what') or 'a run'}) "
@@ -351,6 +563,9 @@ class StoreLock:
         return "another process (its holder file is missing)"
 
     def __exit__(self, *exc) -> None:
+        if self._shared is not None:
+            os.close(self._shared)  # releases the shared flock
+            self._shared = None
         if self.lock is None:
             return
         if isinstance(self.lock, S3Lease):
@@ -358,9 +573,10 @@ class StoreLock:
             self.lock = None
             return
         try:
-            with open(self.holder) as f:
-                if json.load(f) == self.me:
-                    os.remove(self.holder)
+            if regular_file(self.holder):
+                with open(self.holder) as f:
+                    if json.load(f) == self.me:
+                        os.remove(self.holder)
         except (OSError, ValueError):
             pass
         self.lock.release()

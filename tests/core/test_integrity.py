@@ -299,3 +299,265 @@ def test_a_damaged_chunk_read_on_a_cluster_is_named_too(store, cluster):
     with pytest.raises(RunError, match=r"reflectance: array 'f_r', chunk [0-9.]+: .*re-run"):
         run(fit=CHANGED_FIT, scheduler=client.scheduler.address)
     assert run(fit=CHANGED_FIT)["reflectance"].status == "resumed"
+
+
+# -- nothing outside the store, every store repairable, verify tells the truth ------------------------
+
+
+def snapshot(root: Path) -> dict:
+    """Every entry below ``root`` (links as links) with its bytes: a sentinel that must not change."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        out[str(p.relative_to(root))] = (f"-> {os.readlink(p)}" if p.is_symlink() else
+                                         "dir" if p.is_dir() else p.read_bytes())
+    return out
+
+
+def verify(store: Path, *extra: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``sbrdf verify`` in a child process, so that a hang fails the test instead of stalling it."""
+    return subprocess.run([sys.executable, "-m", "sbrdf_core.cli", "verify", *extra, str(store)],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("what", ["chunk directory", "chunk file"])
+def test_a_link_inside_an_artifact_is_never_followed_to_write_or_delete(store, finished, tmp_path, what):
+    s, run = store
+    outside = tmp_path / "outside"
+    c = chunk(s, "reflectance/f_r")
+    target = c.parent if what == "chunk directory" else c
+    shutil.copytree(target, outside) if target.is_dir() else (outside.mkdir(), shutil.copy(target, outside / c.name))
+    for f in outside.iterdir():  # damaged there: a repair would delete it, a run would rewrite it
+        f.write_bytes(f.read_bytes()[:-3] + b"xyz")
+    before = snapshot(outside)
+    shutil.rmtree(target) if target.is_dir() else target.unlink()
+    target.symlink_to(outside if target.is_dir() else outside / c.name)
+    r = verify(s)
+    assert r.returncode == 1 and "symbolic link" in r.stdout and "Traceback" not in r.stderr, r.stdout + r.stderr
+    r = verify(s, "--repair")
+    assert "repaired" in r.stdout and not target.is_symlink(), r.stdout + r.stderr
+    assert snapshot(outside) == before
+    rep = run()
+    assert rep["reflectance"].status == "resumed"
+    assert snapshot(outside) == before
+    assert_stores_equal(s, finished)
+    # and a run that finds the link itself (no verify first) removes it the same way
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(target) if target.is_dir() else target.unlink()
+    target.symlink_to(outside if what == "chunk directory" else outside / c.name)
+    rep = run()
+    assert rep["reflectance"].status == "resumed" and "symbolic link" in rep["reflectance"].notes[0]
+    assert snapshot(outside) == before and not target.is_symlink()
+    assert_stores_equal(s, finished)
+
+
+def test_damage_behind_complete_false_is_reported_and_repaired(store, finished):
+    s, run = store
+    zarr.open_group(str(s / "fit"), mode="r+").attrs["complete"] = False  # an interrupted run's artifact
+    c = chunk(s, "fit/rms")
+    data = bytearray(c.read_bytes())
+    data[len(data) // 2] ^= 0x40
+    c.write_bytes(bytes(data))  # a chunk counted as done: a resuming run would keep it
+    r = verify(s)
+    assert r.returncode == 1 and "fit  ParamMaps  DAMAGED (and incomplete" in r.stdout and "'rms'" in r.stdout, r.stdout
+    assert verify(s, "--repair").returncode == 1
+    rep = run()
+    assert rep["fit"].status == "resumed"
+    assert verify(s).returncode == 0
+    assert_stores_equal(s, finished)
+
+
+def test_a_chunk_file_replaced_by_a_directory_is_reported_and_rewritten(store, finished):
+    s, run = store
+    c = chunk(s, "register/valid")
+    c.unlink()
+    c.mkdir()
+    (c / "x").write_text("x")
+    r = verify(s)
+    assert r.returncode == 1 and "register" in r.stdout and "lost" in r.stdout, r.stdout
+    assert verify(s, "--repair").returncode == 1
+    assert run()["register"].status == "resumed"
+    assert verify(s).returncode == 0
+    assert_stores_equal(s, finished)
+    # a resuming run clears it too (an incomplete artifact, no verify)
+    c.unlink()
+    c.mkdir()
+    zarr.open_group(str(s / "register"), mode="r+").attrs["complete"] = False
+    assert run()["register"].status == "resumed"
+    assert_stores_equal(s, finished)
+
+
+def test_an_artifact_linked_to_another_store_is_reported_and_the_link_removed(store, finished, tmp_path):
+    s, run = store
+    other = tmp_path / "other"
+    shutil.copytree(finished, other)
+    before = snapshot(other)
+    shutil.rmtree(s / "quantize")
+    (s / "quantize").symlink_to(other / "quantize")
+    r = verify(s)
+    assert r.returncode == 1 and "quantize" in r.stdout and "symbolic link" in r.stdout, r.stdout
+    with pytest.raises(ArtifactError):
+        run()
+    r = verify(s, "--repair")
+    assert "the link was removed" in r.stdout and not (s / "quantize").exists(), r.stdout
+    assert run()["quantize"].status == "computed"
+    assert snapshot(other) == before
+    assert verify(s).returncode == 0
+    assert_stores_equal(s, finished)
+
+
+def test_a_plain_file_where_an_artifact_goes_is_reported_never_deleted(store):
+    s, run = store
+    shutil.rmtree(s / "render")
+    (s / "render").write_text("precious")
+    r = verify(s)
+    assert r.returncode == 1 and "plain file where node 'render'" in r.stdout and "move it away" in r.stdout, r.stdout
+    assert verify(s, "--repair").returncode == 1
+    assert (s / "render").read_text() == "precious"
+    with pytest.raises(ArtifactError, match="not the artifact of node 'render'.*move it away"):
+        run()
+    assert (s / "render").read_text() == "precious"
+
+
+def test_a_fifo_in_place_of_a_zarr_json_is_damage_not_a_hang(store, finished):
+    s, run = store
+    meta = s / "fit" / "params" / "rho_d" / "zarr.json"
+    meta.unlink()
+    os.mkfifo(meta)
+    r = verify(s, timeout=60)
+    assert r.returncode == 1 and "FIFO" in r.stdout, r.stdout + r.stderr
+    assert verify(s, "--repair", timeout=60).returncode == 1
+    assert run()["fit"].status == "computed"
+    assert_stores_equal(s, finished)
+    # a run that meets one (the quantize node's own artifact) does not hang either
+    meta = s / "quantize" / "zarr.json"
+    meta.unlink()
+    os.mkfifo(meta)
+    child = subprocess.run([sys.executable, "-m", "sbrdf_core.cli", "run", "-q", str(s.parent / "graph.yaml")],
+                           capture_output=True, text=True, timeout=120)
+    assert child.returncode == 0, child.stderr
+    assert_stores_equal(s, finished)
+
+
+def test_a_lock_file_that_is_a_link_is_refused_never_written_through(store, tmp_path):
+    s, run = store
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (s / ".sbrdf.lock").unlink(missing_ok=True)
+    (s / ".sbrdf.lock").symlink_to(victim)
+    with pytest.raises(RunError, match=r"\.sbrdf\.lock is a symbolic link to .*victim\.txt.*refusing"):
+        run()
+    r = verify(s)
+    assert r.returncode == 2 and "symbolic link" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert victim.read_text() == "precious" and (s / ".sbrdf.lock").is_symlink()
+
+
+def test_verify_works_on_a_read_only_store(store, tmp_path):
+    s, _ = store
+    (s / ".sbrdf.lock").unlink(missing_ok=True)
+    before = snapshot(s)
+    mounted = None
+    if os.geteuid() == 0:  # root writes through chmod: a read-only bind mount, where mounting is allowed
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        if subprocess.run(["mount", "--bind", "-o", "ro", str(s), str(ro)], capture_output=True).returncode:
+            pytest.skip("running as root, and cannot mount a read-only bind mount here")
+        mounted = ro
+        subprocess.run(["mount", "-o", "remount,bind,ro", str(ro)], capture_output=True)
+    else:
+        subprocess.run(["chmod", "-R", "a-w", str(s)], check=True)
+    target = mounted or s
+    try:
+        if os.access(target, os.W_OK):
+            pytest.skip("the store stays writable here")
+        r = verify(target)
+        assert r.returncode == 0 and "verified read-only" in r.stdout and "0 damaged" in r.stdout, r.stdout + r.stderr
+        r = verify(target, "--repair")
+        assert r.returncode == 2 and "Traceback" not in r.stderr and str(target) in r.stderr, r.stderr
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(mounted)], check=True)
+        else:
+            subprocess.run(["chmod", "-R", "u+w", str(s)], check=True)
+    assert snapshot(s) == before
+
+
+def test_info_on_an_edited_dtype_says_what_is_wrong(store, capsys):
+    s, _ = store
+    meta_path = s / "quantize" / "error" / "zarr.json"
+    meta = json.loads(meta_path.read_text())
+    meta["data_type"] = "not-a-dtype"
+    meta_path.write_text(json.dumps(meta))
+    assert cli(["info", str(s)]) == 0
+    out = capsys.readouterr().out
+    assert "error" in out and "metadata cannot be read" in out and "sbrdf verify" in out
+    assert cli(["info", str(s / "quantize")]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    meta["data_type"] = "float64"
+    meta_path.write_text(json.dumps(meta))
+    assert cli(["info", str(s / "quantize")]) == 0
+    assert "DAMAGED: its node declared shape (20, 24) float32" in capsys.readouterr().out
+
+
+def test_a_full_disk_during_a_run_is_a_clear_error_and_the_run_resumes(store, finished, monkeypatch):
+    import errno
+
+    from sbrdf_core import chunk_files
+
+    s, run = store
+    shutil.rmtree(s / "fit")
+    real = chunk_files._write_encoded
+    calls = []
+
+    def full(f, lay, data):
+        calls.append(1)
+        if len(calls) > 3:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(f, lay, data)
+
+    monkeypatch.setattr(chunk_files, "_write_encoded", full)
+    with pytest.raises(ArtifactError, match=rf"store {s}: no space left on the device writing artifact {s}/fit, "
+                                            r"array '[a-z_/]+', chunk [0-9.]+\. Free space"):
+        run()
+    monkeypatch.undo()
+    assert run()["fit"].status == "resumed"
+    assert_stores_equal(s, finished)
+
+
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """A 6 MiB tmpfs (root only, where mounting is allowed)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=6m", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode:
+        pytest.skip("cannot mount a small file system here")
+    yield mnt
+    subprocess.run(["umount", str(mnt)], check=True)
+
+
+def test_a_really_full_disk_in_a_run_and_in_verify_repair_is_a_clear_error(small_filesystem, finished, write_graph):
+    s = small_filesystem / "s"
+    shutil.copytree(finished, s)
+    chunk(s, "reflectance/f_r").write_bytes(b"garbage!")
+    filler = small_filesystem / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+    try:  # fill the file system to the last byte
+        while os.write(fd, b"\0" * 4096):
+            pass
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    r = verify(s, "--repair")
+    assert "Traceback" not in r.stderr and r.returncode in (1, 2), r.stderr
+    assert "no space left" in r.stdout + r.stderr and str(s) in r.stdout + r.stderr, r.stdout + r.stderr
+    graph = write_graph(graph_yaml(s, fit=CHANGED_FIT))
+    child = subprocess.run([sys.executable, "-m", "sbrdf_core.cli", "run", "-q", str(graph)],
+                           capture_output=True, text=True, timeout=300)
+    assert child.returncode == 2 and "Traceback" not in child.stderr, child.stderr
+    assert "no space left" in child.stderr and f"store {s}" in child.stderr, child.stderr
+    filler.unlink()
+    assert verify(s, "--repair").returncode == 1
+    child = subprocess.run([sys.executable, "-m", "sbrdf_core.cli", "run", "-q", str(graph)],
+                           capture_output=True, text=True, timeout=300)
+    assert child.returncode == 0, child.stderr
