@@ -579,7 +579,34 @@ class _Validator:
             of = p.extra.get("model_values_of")
             if of and isinstance(values.get(p.name), dict) and values[p.name]:
                 self._model_values(p.name, values, of, owner, path)
+        for p in declared:  # {device: NAME, params: {...}} inside a parameter: NAME's own declarations
+            value = values.get(p.name)
+            if p.schema is not None and isinstance(value, dict):
+                self._nested_plugins(p.schema, value, path + (p.name,))
+            elif p.values is not None and isinstance(value, dict):
+                for key, sub in value.items():
+                    if isinstance(sub, dict):
+                        self._nested_plugins(p.values, sub, path + (p.name, key))
         return values
+
+    def _nested_plugins(self, schema: tuple[Param, ...], value: dict, path: tuple) -> None:
+        """A nested mapping naming a plugin (a key declared with ``plugin_category``) and giving its ``params``:
+        the plugin must be installed and the parameters must follow its declarations.  Checked, not rewritten
+        (like every nested schema: the graph's values and its cache tokens stay as written)."""
+        for q in schema:
+            category = q.extra.get("plugin_category")
+            name = value.get(q.name)
+            if not category or not isinstance(name, str):
+                continue
+            if name not in self.reg.specs.get(category, {}):
+                known = ", ".join(self.reg.names(category)) or "none installed"
+                self.problem(f"{'.'.join(map(str, path[3:] + (q.name,)))}: unknown {category} plugin {name!r}; "
+                             f"installed: {known}", path + (q.name,))
+                continue
+            given = value.get("params")
+            if any(r.name == "params" for r in schema) and isinstance(given, dict):
+                sub = self.reg.get(category, name)
+                self._params(list(sub.params or ()), given, f"{category} {name!r}", path + ("params",))
 
     def _model_values(self, name: str, values: dict, of: tuple[str, str], owner: str, path: tuple) -> None:
         """``params: {rho_d: 0.2}`` of the model named by parameter ``of[0]``, configured by ``of[1]``: each

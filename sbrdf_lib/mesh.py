@@ -33,6 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sbrdf_core import input_files
 from sbrdf_core.errors import SbrdfError
 
 __all__ = ["FORMATS", "MeshData", "load_mesh", "load_obj", "mesh_files", "mesh_vertex_radius", "obj_vertex_radius", "read_obj"]
@@ -48,7 +49,7 @@ def read_obj(path: str) -> tuple[list, list, list, dict, list]:
     """
     v, vt, vn, corners, faces = [], [], [], {}, []
     try:
-        lines = Path(path).read_text().splitlines()
+        lines = input_files.read_bytes(path).decode("utf-8").splitlines()
     except OSError as e:
         raise SbrdfError(f"{path}: cannot read mesh: {e.strerror}") from None
     for lineno, line in enumerate(lines, 1):
@@ -100,7 +101,7 @@ def mesh_files(path: str) -> list[str]:
         import json
 
         try:
-            header = json.loads(Path(path).read_text())
+            header = json.loads(input_files.read_bytes(path, text=True))
             uris = [b.get("uri", "") for b in header.get("buffers", [])]
         except (OSError, ValueError, AttributeError, TypeError):
             return out
@@ -153,10 +154,18 @@ def load_mesh(path: str) -> MeshData:
                          f"supported: {', '.join(FORMATS)}")
     try:
         st = Path(path).stat()
+        input_files.check_file(path)  # a device or FIFO would be read forever, a huge file whole
     except OSError as e:
         raise SbrdfError(f"{path}: cannot read mesh: {e.strerror}") from None
     stamps = [(st.st_mtime_ns, st.st_size)]
     for f in mesh_files(path)[1:]:  # a .gltf's buffers: the cache follows them too
+        try:
+            input_files.check_file(f)
+        except OSError as e:
+            if not isinstance(e, input_files.InputFileError):
+                stamps.append(None)
+                continue
+            raise SbrdfError(f"{f}: cannot read the buffer of mesh {path}: {e.strerror}") from None
         try:
             s = Path(f).stat()
             stamps.append((s.st_mtime_ns, s.st_size))
@@ -226,7 +235,7 @@ def _gltf(trimesh, path: str, suffix: str) -> MeshData:
     import json
     import struct
 
-    data = Path(path).read_bytes()
+    data = input_files.read_bytes(path)
     chunks = []
     if suffix == ".glb":
         if data[:4] != b"glTF":

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sbrdf_core import _yaml
+from sbrdf_core import _yaml, input_files
 from sbrdf_core.contracts import optional
 from sbrdf_core.errors import Problem, SbrdfError
 from sbrdf_core.params import Param, resolve
@@ -440,6 +440,17 @@ def plugin_keys(registry=None) -> PluginKeys:
     return PluginKeys(sections, tuple(material), tuple(objects), shapes)
 
 
+def _unreadable(path: str, text: bool) -> str | None:
+    """Why a file a scene names cannot be read (``does not exist``, a device, over the size limit), or ``None``."""
+    try:
+        input_files.check_file(path, text=text)
+    except FileNotFoundError:
+        return "does not exist"
+    except OSError as e:
+        return f"cannot be read: {e.strerror}"
+    return None
+
+
 def load_scene(source: str | Path, material_names: tuple[str, ...] = (), registry=None) -> Scene:
     """Read and validate a scene file; raises :class:`SceneError` listing every problem with its line.
 
@@ -608,8 +619,10 @@ class _SceneValidator:
         for p in schema:
             if (p.extra or {}).get("path") and isinstance(values[p.name], str):
                 values[p.name] = self.path(values[p.name])
-                if "://" not in values[p.name] and not Path(values[p.name]).is_file():
-                    self.problem(f"{name}: {p.name} {values[p.name]} does not exist", (name, p.name))
+                if "://" not in values[p.name]:
+                    why = _unreadable(values[p.name], text=False)
+                    if why:
+                        self.problem(f"{name}: {p.name} {values[p.name]} {why}", (name, p.name))
         return SimpleNamespace(**values)
 
     def materials(self, raw) -> dict[str, MaterialRef]:
@@ -685,8 +698,8 @@ class _SceneValidator:
                 if suffix not in MESH_FORMATS:
                     self.problem(f"object {i}: mesh file {params['file']}: unsupported format "
                                  f"{suffix or '(no suffix)'!r}; supported: {', '.join(MESH_FORMATS)}", path + ("file",))
-                elif "://" not in params["file"] and not Path(params["file"]).exists():
-                    self.problem(f"object {i}: mesh file {params['file']} does not exist", path + ("file",))
+                elif "://" not in params["file"] and (why := _unreadable(params["file"], text=False)):
+                    self.problem(f"object {i}: mesh file {params['file']} {why}", path + ("file",))
                 elif "://" not in params["file"] and suffix != ".obj":  # OBJ errors: the renderers' check_scene
                     try:
                         load_mesh(params["file"])
@@ -737,7 +750,7 @@ def scene_fingerprint(path: str, registry=None) -> str:
 
     h = hashlib.sha256()
     try:
-        h.update(Path(path).read_bytes())
+        h.update(input_files.read_bytes(path, text=True))  # regular files only, bounded (as load_scene reads it)
         keys = plugin_keys(registry)
         scene = load_scene(path, registry=registry)
     except (OSError, SceneError):

@@ -109,9 +109,12 @@ def resample_cube(faces: np.ndarray, size: int) -> np.ndarray:
 
 def load_environment(file: str, layout: str, size: int, intensity: float = 1.0) -> np.ndarray:
     """The scene's environment as cube faces ``(6, size, size, 3)`` float64 (radiance × intensity)."""
+    from sbrdf_core.input_files import check_file
     from sbrdf_core.io import read_exr
 
     try:
+        if "://" not in str(file):
+            check_file(file)  # a regular file within the size limit: OpenEXR would block on a FIFO
         image = np.asarray(read_exr(file), np.float64)
     except SbrdfError:
         raise

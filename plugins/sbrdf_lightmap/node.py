@@ -72,7 +72,9 @@ class LightmapBake(NodeKind):
         import hashlib
 
         try:
-            return hashlib.sha256(open(ctx.params["scene"], "rb").read()).hexdigest()
+            from sbrdf_core.input_files import read_bytes
+
+            return hashlib.sha256(read_bytes(ctx.params["scene"], text=True)).hexdigest()  # never a device whole
         except OSError:
             return ""
 

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sbrdf_core import input_files
+
 ANGLES = ("theta_i", "phi_i", "theta_s", "phi_s")
 XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
                         [-0.9692660, 1.8760108, 0.0415560],
@@ -56,9 +58,11 @@ def direction(theta, phi) -> np.ndarray:
 def read_astm(path: str | os.PathLike) -> AstmTable:
     path = Path(path)
     try:
-        lines = path.read_text(encoding="utf-8", errors="strict").splitlines()
+        lines = input_files.read_bytes(path, text=True).decode("utf-8", errors="strict").splitlines()
     except FileNotFoundError:
         raise AstmError(f"{path}: no such ASTM file") from None
+    except OSError as e:  # a device, FIFO or directory, or over the text limit
+        raise AstmError(f"{path}: cannot read the ASTM file: {e.strerror}") from None
     header: dict[str, str] = {}
     names = None
     start = 0

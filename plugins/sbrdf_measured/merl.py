@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sbrdf_core import input_files
+
 #: The MERL database's table dimensions (θh, θd, φd).
 MERL_DIMS = (90, 90, 180)
 #: f_r = stored · SCALE[c] (BRDFRead.cpp's RED_SCALE, GREEN_SCALE, BLUE_SCALE).
@@ -181,9 +183,11 @@ def read_merl(path: str | os.PathLike) -> MerlTable:
     """Read a MERL ``.binary`` file; a wrong size or header is a :class:`MerlError` naming the file."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        raw = input_files.read_bytes(path)  # regular files only, bounded: never /dev/zero read whole
     except FileNotFoundError:
         raise MerlError(f"{path}: no such MERL file") from None
+    except OSError as e:
+        raise MerlError(f"{path}: cannot read the MERL file: {e.strerror}") from None
     if len(raw) < 12:
         raise MerlError(f"{path}: {len(raw)} bytes, shorter than the MERL header (three int32 dimensions)")
     dims = tuple(int(n) for n in np.frombuffer(raw, "<i4", 3))

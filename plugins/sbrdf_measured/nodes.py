@@ -61,7 +61,8 @@ class MerlFromModel(NodeKind):
     params = (
         Param("model", "str", "cook-torrance", "BRDF model to tabulate", extra={"plugin_category": "brdf-model"}),
         Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
-        Param("params", "dict", {}, "the model's parameter values (scalars or RGB triples); others at their defaults"),
+        Param("params", "dict", {}, "the model's parameter values (scalars or RGB triples); others at their defaults",
+              extra={"model_values_of": ("model", "model_params")}),
         Param("dims", "list", list(MERL_DIMS), "table dimensions [theta_h, theta_d, phi_d]; the database's are "
               "[90, 90, 180]", length=3, item="int", bounds=(2, 1000)),
     )

@@ -53,7 +53,15 @@ def read_utia(path: str | os.PathLike) -> AstmTable:
     if size != FILE_BYTES:
         raise UtiaError(f"{path}: {size} bytes; a UTIA BRDF .bin is {FILE_BYTES} bytes "
                         f"(float64 {'x'.join(map(str, SHAPE))}: RGB x theta_i x phi_i x theta_v x phi_v)")
-    data = np.fromfile(path, dtype="<f8").reshape(SHAPE)
+    from sbrdf_core.input_files import read_bytes
+
+    try:
+        raw = read_bytes(path)  # a regular file only: st_size of a FIFO or device says nothing
+    except OSError as e:
+        raise UtiaError(f"{path}: cannot read the UTIA BRDF file: {e.strerror}") from None
+    if len(raw) != FILE_BYTES:
+        raise UtiaError(f"{path}: {len(raw)} bytes read; a UTIA BRDF .bin is {FILE_BYTES} bytes")
+    data = np.frombuffer(raw, dtype="<f8").reshape(SHAPE)
     wi, wo = grid_directions()
     return AstmTable(wi, wo, data.reshape(3, -1).T.copy(), ("R", "G", "B"), {"format": "utia"}, str(path))
 

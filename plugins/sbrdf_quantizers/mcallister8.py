@@ -134,12 +134,29 @@ class McAllister8Quantizer:
     #: The hardware's exponent lookup table, for renderers that emulate it (``gf4``) through the registry.
     exponent_table = staticmethod(exponent_table)
 
+    @staticmethod
+    def check_params(params) -> list[tuple[str, str]]:
+        """The alpha mask is a regular file within the size limit (its pixels are read when the node runs)."""
+        alpha = params.get("alpha")
+        if alpha is None or "://" in str(alpha):
+            return []
+        from sbrdf_core.input_files import check_file
+
+        try:
+            check_file(alpha)
+        except OSError as e:
+            return [("alpha", f"cannot read the alpha mask {alpha}: {e.strerror}")]
+        return []
+
     def alpha_codes(self, shape) -> np.ndarray | None:
         """The transparency mask (``alpha``: an 8- or 16-bit PNG of the texel grid; 0 = cut away), as uint8."""
         if self.alpha is None:
             return None
+        from sbrdf_core.input_files import check_file
         from sbrdf_core.io.images import read_png
 
+        if "://" not in str(self.alpha):
+            check_file(self.alpha)  # a regular file within the size limit: never a FIFO or device read whole
         img = np.asarray(read_png(self.alpha))
         if img.ndim == 3:
             img = img[..., -1] if img.shape[-1] in (2, 4) else img[..., 0]

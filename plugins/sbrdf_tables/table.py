@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sbrdf_core.input_files import check_file
+
 COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
 QUANTITIES = ("p", "bsdf")
 #: |cos θ_o| below this: p / |cos θ_o| is undefined, the BSDF value is treated as unmeasured.
@@ -146,8 +148,12 @@ class MeasuredTable:
 def read_table(path) -> MeasuredTable:
     """Read a table file; :class:`TableError` names the file and line of any problem."""
     path = Path(path)
-    if not path.is_file():
-        raise TableError(f"{path}: no such table file")
+    try:
+        check_file(path, text=True)  # a regular file within the text limit before the csv reader starts
+    except FileNotFoundError:
+        raise TableError(f"{path}: no such table file") from None
+    except OSError as e:
+        raise TableError(f"{path}: cannot read the table file: {e.strerror}") from None
     rows, header, header_line = [], None, 0
     with path.open(newline="") as fh:
         for line_no, row in enumerate(csv.reader(fh), start=1):

@@ -9,6 +9,7 @@ and graphs too big for the disk or the memory refused up front.
 
 from __future__ import annotations
 
+import os
 import shutil
 import textwrap
 import time
@@ -285,6 +286,64 @@ def test_measured_table_file_is_read_at_validation(tmp_path, registry):
     only(invalid(path, registry), 4, "t.csv:3: p is not a number: 'abc'")
     table.write_bytes("# caf\u00e9\ntheta_i,phi_i,theta_o,phi_o,p\n".encode("latin-1"))
     only(invalid(path, registry), 4, "not UTF-8")
+
+
+# -- files a scene or node names: regular files only, never a blocking open ------------------------------------
+
+
+class _Hung(Exception):
+    pass
+
+
+def within(seconds: int, call):
+    """``call()``, failing the test if it blocks longer than ``seconds`` (an open of a FIFO nobody writes)."""
+    import signal
+
+    def hung(*_):
+        raise _Hung(f"blocked for more than {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        return call()
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.mark.parametrize("where", ["mesh", "environment", "table", "merl"])
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero"])
+def test_a_fifo_or_device_named_by_a_scene_or_node_is_refused_naming_it(tmp_path, registry, where, special):
+    if special == "fifo":
+        target = tmp_path / {"mesh": "m.obj", "environment": "sky.exr", "table": "t.csv", "merl": "m.binary"}[where]
+        os.mkfifo(target)  # nobody writes: opening it for reading would wait forever
+        kind = "a FIFO (named pipe), not a regular file"
+    else:
+        if not os.path.exists(special):
+            pytest.skip(f"no {special}")
+        target, kind = Path(special), "a character device, not a regular file"
+    if where in ("mesh", "environment"):
+        scene = (SCENE.replace("#more", f"  - {{shape: mesh, file: {target}, material: paint}}") if where == "mesh"
+                 else SCENE + f"environment: {{file: {target}}}\n")
+        path, line = render_graph(tmp_path, scene), 8
+    else:
+        node = (f"{{kind: MeasuredTable, params: {{path: {target}}}}}" if where == "table"
+                else f"{{kind: MeasuredBRDF, params: {{path: {target}, format: merl}}}}")
+        path, line = tmp_path / "graph.yaml", 4
+        path.write_text(header(tmp_path) + f"nodes:\n  table: {node}\n"
+                        "  fit: {kind: Fit, plugin: lm, in: {samples: table}, params: {model: lambert}}\n")
+    err = within(20, lambda: invalid(path, registry))
+    p = only(err, line, str(target))
+    # /dev/zero has no mesh suffix: refused for its format before it is opened
+    assert kind in p.message or (where == "mesh" and "unsupported format" in p.message), p.message
+
+
+def test_a_mesh_over_the_data_limit_is_refused(tmp_path, registry, monkeypatch):
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n" + "# padding\n" * 100)
+    monkeypatch.setenv("SBRDF_MAX_INPUT_BYTES", "100")
+    scene = SCENE.replace("#more", "  - {shape: mesh, file: tri.obj, material: paint}")
+    only(invalid(render_graph(tmp_path, scene), registry), 8, "tri.obj", "more than the 100-byte limit",
+         "SBRDF_MAX_INPUT_BYTES")
 
 
 # -- sizes: output bytes and peak memory estimated up front -----------------------------------------------------

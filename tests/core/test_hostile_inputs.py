@@ -243,3 +243,60 @@ def test_out_of_disk_space_is_said_plainly(tmp_path):
     r = sbrdf("-p", "hostile_plugin", "run", "-q", str(path), env={"PYTHONPATH": str(tmp_path)})
     no_traceback(r)
     assert r.returncode != 0 and "out of disk space on " in r.stderr, r.stderr
+
+
+# -- nested plugin references: {device: NAME, params: {...}} follow NAME's declarations --------------------------
+
+
+def test_a_camera_devices_params_are_checked_at_validation(tmp_path, capsys):
+    path = tmp_path / "graph.yaml"
+    path.write_text(textwrap.dedent(f"""\
+        name: g
+        store: {tmp_path / 'store'}
+        nodes:
+          capture:
+            kind: Capture
+            plugin: virtual-folder
+            params:
+              path: {tmp_path / 'capture'}
+              camera:
+                device: virtual-camera
+                params: {{width: 64, height: 48, focal_mm: 12, texels: big}}
+        """))
+    rc, out = validate(capsys, path)
+    assert rc == 2, out
+    assert f"{path}:11: unknown parameter 'focal_mm' for device 'virtual-camera'" in out
+    assert f"{path}:11: device 'virtual-camera': parameter 'texels' should be list, got str 'big'" in out
+    path.write_text(path.read_text().replace("focal_mm: 12, texels: big", "focal_px: 80"))
+    rc, out = validate(capsys, path)
+    assert rc == 0, out
+
+
+def test_a_motors_device_params_are_checked_at_validation(tmp_path, capsys):
+    path = tmp_path / "graph.yaml"
+    path.write_text(textwrap.dedent(f"""\
+        name: g
+        store: {tmp_path / 'store'}
+        nodes:
+          capture:
+            kind: Capture
+            plugin: gonio
+            params:
+              path: {tmp_path / 'capture'}
+              motors:
+                arm: {{device: ptu, params: {{port: sim, tolerance_deg: 99}}}}
+                light: {{device: no-such-motor, params: {{port: sim}}}}
+        """))
+    rc, out = validate(capsys, path)
+    assert rc == 2, out
+    assert f"{path}:10: device 'ptu': parameter 'tolerance_deg' = 99.0 is outside [0.0, 10.0]" in out
+    assert f"{path}:11: motors.light.device: unknown device plugin 'no-such-motor'" in out
+
+
+def test_merl_from_model_params_are_checked_against_the_model(tmp_path, capsys):
+    path = tmp_path / "graph.yaml"
+    path.write_text(f"name: g\nstore: {tmp_path / 'store'}\nnodes:\n"
+                    "  merl: {kind: MerlFromModel, params: {model: cook-torrance, params: {alpha: -1, shine: 2}}}\n")
+    rc, out = validate(capsys, path)
+    assert rc == 2 and f"{path}:4: MerlFromModel node: params.alpha = -1 is outside" in out, out
+    assert "params.shine: model 'cook-torrance' has no parameter 'shine'" in out
