@@ -124,7 +124,7 @@ class Indexer(MotorController):
             rev = 360.0 / self.gear_ratio
             self._set(f"{n}V", round(self.speed_deg_s / rev, 4), "{:.4f}", r"\d*\.?\d+", float)
             self._set(f"{n}A", round(acceleration_deg_s2 / rev, 4), "{:.4f}", r"\d*\.?\d+", float)
-            self._last, _ = self._read_position(self.axes)
+            self._last, _ = self._read_agreed(self.axes)
         except Exception:
             self.close()
             raise

@@ -133,7 +133,7 @@ class PanTiltUnit(MotorController):
                 self.limits[axis] = (max(lo, ulo), min(hi, uhi))
                 speed = max(1, round(self.speed_deg_s * 3600.0 / self.arcsec_per_step[axis]))
                 self._set_speed(letter, word, speed)
-            self._last, _ = self._read_position(self.axes)
+            self._last, _ = self._read_agreed(self.axes)
         except Exception:
             self.close()
             raise

@@ -25,7 +25,8 @@ through, and what the driver was doing (``moving to pan_deg=20.0000``).
 Values that can be verified are: constants the drivers read at connection
 (resolutions, factory limits) are queried until two readings in a row agree
 and pass the controller model's checks (:meth:`MotorController._verified`),
-settings are read back after they are sent, and every move is read back.
+settings are read back after they are sent, and every move is read back
+until two readings in a row agree (:meth:`MotorController._read_agreed`).
 Line noise that turns one digit into another keeps a reply valid ASCII, so
 only a repeated, cross-checked reading catches it (:class:`ImplausibleReply`).
 The protocol drivers implement only the ``_send_move``, ``_wait_for_move``,
@@ -104,7 +105,7 @@ class MotorController:
             try:
                 self._send_move(targets)
                 self._wait_for_move(targets)
-                read, reply = self._read_position(tuple(targets))
+                read, reply = self._read_agreed(tuple(targets))
             except DeviceError as e:
                 self._fail(e, doing="moving to " + ", ".join(f"{k}={v:.4f}" for k, v in targets.items()))
             off = {k: read[k] - v for k, v in targets.items() if abs(read[k] - v) > self.tolerance_deg}
@@ -126,10 +127,35 @@ class MotorController:
         """Current position of every axis in degrees, keyed like :meth:`move_to`."""
         self._require_open("position")
         try:
-            read, _ = self._read_position(self.axes)
+            read, _ = self._read_agreed(self.axes)
         except DeviceError as e:
             self._fail(e, doing="reading the position")
         return read
+
+    def _read_agreed(self, axes: tuple[str, ...]) -> tuple[dict[str, float], str]:
+        """The position of ``axes`` read until two readings in a row agree (the motors are at rest).
+
+        A digit changed by line noise keeps a position reply valid ASCII and,
+        in the last digits, inside the move tolerance: read once, it would be
+        recorded as the pose.  A second query costs one short exchange per
+        move; a disagreement costs one more, up to ``3 + link.retries``
+        readings, then :class:`ImplausibleReply` lists them.
+        """
+        limit = max(2, 3 + self.link.retries)
+        readings: list[dict[str, float]] = []
+        reply = ""
+        for _ in range(limit):
+            read, reply = self._read_position(axes)
+            if readings and read == readings[-1]:
+                if len(readings) > 1:
+                    self.reread.append(("position", readings + [read]))
+                return read, reply
+            readings.append(read)
+        shown = ", ".join(str(r) for r in readings)
+        raise ImplausibleReply(f"position: {len(readings)} readings ({shown}) never agreed twice in a row while the "
+                               f"motors were at rest (line noise changing digits?)", readings=readings,
+                               device=self.link.device, port=self.port, command=self._position_command(axes[0]),
+                               received=reply)
 
     def stop(self) -> None:
         """Halt all motion now (raises if the controller does not acknowledge)."""
@@ -197,7 +223,7 @@ class MotorController:
     def _full_position(self, read: dict[str, float]) -> dict[str, float]:
         if set(read) == set(self.axes):
             return read
-        rest, _ = self._read_position(tuple(a for a in self.axes if a not in read))
+        rest, _ = self._read_agreed(tuple(a for a in self.axes if a not in read))
         return {a: {**read, **rest}[a] for a in self.axes}
 
     def _require_open(self, what: str) -> None:
