@@ -42,7 +42,11 @@ def _registry_for(plugins: tuple[str, ...]):
 
     disabled = [p[3:] for p in plugins if p.startswith("no:")]
     extra = [p for p in plugins if not p.startswith("no:")]
-    return Registry(disabled=disabled, extra=extra)
+    try:
+        return Registry(disabled=disabled, extra=extra)
+    except ImportError as e:  # a -p MODULE that does not import: the user's input, so no traceback
+        module = next((m for m in extra if e.name and (m == e.name or m.startswith(e.name + "."))), e.name or "?")
+        raise PluginError(f"-p {module}: the plugin module cannot be imported: {e}") from None
 
 
 def cmd_validate(args) -> int:

@@ -300,3 +300,11 @@ def test_merl_from_model_params_are_checked_against_the_model(tmp_path, capsys):
     rc, out = validate(capsys, path)
     assert rc == 2 and f"{path}:4: MerlFromModel node: params.alpha = -1 is outside" in out, out
     assert "params.shine: model 'cook-torrance' has no parameter 'shine'" in out
+
+
+def test_a_plugin_module_that_does_not_import_is_named_without_a_traceback(tmp_path):
+    path = sample_graph(tmp_path, "seed: 1")
+    r = sbrdf("-p", "no_such_plugin_module", "validate", str(path))
+    no_traceback(r)
+    assert r.returncode == 2 and "sbrdf: error: -p no_such_plugin_module: the plugin module cannot be imported" \
+        in r.stderr, r.stderr
