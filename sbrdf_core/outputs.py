@@ -117,9 +117,12 @@ def output_problem(value: str, store: str, nodes: Iterable[str], anywhere: bool 
                         f"artifacts (e.g. {root}/<name>.zarr)"), False
             if first in STORE_FILES:
                 return f"{value!r} is the store's own file {root / first}", False
-            hit = enclosing(path, root) or (("artifact", path) if path.is_dir() and is_artifact(path) else None)
-            if hit and hit[0] == "artifact":
-                return f"{value!r} lies inside the artifact directory {hit[1]}; name a path beside the artifacts", False
+            # Any artifact on the way down from the store root (one another graph wrote there, too), or the path.
+            inner = next((d for d in [path, *path.parents] if d != root and _inside(d, root) and d.is_dir()
+                          and is_artifact(d)), None)
+            if inner is not None:
+                what = "is" if inner == path else "lies inside"
+                return f"{value!r} {what} the artifact directory {inner}; name a path beside the artifacts", False
             return None, False
     hit = enclosing(path) or (("store", path) if path.is_dir() and is_store_root(path) else None)
     if hit is not None:

@@ -118,7 +118,8 @@ def test_a_foreign_artifact_directory_in_the_store_is_refused(tmp_path):
     foreign = tmp_path / "store" / "old_node"
     foreign.mkdir(parents=True)
     (foreign / ".sbrdf-artifact").write_text('{"node": "old_node", "kind": "ParamMaps"}')
-    refused(write_graph(tmp_path, foreign / "f.zarr"), "inside the artifact directory")
+    refused(write_graph(tmp_path, foreign / "f.zarr"), "lies inside the artifact directory")
+    refused(write_graph(tmp_path, foreign), "is the artifact directory")  # another graph's node, same store
 
 
 def test_two_nodes_writing_one_path_are_refused(tmp_path):
