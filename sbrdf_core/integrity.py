@@ -202,12 +202,12 @@ def check_artifact(url: str, full: bool = False) -> Damage:
         if local:
             _odd_entries(d, root, {})
         return d
+    d.kind = attrs.get("kind")
+    d.complete = bool(attrs.get("complete"))
     if local:  # before any other read: a FIFO blocks its reader, a link leads out of the store
         _odd_entries(d, root, _layouts(attrs))
         if d:
             return d
-    d.kind = attrs.get("kind")
-    d.complete = bool(attrs.get("complete"))
     layouts = _layouts(attrs)
     if not layouts:  # written before layouts were recorded: no inventory, chunks read as they are
         layouts = {n: ArrayLayout(tuple(z.shape), tuple(z.shards or z.chunks), str(z.dtype))

@@ -698,7 +698,8 @@ class ArtifactWriter:
         group = None
         for name, lay in layouts.items():
             if not (self._array_ok(name, lay) and self._array_ok(_marker_name(name), None, lay)):
-                group = group or zarr.open_group(store=self.url, mode="r+")
+                if group is None:  # (a Group's truth value lists its members)
+                    group = zarr.open_group(store=self.url, mode="r+")
                 logger.info("artifact %s: creating array %r (and its done markers) again", self.url, name)
                 self._create(group, name, lay, overwrite=True)
         # A marker whose chunk file is gone proves nothing any more: rewrite that chunk.
