@@ -126,6 +126,32 @@ class SampleModel(NodeKind):
         Param("tile", "int", None, "texel tile edge per chunk", bounds=(1, 4096), nullable=True),
     )
 
+    @staticmethod
+    def check_params(params) -> list[tuple[str, str]]:
+        """An explicit pose plan is a list of ``[x, y, z]`` mm positions, finite, one camera per light, checked
+        at validation with its line rather than failing when the node runs."""
+        problems: list[tuple[str, str]] = []
+        counts = {}
+        for key in ("light_pos", "camera_pos"):
+            value = params.get(key)
+            if value is None:
+                continue
+            for i, row in enumerate(value):
+                ok = isinstance(row, list) and len(row) == 3 and all(
+                    isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in row)
+                if not ok:
+                    problems.append((key, f"{key}[{i}] should be [x, y, z] in mm (three finite numbers), got {row!r}"))
+                    break
+            counts[key] = len(value)
+        if not problems and "camera_pos" in counts and "light_pos" not in counts:
+            problems.append(("camera_pos", "camera_pos needs light_pos: a pose plan gives both (or light_pos alone)"))
+        elif not problems and len(counts) == 2 and counts["light_pos"] != counts["camera_pos"]:
+            problems.append(("camera_pos", f"camera_pos has {counts['camera_pos']} positions, light_pos "
+                                           f"{counts['light_pos']}: give one per pose"))
+        elif not problems and counts.get("light_pos") == 0:
+            problems.append(("light_pos", "light_pos is empty: give at least one pose"))
+        return problems
+
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da

@@ -308,3 +308,14 @@ def test_a_plugin_module_that_does_not_import_is_named_without_a_traceback(tmp_p
     no_traceback(r)
     assert r.returncode == 2 and "sbrdf: error: -p no_such_plugin_module: the plugin module cannot be imported" \
         in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("plan, says", [
+    ("light_pos: [[0, 0, 500], [1, 2]]", "light_pos[1] should be [x, y, z] in mm (three finite numbers), got [1, 2]"),
+    ("light_pos: [a, b]", "light_pos[0] should be [x, y, z] in mm"),
+    ("light_pos: [[0, 0, 500]]\ncamera_pos: [[0, 0, 500], [0, 0, 400]]", "camera_pos has 2 positions, light_pos 1"),
+    ("camera_pos: [[0, 0, 500]]", "camera_pos needs light_pos"),
+])
+def test_a_sample_model_pose_plan_is_checked_at_validation(tmp_path, capsys, plan, says):
+    rc, out = validate(capsys, sample_graph(tmp_path, plan))
+    assert rc == 2 and ": SampleModel node: " in out and says in out, out
