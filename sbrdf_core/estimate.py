@@ -61,6 +61,8 @@ def parse_size(value: Any) -> int:
     """Bytes from a number or a string like ``"500 GB"``, ``"2TiB"``, ``"1e12"``; ``ValueError`` otherwise."""
     if isinstance(value, bool):
         raise ValueError(f"not a size: {value!r}")
+    if isinstance(value, int) and value >= 2**63:  # beyond any disk; and a float of it may overflow
+        raise ValueError(f"not a size: an integer of {value.bit_length()} bits is more than any disk or memory")
     if isinstance(value, (int, float)):
         if not (value == value and 0 < value < float("inf")):
             raise ValueError(f"not a positive size: {value!r}")

@@ -441,10 +441,14 @@ class _Validator:
         if protocol == "file":
             local = Path(raw.split("://", 1)[-1])
             local = local if local.is_absolute() else (self.base / local)
-            url = str(local.resolve())
-            probe = local
-            while not probe.exists() and probe != probe.parent:
-                probe = probe.parent
+            try:
+                url = str(local.resolve())
+                probe = local
+                while not probe.exists() and probe != probe.parent:
+                    probe = probe.parent
+            except (OSError, ValueError) as e:  # a name too long, a NUL byte, a loop of links
+                self.problem(f"store {raw[:200]!r} cannot be opened: {getattr(e, 'strerror', None) or e}", ("store",))
+                return ""
             if probe.exists() and not probe.is_dir():
                 self.problem(f"store {raw!r} cannot be opened: {probe} is a file, not a directory", ("store",))
             elif not os.access(probe, os.W_OK | os.X_OK):

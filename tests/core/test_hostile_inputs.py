@@ -319,3 +319,20 @@ def test_a_plugin_module_that_does_not_import_is_named_without_a_traceback(tmp_p
 def test_a_sample_model_pose_plan_is_checked_at_validation(tmp_path, capsys, plan, says):
     rc, out = validate(capsys, sample_graph(tmp_path, plan))
     assert rc == 2 and ": SampleModel node: " in out and says in out, out
+
+
+@pytest.mark.parametrize("line, says", [
+    (f"limits: {{max_memory: {'9' * 400}}}", "limits: max_memory: not a size: an integer of 1329 bits"),
+    ("store: /tmp/" + "a" * 5000, "cannot be opened: File name too long"),
+    ('store: "/tmp/a\\0b"', "cannot be opened: embedded null byte"),
+])
+def test_sizes_and_store_paths_no_system_call_takes_are_line_errors(tmp_path, capsys, line, says):
+    path = sample_graph(tmp_path, "seed: 1")
+    text = path.read_text()
+    if line.startswith("store:"):
+        text = text.replace(f"store: {tmp_path / 'store'}", line)
+    else:
+        text = text.replace("nodes:", line + "\nnodes:")
+    path.write_text(text)
+    rc, out = validate(capsys, path)
+    assert rc == 2 and f"{path}:" in out and says in out, out
