@@ -80,6 +80,8 @@ class Graph:
     variables: dict[str, Any] = field(default_factory=dict)
     #: The overrides applied (``"fit.params.model_params.lobes": 2``), in the order given.
     overrides: dict[str, Any] = field(default_factory=dict)
+    #: Where plugin output paths may lie outside the store: ``(anywhere, folders)`` from ``allow_outside_store``.
+    outside_store: tuple[bool, tuple[str, ...]] = (False, ())
 
     def url(self, node: str) -> str:
         """Where ``node``'s artifact lives."""
@@ -415,7 +417,14 @@ class _Validator:
             text=self.text,
             variables=self.variables,
             overrides=dict(self.applied),
+            outside_store=self._outside_store(doc),
         )
+
+    def _outside_store(self, doc: dict) -> tuple[bool, tuple[str, ...]]:
+        from . import outputs
+
+        anywhere, folders, _ = outputs.allowed_folders(doc.get(outputs.OPT_IN), self.base)
+        return anywhere, tuple(map(str, folders))
 
     def _estimate(self, raw_limits: Any, nodes: dict[str, Node], order: list[str], store: str) -> None:
         """Each node's output bytes and peak memory against free disk and ``limits:`` (:mod:`.estimate`)."""

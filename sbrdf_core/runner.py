@@ -46,6 +46,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -170,6 +171,19 @@ class ChunkWrites:
         return write(block, self.url, name, self.token, index, region)
 
 
+def _confine_outputs(graph: Graph, node: Node, spec: PluginSpec, params: dict) -> None:
+    """The output-path rule again at run time (sbrdf_core.outputs): a graph built in Python skips validation."""
+    from . import outputs
+
+    anywhere, folders = graph.outside_store
+    for p in spec.params or ():
+        value = params.get(p.name)
+        if p.extra.get("output") and isinstance(value, str):
+            problem, _ = outputs.output_problem(value, graph.store, graph.nodes, anywhere, map(Path, folders))
+            if problem:
+                raise RunError(f"node {node.name!r}: parameter {p.name!r}: {problem}")
+
+
 class Runner:
     """Runs graphs.
 
@@ -249,6 +263,7 @@ class Runner:
             spec = self.registry.get(node.kind.plugin_category, cast(str, node.plugin))
             own = {p.name for p in node.kind.params}
             plugin_params = {k: v for k, v in node.params.items() if k not in own}
+            _confine_outputs(graph, node, spec, plugin_params)
             try:
                 plugin = self.registry.load(spec)(**plugin_params)
                 bind = optional(plugin, "bind")

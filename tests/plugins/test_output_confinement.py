@@ -221,3 +221,16 @@ def test_a_graph_run_writes_its_factors_beside_the_artifacts_and_again_on_a_reru
     g.write_text(g.read_text().replace("size: 8", "size: 6"))
     Runner(progress=False).run(load_graph(g, REGISTRY))  # replaces its own factor store
     assert load(str(tmp_path / "store" / "ward.zarr")).g.shape[1] == 6 != first.shape[1]
+
+
+def test_a_graph_built_in_python_cannot_create_an_output_outside_the_store(tmp_path, sentinel):
+    """Validation is skipped for a graph edited in code; the runner applies the same rule before the plugin runs."""
+    runner = Runner(progress=False)
+    new = sentinel / "new.zarr"
+    with pytest.raises(SbrdfError, match="outside the store") as e:
+        runner.run(_python_graph(tmp_path, new))
+    assert "parameter 'factors'" in str(e.value) and not new.exists()
+    g = _python_graph(tmp_path, new)
+    g.outside_store = (False, (str(sentinel),))  # what a top-level allow_outside_store: [<sentinel>] gives
+    runner.run(g)
+    assert (new / "zarr.json").exists()
