@@ -597,13 +597,40 @@ def read_journal(folder: Path) -> list[PoseRecord]:
     return out
 
 
+def refuse_foreign_folder(folder: Path, who: str) -> None:
+    """Raise :class:`CaptureFolderError` unless ``folder`` is missing or holds no files.
+
+    For a folder without a ``capture.json``: its writer records the manifest
+    before any image, so such a folder was not started by a capture writer
+    (empty folders are what a run killed before its manifest leaves); anything
+    in it is someone's data, and the error names it.
+    """
+    if folder.exists() and not folder.is_dir():
+        raise CaptureFolderError(f"{folder}: {who} path is a file, not a folder; it is left alone - give "
+                                 f"{who} a missing or empty folder")
+    if not folder.exists():
+        return
+    found = []
+    for entry in sorted(folder.rglob("*")):
+        if entry.is_symlink() or not entry.is_dir():
+            found.append(str(entry.relative_to(folder)))
+            if len(found) == 3:
+                break
+    if found:
+        raise CaptureFolderError(
+            f"{folder}: the folder holds files ({', '.join(found)}{', ...' if len(found) == 3 else ''}) but no "
+            f"{MANIFEST} of a capture; {who} writes only into a missing or empty folder, or one it "
+            f"wrote itself: it is left alone - give {who} another path")
+
+
 class CaptureFolderWriter:
     """Writes an ``sbrdf-capture/1`` folder pose by pose, crash-safely and resumably.
 
     Parameters
     ----------
     folder
-        Created if missing.  If it holds an unfinished capture with the same
+        Created if missing.  A folder holding files but no ``capture.json`` is
+        refused (someone else's data).  If it holds an unfinished capture with the same
         sample, camera and light sections, the writer resumes it:
         :attr:`done_ids` lists the poses already recorded, and
         :meth:`write_pose` skips them.  A different header is an error (never
@@ -638,6 +665,8 @@ class CaptureFolderWriter:
                                (IMAGE_DIR, "image directory")):
                 inside_folder(self.folder, name, what)
         existing = self.folder / MANIFEST
+        if not existing.exists() and not existing.is_symlink():
+            refuse_foreign_folder(self.folder, "the capture writer")
         if existing.exists():
             old = load_manifest(self.folder)
             if old.complete and not overwrite:

@@ -273,27 +273,9 @@ class VirtualFolderCapture:
         self._ready = True
 
     def _refuse_foreign_folder(self) -> None:
-        """Without a ``capture.json`` this source did not start the folder (its writer records the manifest before
-        any image): write only into a missing folder or one holding no files (empty folders are what a run
-        killed before its manifest leaves); anything else is someone's data and an error naming it."""
-        from sbrdf_lib.capture_folder import MANIFEST, CaptureFolderError
+        from sbrdf_lib.capture_folder import refuse_foreign_folder
 
-        if self.path.exists() and not self.path.is_dir():
-            raise CaptureFolderError(f"{self.path}: {SOURCE} path is a file, not a folder; it is left alone - give "
-                                     f"{SOURCE} a missing or empty folder")
-        if not self.path.exists():
-            return
-        found = []
-        for entry in sorted(self.path.rglob("*")):
-            if entry.is_symlink() or not entry.is_dir():
-                found.append(str(entry.relative_to(self.path)))
-                if len(found) == 3:
-                    break
-        if found:
-            raise CaptureFolderError(
-                f"{self.path}: the folder holds files ({', '.join(found)}{', ...' if len(found) == 3 else ''}) but no "
-                f"{MANIFEST} of a {SOURCE} capture; {SOURCE} writes only into a missing or empty folder, or one it "
-                f"wrote itself: it is left alone - give {SOURCE} another path")
+        refuse_foreign_folder(self.path, SOURCE)  # before rendering: the writer would refuse it only after
 
     # -- capture source protocol ------------------------------------------------------------------
 

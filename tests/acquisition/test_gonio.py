@@ -469,3 +469,20 @@ def test_nested_parameters_are_checked_against_their_declared_schema(registry, t
     change(params)
     with pytest.raises(PluginError, match=re.escape(message)):
         registry.create("capture", "gonio", params)
+
+
+def test_a_folder_of_someone_elses_files_is_left_alone(tmp_path, start_simulator):
+    """A capture folder without capture.json that holds files is not the writer's: the capture fails naming
+    it, and every file there stays as it was."""
+    from sbrdf_core.errors import SbrdfError
+
+    sims = rig_sims(start_simulator)
+    graph, store, folder = write_graph(tmp_path, "foreign", n_poses=2, motors=ports(sims))
+    (folder / "images").mkdir(parents=True)
+    (folder / "notes.txt").write_text("the user's notes\n")
+    (folder / "images" / "p00000_e0.png").write_bytes(b"someone else's image")
+    before = folder_files(folder)
+    with pytest.raises(SbrdfError, match="left alone") as e:
+        run_graph(str(graph))
+    assert str(folder) in str(e.value)
+    assert folder_files(folder) == before
