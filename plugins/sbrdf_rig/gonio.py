@@ -222,6 +222,25 @@ class GonioCapture:
         Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
     )
 
+    @staticmethod
+    def check_params(params, registry=None) -> list[tuple[str, str]]:
+        """``read:`` at validation: only the folder reader's parameters the source does not set itself, each
+        checked by the ``folder`` plugin's declarations (else the first pose is captured before it fails)."""
+        read = params.get("read") or {}
+        if not isinstance(read, dict):
+            return []
+        bad = sorted(READ_RESERVED & set(read))
+        if bad:
+            return [("read", f"read: {bad} are set by the gonio source itself; give only response, response_method, "
+                             "response_poses, saturation, underexposure, colour_matrix")]
+        if registry is None or "folder" not in registry.specs.get("capture", {}):
+            return []
+        from sbrdf_core.params import resolve
+
+        declared = [p for p in registry.get("capture", "folder").params or () if p.name not in READ_RESERVED]
+        _, problems = resolve(declared, read, "read (the folder reader)")
+        return [("read", msg) for _, msg in problems]
+
     def __init__(self, *, path: str, motors: dict, camera: dict = {"device": "virtual-camera", "params": {}},  # noqa: B006
                  light: dict | None = None, geometry: dict = {}, plan: dict = {"theta_d_deg": 20.0, "isotropic": True},  # noqa: B006
                  exposures: dict = {"times_s": [1.0]}, read: dict = {}, settle_s: float = 0.0,  # noqa: B006

@@ -336,3 +336,27 @@ def test_sizes_and_store_paths_no_system_call_takes_are_line_errors(tmp_path, ca
     path.write_text(text)
     rc, out = validate(capsys, path)
     assert rc == 2 and f"{path}:" in out and says in out, out
+
+
+def test_a_gonio_read_mapping_is_checked_by_the_folder_readers_declarations(tmp_path, capsys):
+    path = tmp_path / "graph.yaml"
+    path.write_text(textwrap.dedent(f"""\
+        name: g
+        store: {tmp_path / 'store'}
+        nodes:
+          capture:
+            kind: Capture
+            plugin: gonio
+            params:
+              path: {tmp_path / 'capture'}
+              motors:
+                arm: {{device: ptu, params: {{port: sim}}}}
+              read: {{saturation: 2, bogus: 1}}
+        """))
+    rc, out = validate(capsys, path)
+    assert rc == 2, out
+    assert f"{path}:11: Capture plugin 'gonio': read (the folder reader): parameter 'saturation' = 2.0 is outside" in out
+    assert "unknown parameter 'bogus' for read (the folder reader)" in out
+    path.write_text(path.read_text().replace("saturation: 2, bogus: 1", "path: elsewhere"))
+    rc, out = validate(capsys, path)
+    assert rc == 2 and "read: ['path'] are set by the gonio source itself" in out, out
