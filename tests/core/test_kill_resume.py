@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import subprocess
 import sys
 
@@ -41,12 +42,17 @@ def reference(tmp_path_factory, registry):
     return root / "s"
 
 
+def _default_sigint() -> None:
+    """A child of a background job starts with SIGINT ignored, and Python then raises no KeyboardInterrupt."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def kill_and_resume(tmp_path, registry, reference, node: str, point: str, sig: str) -> None:
     graph = tmp_path / "g.yaml"
     graph.write_text(graph_yaml(tmp_path / "s"))
     env = {**os.environ, "SBRDF_TEST_KILL_AT": f"{node}:{point}:{sig}"}
     child = subprocess.run([sys.executable, "-m", "sbrdf_core.cli", "run", "-q", str(graph)], env=env,
-                           capture_output=True, text=True, timeout=300)
+                           capture_output=True, text=True, timeout=300, preexec_fn=_default_sigint)
     expected = {"SIGKILL": -9, "SIGTERM": -15, "SIGINT": 130}[sig]
     assert child.returncode == expected, f"{node}:{point}:{sig} rc {child.returncode}\n{child.stderr[-3000:]}"
     if sig == "SIGINT":
