@@ -561,3 +561,22 @@ def test_a_really_full_disk_in_a_run_and_in_verify_repair_is_a_clear_error(small
     child = subprocess.run([sys.executable, "-m", "sbrdf_core.cli", "run", "-q", str(graph)],
                            capture_output=True, text=True, timeout=300)
     assert child.returncode == 0, child.stderr
+
+
+@pytest.mark.parametrize("lost", [["params/rho_d", "_done/params.rho_d"], ["_done/rms"]])
+def test_verify_tells_the_truth_about_a_store_killed_while_creating_arrays(store, finished, lost):
+    """Arrays not created yet (a kill inside array creation) are what the resuming run creates: not
+    damage; a marker array lost beside its data array is damage that repair and the run both fix."""
+    s, run = store
+    for rel in lost:
+        shutil.rmtree(s / "fit" / rel)
+    zarr.open_group(str(s / "fit"), mode="r+").attrs["complete"] = False
+    r = verify(s)
+    if len(lost) == 2:
+        assert r.returncode == 0 and "fit  ParamMaps  incomplete" in r.stdout and "not created yet" in r.stdout, r.stdout
+    else:
+        assert r.returncode == 1 and "'rms': metadata missing" in r.stdout, r.stdout
+        assert verify(s, "--repair").returncode == 1
+    assert run()["fit"].status in ("resumed", "computed")
+    assert verify(s).returncode == 0
+    assert_stores_equal(s, finished)
