@@ -17,6 +17,7 @@ errors.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 import os
@@ -31,6 +32,7 @@ from typing import Any
 
 from .errors import GraphError, SbrdfError
 from .graph import VARIABLE_NAME, Graph, declared_variables, graph_store, load_graph
+from .input_files import read_text
 from .registry import Registry, default_registry
 from .store import NODE_NAME
 
@@ -133,8 +135,7 @@ def scans_from_csv(path: str | os.PathLike) -> list[Scan]:
     """
     path = Path(path)
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            raw = list(csv.reader(f))
+        raw = list(csv.reader(io.StringIO(read_text(path, encoding="utf-8-sig"), newline="")))
     except (OSError, UnicodeDecodeError) as e:
         raise SbrdfError(f"{path}: cannot read the batch CSV: {e}") from None
     rows = [(i + 1, r) for i, r in enumerate(raw) if any(c.strip() for c in r)]

@@ -149,6 +149,15 @@ def test_csv_errors_name_the_line(tmp_path):
     assert a.store == str(tmp_path / "out" / "a") and b.store is None and a.variables == {"scan": "a", "seed": "1"}
 
 
+
+def test_a_fifo_as_the_batch_csv_is_refused_without_blocking(tmp_path):
+    import os
+
+    fifo = tmp_path / "scans.csv"
+    os.mkfifo(fifo)  # nothing ever writes to it: opening it for reading would block forever
+    with pytest.raises(SbrdfError, match=r"scans.csv.*FIFO"):
+        scans_from_csv(fifo)
+
 def test_the_batch_root_may_not_use_a_per_scan_variable(tmp_path, write_graph, registry):
     graph = write_graph(GRAPH.format(store="runs/${scan}"))
     from sbrdf_core.errors import GraphError
