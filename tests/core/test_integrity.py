@@ -451,9 +451,12 @@ def test_a_lock_file_that_is_a_link_is_refused_never_written_through(store, tmp_
     assert victim.read_text() == "precious" and (s / ".sbrdf.lock").is_symlink()
 
 
-def test_verify_works_on_a_read_only_store(store, tmp_path):
+@pytest.mark.parametrize("lock_file", [True, False])
+def test_verify_works_on_a_read_only_store(store, tmp_path, lock_file):
     s, _ = store
     (s / ".sbrdf.lock").unlink(missing_ok=True)
+    if lock_file:
+        (s / ".sbrdf.lock").write_bytes(b"")
     before = snapshot(s)
     mounted = None
     if os.geteuid() == 0:  # root writes through chmod: a read-only bind mount, where mounting is allowed
@@ -471,6 +474,7 @@ def test_verify_works_on_a_read_only_store(store, tmp_path):
             pytest.skip("the store stays writable here")
         r = verify(target)
         assert r.returncode == 0 and "verified read-only" in r.stdout and "0 damaged" in r.stdout, r.stdout + r.stderr
+        assert ("under a shared lock" if lock_file else "without a lock") in r.stdout
         r = verify(target, "--repair")
         assert r.returncode == 2 and "Traceback" not in r.stderr and str(target) in r.stderr, r.stderr
     finally:
