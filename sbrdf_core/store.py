@@ -31,7 +31,13 @@ Confinement.  A node writes only below ``<store>/<node>``: names are checked
 against :data:`NODE_NAME` at validation, every artifact path is proven inside
 the store by :func:`inside_store`, and a directory is removed only when it
 carries this node's marker file (:data:`ARTIFACT_MARKER`) or its group
-attributes name this node.
+attributes name this node.  Inside an artifact there are only plain files and
+directories: an artifact path that is a link is refused, and a link, FIFO or
+device found below it (:func:`special_entries`) is removed as itself before
+anything there is read, written or deleted, never followed.
+
+Resume.  A partial artifact always resumes, wherever its run was killed:
+arrays whose metadata a kill left missing are created again (:meth:`ArtifactWriter.prepare`).
 """
 
 from __future__ import annotations
