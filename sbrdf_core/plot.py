@@ -367,8 +367,10 @@ def plot_views(samples_url: str, out_dir: str | Path, params_url: str | None = N
     Directions and tolerance left out are chosen from the data (:func:`choose_views`).
     With ``params_url``, ``fit-error.png`` (:func:`error_maps`) is written too.
     """
-    import matplotlib
+    from .extras import require
 
+    # Before any data is read: a plain install (no ``[plot]`` extra) hears the install command, not a traceback.
+    matplotlib = require("matplotlib", feature="sbrdf plot")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -149,3 +149,17 @@ def test_plot_views_with_no_directions_writes_every_figure(store, tmp_path):
     paths = plot_views(str(store / "reflectance"), tmp_path / "p", params_url=str(store / "fit"))
     assert [p.name for p in paths] == ["spatial.png", "hemisphere.png", "incidence-plane.png", "fit-error.png"]
     assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+def test_sbrdf_plot_without_the_plot_extra_names_its_install_command(tmp_path):
+    """A plain install has no matplotlib: ``sbrdf plot`` says which extra to install, in one line, no traceback."""
+    block = ("import sys; sys.modules['matplotlib'] = None; from sbrdf_core.cli import main; "
+             "sys.exit(main(sys.argv[1:]))")
+    proc = subprocess.run([sys.executable, "-c", block, "plot", str(tmp_path / "missing"), "--out", str(tmp_path / "p")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "sbrdf: error: sbrdf plot needs the optional dependency 'matplotlib', which is not installed: "
+        "pip install 'sbrdf[plot]'"], proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "p").exists()
