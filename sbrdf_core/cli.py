@@ -338,21 +338,35 @@ def fit_table(fits) -> str:
     mean RMS at held-out samples (``held_out``: error where the fit was not trained).
 
     Time is the fitter's compute time summed over tiles (CPU seconds across
-    workers), not the node's wall time.
+    workers), not the node's wall time.  The text columns widen to their
+    longest cell up to a cap; a longer cell is cut with ``…`` so every row
+    stays aligned under its header.
     """
-    head = (f"{'artifact':<28} {'fitter':<12} {'model':<22} {'texels':>9} {'fit_s':>9} {'avg_rms':>10} {'max_rms':>10} "
-            f"{'held_out':>10} {'flagged':>8}")
-    rows = [head, "-" * len(head)]
+    fmt = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
+    cells = []
     for url, art in fits:
         summary = art.attrs.get("summary", {})
         model = art.attrs.get("model", "?") + describe_config(art.attrs.get("model_config", {}))
         u, v = art.attrs.get("texels", [0, 0])
         flagged = summary.get("texels_flagged_any", sum(summary.get("texels_flagged", {}).values()))
-        fmt = lambda x: f"{x:.4g}" if isinstance(x, (int, float)) else "-"  # noqa: E731
-        rows.append(f"{url.rstrip('/').rsplit('/', 1)[-1]:<28} {art.attrs.get('fitter') or '?':<12} {model:<22} {u * v:>9} "
-                    f"{fmt(summary.get('fit_time_s')):>9} {fmt(summary.get('rms_mean')):>10} {fmt(summary.get('rms_max')):>10} "
-                    f"{fmt(summary.get('rms_holdout_mean')):>10} {flagged:>8}")
-    return "\n".join(rows)
+        cells.append(([url.rstrip("/").rsplit("/", 1)[-1], art.attrs.get("fitter") or "?", model],
+                      [u * v, fmt(summary.get("fit_time_s")), fmt(summary.get("rms_mean")), fmt(summary.get("rms_max")),
+                       fmt(summary.get("rms_holdout_mean")), flagged]))
+    text_cols = [("artifact", 28, 40), ("fitter", 12, 20), ("model", 22, 48)]
+    widths = [min(cap, max([least] + [len(row[0][k]) for row in cells])) for k, (_, least, cap) in enumerate(text_cols)]
+    num_cols = [("texels", 9), ("fit_s", 9), ("avg_rms", 10), ("max_rms", 10), ("held_out", 10), ("flagged", 8)]
+
+    def line(texts, numbers) -> str:
+        left = " ".join(f"{_clip(t, w):<{w}}" for t, w in zip(texts, widths))
+        return left + "".join(f" {n!s:>{w}}" for n, (_, w) in zip(numbers, num_cols))
+
+    head = line([name for name, _, _ in text_cols], [name for name, _ in num_cols])
+    return "\n".join([head, "-" * len(head)] + [line(texts, numbers) for texts, numbers in cells])
+
+
+def _clip(text: str, width: int) -> str:
+    """``text`` cut to ``width`` characters, its last one ``…`` where anything was cut."""
+    return text if len(text) <= width else text[:width - 1] + "…"
 
 
 def describe_config(cfg: dict) -> str:

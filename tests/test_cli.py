@@ -57,3 +57,29 @@ def test_fit_table_describes_any_models_configuration():
     assert describe_config({"lobes": 2, "transmission_lobes": 1}) == " lobes=2 transmission_lobes=1"
     assert describe_config({"anisotropic": True, "factors": "/some/store/path"}) == " anisotropic=true"
     assert describe_config({}) == ""
+
+
+def test_fit_table_stays_aligned_with_a_long_model_description():
+    """A model whose configuration is long widens its column up to a cap, then is cut with ``…``: every row's
+    numeric columns end where the header's do."""
+    from types import SimpleNamespace
+
+    from sbrdf_core.cli import fit_table
+
+    summary = {"fit_time_s": 1.5, "rms_mean": 0.01, "rms_max": 0.2, "rms_holdout_mean": 0.02, "texels_flagged_any": 3}
+    config = {f"parameter_{k}": k for k in range(12)}  # far wider than any cap
+    fits = [(f"/s/{name}", SimpleNamespace(attrs={"model": model, "model_config": cfg, "fitter": "lm",
+                                                 "texels": [4, 4], "summary": summary}))
+            for name, model, cfg in [("fit", "lambert", {}), ("fit-long", "lafortune", config),
+                                     ("a-" + "very-" * 12 + "long-node-name", "ward", {"anisotropic": True})]]
+    lines = fit_table(fits).splitlines()
+    assert len(lines) == 2 + len(fits)
+    assert len({len(line) for line in lines}) == 1, lines  # aligned: every row as wide as the header
+    head = lines[0]
+    for col in ("texels", "fit_s", "avg_rms", "max_rms", "held_out", "flagged"):
+        end = head.index(col) + len(col)
+        assert all(line[end - 1] != " " and (end == len(line) or line[end] == " ") for line in lines[2:]), col
+    assert "…" in lines[3] and lines[3].split()[1:3] == ["lm", "lafortune"]
+    assert "lafortune parameter_0=0 parameter_1=1" in lines[3]
+    assert lines[2].split()[:3] == ["fit", "lm", "lambert"] and lines[2].split()[3:] == ["16", "1.5", "0.01", "0.2",
+                                                                                         "0.02", "3"]
