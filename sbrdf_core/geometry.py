@@ -68,38 +68,7 @@ def tile_directions(texels_uv: tuple[int, int], size_mm: tuple[float, float], ro
 def _compiled_directions():
     """:func:`tile_directions` after its texel centres, compiled (numba, cached on disk).  Why: NumPy's passes
     over ``(T, P, 3)`` arrays with a trailing axis of 3 were a tenth of a Lafortune Fit tile (py-spy)."""
-    import numba
-
-    @numba.njit(cache=True, nogil=True, error_model="numpy")
-    def towards(points, tx, ty, tz, out, r, store_r, dx, dy, dz, rr):  # pragma: no cover (compiled)
-        """One target set's directions (and distances where ``store_r``): per texel, the divisions first in
-        planar rows (SIMD lanes; a sample at a time they were scalar), then written as ``(P, 3)`` rows."""
-        for t in range(points.shape[0]):
-            px, py, pz = points[t, 0], points[t, 1], points[t, 2]
-            for p in range(tx.shape[0]):
-                # directions_to's arithmetic: d = target − point, r = √(d·d), d / r; d·d summed in the order
-                # NumPy's einsum sums three terms (x² + z²) + y², measured to give its bits.
-                a, b, c = tx[p] - px, ty[p] - py, tz[p] - pz
-                q = np.sqrt((a * a + c * c) + b * b)
-                rr[p] = q
-                q = q if q != 0.0 else 1.0
-                dx[p], dy[p], dz[p] = a / q, b / q, c / q
-            for p in range(tx.shape[0]):
-                if store_r:
-                    r[t, p] = rr[p]
-                zero = rr[p] == 0.0  # coincident: +z, not NaN
-                out[t, p, 0] = 0.0 if zero else dx[p]
-                out[t, p, 1] = 0.0 if zero else dy[p]
-                out[t, p, 2] = 1.0 if zero else dz[p]
-
-    @numba.njit(cache=True, nogil=True, error_model="numpy")
-    def kernel(points, light, camera):  # pragma: no cover (compiled)
-        T, P = points.shape[0], light.shape[0]
-        wi, r, wo = np.empty((T, P, 3)), np.empty((T, P)), np.empty((T, P, 3))
-        rows = np.empty(P), np.empty(P), np.empty(P), np.empty(P)
-        towards(points, light[:, 0].copy(), light[:, 1].copy(), light[:, 2].copy(), wi, r, True, *rows)
-        towards(points, camera[:, 0].copy(), camera[:, 1].copy(), camera[:, 2].copy(), wo, r, False, *rows)
-        return wi, r, wo
+    from sbrdf_core.geometry_compiled import kernel
 
     return kernel
 
