@@ -395,13 +395,26 @@ def _wait(args) -> bool | float:
 
 #: Marks the handler :func:`configure_logging` installed, so a second call replaces it.
 _HANDLER_TAG = "_sbrdf_cli"
+#: The loggers of per-node summaries (``sbrdf.report.<node kind>``), which ``-q`` silences.
+REPORT_LOGGER = "sbrdf.report"
+#: Loggers whose level :func:`configure_logging` set, so a later call without ``-v``/``-q`` resets them.
+_LEVELS_SET: set[str] = set()
 
 
-def configure_logging(verbose: int) -> None:
+def configure_logging(verbose: int, quiet: bool = False) -> None:
     """``-v`` INFO, ``-vv`` DEBUG for sbrdf's own loggers (core, library, installed plugins); others stay as they are.
 
-    Without ``-v`` nothing is configured: warnings reach stderr through Python's default handler, as before.
+    ``-q`` (``quiet``, without ``-v``) silences the per-node summaries of what the data lacked (the
+    ``sbrdf.report`` loggers: pixels a capture made invalid); what they summarise stays in the artifacts'
+    attributes, which ``sbrdf info`` shows.  Other warnings and errors still print.
+    Without either nothing is configured: warnings reach stderr through Python's default handler, as before.
     """
+    for name in _LEVELS_SET:  # an earlier main() in this process (tests, a notebook) set them: start afresh
+        logging.getLogger(name).setLevel(logging.NOTSET)
+    _LEVELS_SET.clear()
+    if quiet and verbose <= 0:
+        logging.getLogger(REPORT_LOGGER).setLevel(logging.ERROR)
+        _LEVELS_SET.add(REPORT_LOGGER)
     if verbose <= 0:
         return
     from importlib.metadata import entry_points
@@ -411,6 +424,7 @@ def configure_logging(verbose: int) -> None:
                                                     for ep in entry_points(group="sbrdf")}
     for name in names:
         logging.getLogger(name).setLevel(level)
+    _LEVELS_SET.update(names)
     root = logging.getLogger()
     for h in [h for h in root.handlers if getattr(h, _HANDLER_TAG, False)]:
         root.removeHandler(h)
@@ -437,7 +451,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=None, help="threads/processes for local schedulers")
     p.add_argument("--store", default=None, help="override the graph's store (a path relative to the current directory)")
     p.add_argument("--only", nargs="+", help="run only these nodes (and what they need)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress bars and no per-node summaries of what the data lacked (they stay in the "
+                   "artifacts: sbrdf info); other warnings still print")
     p.add_argument("--var", action="append", default=[], metavar="NAME=VALUE",
                    help="give a value to one of the graph's ${variables} (repeatable)")
     p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
@@ -503,7 +519,7 @@ def main(argv: list[str] | None = None) -> int:
 
     _plugin_commands(sub, argv)
     args = ap.parse_args(argv)
-    configure_logging(args.verbose)
+    configure_logging(args.verbose, getattr(args, "quiet", False))
     tune_process(args)
     try:
         return args.func(args)

@@ -292,6 +292,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                "process (hardware).", False),
         "fingerprint": OptionalMember("`fingerprint() -> str`: changes when the source's data changes, so cached results "
                                 "are redone.", None),
+        "read_report": OptionalMember("`read_report() -> (line, attrs) or None`: what reading the poses in this process "
+                                      "found (poses with pixels made invalid, the worst one), asked once every pose "
+                                      "is written: the Capture node logs the line as one warning and stores `attrs` "
+                                      "on the CaptureSet, so a source warns once per node, not once per pose.", None),
     },
     "device": {**_COMMON},
     "registration": {

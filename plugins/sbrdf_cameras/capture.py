@@ -289,3 +289,7 @@ class VirtualFolderCapture:
         if not self._ready:
             self.describe()
         return self.reader.read_pose(int(index))
+
+    def read_report(self) -> tuple[str, dict] | None:
+        """What reading the folder back found (the folder plugin's :meth:`~sbrdf_capture.folder.FolderCapture.read_report`)."""
+        return self.reader.read_report() if self.reader is not None else None

@@ -21,8 +21,10 @@ bracketed poses.
 Negative radiance (physically impossible; docs/capture-folders.md, "What is
 refused"): after the merge, before the colour matrix, a pixel with a channel
 below ``-negative_tolerance x full scale`` is marked invalid and counted
-(a warning on the ``sbrdf.capture.folder`` logger per pose, and
-:attr:`FolderCapture.negative_pixels`).  Full scale is the radiance that fills
+(:attr:`FolderCapture.negative_pixels`; a debug line per pose on the
+``sbrdf.capture.folder`` logger, and one warning per node from
+:meth:`FolderCapture.read_report`, which the Capture node logs when every pose
+is written).  Full scale is the radiance that fills
 the pose's longest exposure (normalised code 1 through the response, or
 ``camera.white_level``; for float images without a white level, the pose's
 brightest value).  Smaller negatives are sensor noise around zero (e.g.
@@ -112,6 +114,8 @@ class FolderCapture:
         self.negative_max_fraction = float(negative_max_fraction)
         #: Pose id -> pixels made invalid by negative radiance beyond the tolerance (poses read in this process).
         self.negative_pixels: dict[int, int] = {}
+        #: Pose id -> (where, pixels, files) of those poses, for :meth:`read_report`.
+        self._negative_detail: dict[int, tuple[str, int, str]] = {}
         self.manifest: Manifest | None = None
         self.curve: ResponseCurve | None = None
         self.linear = False
@@ -275,10 +279,31 @@ class FolderCapture:
         if pose.id in self.negative_pixels:  # the same pose read again (Register reads a pose more than once)
             return valid & ~negative
         self.negative_pixels[pose.id] = n
-        log.warning("%s: %s: %d of %d pixels have negative radiance below -%.3g (the noise tolerance, "
-                    "negative_tolerance %g of full scale) in %s; marked invalid", self.path, where, n, total, tolerance,
-                    self.negative_tolerance, files)
+        self._negative_detail[pose.id] = (where, total, files)
+        # One line per pose only at debug level: a scan with many such poses would bury the run's output;
+        # read_report() sums them up for the node.
+        log.debug("%s: %s: %d of %d pixels have negative radiance below -%.3g (the noise tolerance, "
+                  "negative_tolerance %g of full scale) in %s; marked invalid", self.path, where, n, total, tolerance,
+                  self.negative_tolerance, files)
         return valid & ~negative
+
+    def read_report(self) -> tuple[str, dict] | None:
+        """What reading the poses found, for the Capture node: ``(one line, attributes)`` or ``None``.
+
+        The line says how many of the poses read in this process had pixels with negative radiance beyond the
+        noise tolerance (made invalid) and which pose had the most; the attributes hold the count per pose id.
+        """
+        counts = dict(self.negative_pixels)
+        if not counts:
+            return None
+        worst = max(counts, key=lambda i: (counts[i], -i))
+        where, total, files = self._negative_detail.get(worst, (f"pose id {worst}", 0, "?"))
+        share = f" ({100.0 * counts[worst] / total:.2g}%)" if total else ""
+        n_poses = len(self.manifest.poses) if self.manifest is not None else len(counts)
+        line = (f"{self.path}: {len(counts)} of {n_poses} poses have pixels with negative radiance beyond the noise "
+                f"tolerance (negative_tolerance {self.negative_tolerance:g} of full scale), marked invalid; worst "
+                f"{where}: {counts[worst]} pixels{share} in {files} (-vv lists every pose)")
+        return line, {"negative_radiance_pixels": {str(i): counts[i] for i in sorted(counts)}}
 
     def _significant(self, radiance: np.ndarray, below: np.ndarray, tolerance: float) -> tuple[int, int, float] | None:
         """``(negative, significant, floor)`` when more than ``negative_max_fraction`` of the pixels that stand out

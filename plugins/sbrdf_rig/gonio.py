@@ -470,6 +470,10 @@ class GonioCapture:
             return self.reader.read_pose(int(index))
         return self.reader.read_record(self.writer.poses[int(index)], f"pose {int(index)}")
 
+    def read_report(self) -> tuple[str, dict] | None:
+        """What reading the poses back found (the folder plugin's :meth:`~sbrdf_capture.folder.FolderCapture.read_report`)."""
+        return self.reader.read_report() if self.reader is not None else None
+
     # -- session ------------------------------------------------------------------------------------
 
     def _header(self) -> dict:

@@ -8,6 +8,7 @@ interrupted capture resumes from the last pose written.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,6 +17,9 @@ import numpy as np
 from ..artifacts import CaptureSet
 from ..contracts import optional
 from .base import BuildContext, NodeKind, Output, shared
+
+#: The node's summary of what reading found; ``sbrdf run -q`` silences it (``sbrdf_core.cli.REPORT_LOGGER``).
+report_logger = logging.getLogger("sbrdf.report.capture")
 
 
 @dataclass
@@ -89,5 +93,21 @@ class Capture(NodeKind):
                 "exposure_s": small(desc.exposure_s),
             },
             attrs=desc.attrs(),
+            finalize=lambda artifact: _report(ctx.node, source),
             sequential=bool(optional(source, "sequential", "capture")),
         )
+
+
+def _report(node: str, source) -> dict[str, Any]:
+    """The source's ``read_report`` as one warning for the node, and its attributes for the CaptureSet.
+
+    Poses read in other processes (a dask cluster's workers) are not in it:
+    their sources log per pose at debug level there.
+    """
+    read_report = optional(source, "read_report", "capture")
+    report = read_report() if read_report is not None else None
+    if not report:
+        return {}
+    line, attrs = report
+    report_logger.warning("capture node %r: %s", node, line)
+    return dict(attrs or {})

@@ -330,7 +330,7 @@ def test_negative_radiance_beyond_the_noise_tolerance_is_invalid_and_counted(reg
     folder = _float_folder(tmp_path / "scan", [img, np.full((12, 16, 3), 0.3, np.float32)], white_level=white_level)
     src = registry.create("capture", "folder", {"path": str(folder)})
     src.describe()
-    with caplog.at_level("WARNING", logger="sbrdf.capture.folder"):
+    with caplog.at_level("DEBUG", logger="sbrdf.capture.folder"):
         radiance, valid = src.read_pose(0)
     assert not valid[5, 3:8].any() and not valid[9, 9]
     assert np.allclose(radiance[0, :4], -1e-3)  # noise: unclamped
@@ -340,8 +340,12 @@ def test_negative_radiance_beyond_the_noise_tolerance_is_invalid_and_counted(reg
         assert int((~valid).sum()) == 10
     assert src.negative_pixels == {0: 6}
     assert "6 of 192 pixels have negative radiance" in caplog.text and "p00000_e0.exr" in caplog.text
+    assert all(r.levelname == "DEBUG" for r in caplog.records)  # per pose: debug only, the node warns once
     _, valid1 = src.read_pose(1)
     assert valid1.all() and src.negative_pixels == {0: 6}
+    line, attrs = src.read_report()
+    assert "1 of 2 poses have pixels with negative radiance" in line and "poses[0] (id 0): 6 pixels" in line
+    assert attrs == {"negative_radiance_pixels": {"0": 6}}
 
     # Through the Capture node: the stored validity mask says so.
     from sbrdf_core.runner import run_graph
@@ -354,6 +358,41 @@ def test_negative_radiance_beyond_the_noise_tolerance_is_invalid_and_counted(reg
 
     stored = zarr.open_group(str(tmp_path / "store" / "capture"), mode="r")["valid"][...]
     assert np.array_equal(stored[0], valid) and stored[1].all()
+
+
+def test_negative_radiance_is_one_warning_per_node_and_quiet_under_q(tmp_path):
+    """Many poses with negative pixels: ``sbrdf run`` prints one summary line for the node (how many poses, the
+    worst), not a line per pose; ``-q`` prints none; the counts stay on the CaptureSet either way."""
+    rng = np.random.default_rng(5)
+    images = []
+    for i in range(6):
+        img = (0.5 + 0.4 * rng.random((12, 16, 3))).astype(np.float32)
+        if i != 2:  # five poses with 1 + i negative pixels each: pose 5 the worst
+            img[4, : 1 + i, 0] = -0.3
+        images.append(img)
+    folder = _float_folder(tmp_path / "scan", images)
+
+    def run(*flags, store):
+        graph = tmp_path / f"{store}.yaml"
+        graph.write_text(f"name: neg\nstore: {tmp_path / store}\nnodes:\n"
+                         f"  capture: {{kind: Capture, plugin: folder, params: {{path: {folder}}}}}\n")
+        proc = subprocess.run([sys.executable, "-m", "sbrdf_core.cli", "run", *flags, str(graph)], capture_output=True,
+                              text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stderr
+
+    err = run("--scheduler", "sync", store="loud")
+    lines = [line for line in err.splitlines() if "negative radiance" in line]
+    assert len(lines) == 1, err
+    assert "capture node 'capture'" in lines[0] and "5 of 6 poses have pixels with negative radiance" in lines[0]
+    assert "worst poses[5] (id 5): 6 pixels" in lines[0] and "p00005_e0.exr" in lines[0]
+    assert "negative radiance" not in run("-q", store="quiet")
+
+    import zarr
+
+    for store in ("loud", "quiet"):
+        attrs = zarr.open_group(str(tmp_path / store / "capture"), mode="r").attrs
+        assert attrs["negative_radiance_pixels"] == {"0": 1, "1": 2, "3": 4, "4": 5, "5": 6}
 
 
 def test_a_pose_read_while_another_is_read_keeps_its_own_noise_tolerance(registry, tmp_path, monkeypatch):
