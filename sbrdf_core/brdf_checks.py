@@ -201,7 +201,7 @@ def _albedo_at(model: BRDFModel, params: Mapping[str, np.ndarray], dirs: np.ndar
     """:func:`directional_albedo` at each of ``dirs`` ``(D, 3)``, ``(T, D, 3)``; for a model with a compiled
     ``albedo_quadrature``, in one call, the texels repeated per direction (the same sums).  Why: that call pays a
     parallel launch and the grid's set-up each time, most of its time for the few texels the Fit node integrates
-    (five directions a check, two checks a tile: 4.3 → 2.0 ms a 1-lobe Lafortune tile).  A model evaluated with
+    (five directions a check, two checks a tile: ten launches become two).  A model evaluated with
     ``eval`` gains nothing (its cost is per evaluation) and keeps a call per direction, whose chunks of the grid,
     and so its sums' order, do not depend on D."""
     if optional(model, "albedo_quadrature", "brdf-model") is None:

@@ -2,10 +2,10 @@
 
 zarr-python reads one inner chunk of a shard with two opens of the shard file
 (its index, then the chunk), a round trip through its event-loop thread and
-several buffer copies: about 1 ms a chunk beside ~0.1 ms of decoding.
+several buffer copies, which cost many times the chunk's decoding.
 Reflectance's transpose reads one inner chunk of every pose-block shard per
-texel tile, so at 2 GB its reads of the stack took 2.1 s where the bytes
-decode in 0.2 s (docs/registration.md, "Reading the stack").
+texel tile, so those per-chunk costs, not decoding, set the time of its reads
+of the stack (docs/registration.md, "Reading the stack").
 
 :func:`read_direct` reads a selection that starts and ends on chunk boundaries
 of an array in a local store whose codecs are the ones this project writes
@@ -219,10 +219,9 @@ def write_direct(z, region: tuple[slice, ...], data: np.ndarray) -> bool:
     same file bytes); ``False``, having written nothing, where zarr must write it.
 
     zarr's write of one chunk (an event-loop round trip, a directory check and
-    buffer copies around the compressor) cost about as much as compressing it;
-    a shard of Register's stack (17 poses of 256² texels in 64² tiles) took 50
-    ms through zarr against 20 ms here.  A shard's inner chunks are encoded one
-    at a time, each copied once, in zarr's (Morton) order, then its index
+    buffer copies around the compressor) costs about as much as compressing it,
+    and a shard of Register's stack has one such write per inner chunk.  A
+    shard's inner chunks are encoded one at a time, each copied once, in zarr's (Morton) order, then its index
     (offset and length per inner chunk in C order, then the index's crc32c;
     zarr v3 sharding spec, index at the end); an inner chunk wholly beyond the
     array's end is not stored, as zarr does not store it.  The file is written

@@ -92,7 +92,7 @@ def sample_support(f_r: np.ndarray, valid: np.ndarray, weight: np.ndarray | None
     ``weight`` ``(T, S)``, ≥ 0, multiplies each sample first (cos θ_i cos θ_o for :attr:`Limits.peak_cosine`).
     """
     # Channels first: one (T, S) array after this.  A non-finite channel counts as 0; the usual input (the Fit
-    # node's, made usable) has none, and then the copy that zeroes them is skipped (2 ms a Fit tile).
+    # node's, made usable) has none, and then the copy that zeroes them, a pass over the whole tile, is skipped.
     if all_finite(f_r).all():
         f = channel_max(f_r)
     else:

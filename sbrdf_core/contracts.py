@@ -340,8 +340,8 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                    "trials.", None),
         "constrain_packed": OptionalMember("`constrain_packed(x, limits) -> x` (on the fit form): `constrain` on packed "
                                            "fit-form rows `(T, K)`, compiled; `lm` projects every trial point with "
-                                           "it. Without it: `constrain` on the unpacked parameters (about 0.5 ms a "
-                                           "call in NumPy, a tenth of a Lafortune Fit tile).", None),
+                                           "it. Without it: `constrain` on the unpacked parameters (NumPy passes "
+                                           "over every row at every trial, a visible share of a Fit tile).", None),
         "glsl_fit_gradient": OptionalMember("`glsl_fit_gradient() -> str`: GLSL (4.3) defining `vec3 brdf_fit_gradient(vec3 "
                                             "wi, vec3 wo, float x[K], out vec3 grad[K])`, the value and ∂f/∂x at the "
                                             "packed fit-form parameters x (K = `fit_form().size`), for the GPU fitter "

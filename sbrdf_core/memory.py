@@ -17,27 +17,21 @@ The same call fixes glibc's mmap threshold at :data:`MMAP_THRESHOLD`.  glibc
 otherwise raises it to the size of the largest mapped block freed so far (up to
 32 MiB), so after the first pose block every block-sized temporary (a block's
 zarr encoding buffers, a texel tile) came from the arenas, and the freed memory
-they held grew with the number of blocks a node ran: at 8 GB (68 pose blocks) the
-arenas held 150-185 MB of freed memory when Reflectance started, at 2 GB 80-90 MB,
-and that set the run's peak (413 MB at 8 GB).  With a fixed threshold such blocks
-are mapped and returned to the system when freed (the arenas keep under 40 MB at
-every size), while a photograph (3.7 MB) and the smaller per-pose temporaries
-stay in the arenas: a 1 MiB threshold paid page faults on those, Register 47 %
-slower.
+they held grew with the number of blocks a node ran, and set the run's peak.
+With a fixed threshold such blocks are mapped and returned to the system when
+freed, so the arenas stay small whatever the scan's size, while a photograph
+and the smaller per-pose temporaries stay in the arenas: a threshold below a
+photograph's size would pay page faults on those for every pose.
 
 It also fixes the trim threshold at :data:`TRIM_THRESHOLD`.  Fixing the mmap
 threshold leaves glibc's trim threshold at 128 KiB, so freeing a task's
 temporaries at the top of a heap gave them back to the system, and the next task
-faulted every page in again: a 2 GB Register took a million minor page faults
-(7 MB a pose: its photograph, luminance, masks, maps) and 4.6 s of system time,
-60 000 faults and 2.1 s with a 16 MiB threshold; and a Fit tile's working memory
-(up to ``FIT_TASK_BYTES``, 96 MiB) was faulted in anew for every tile, which made
-the Lafortune fit 25-35 % slower than with glibc's defaults (benchmarks/fit.py:
-1 lobe 0.151-0.165 ms CPU a texel with 16 MiB, 0.129-0.132 with 64 MiB,
-0.113-0.115 with 128 MiB).  Each heap keeps at most that much free at its top,
-whatever the scan, and peaks are set by live memory: the fit benchmark's
-process peaked at 479 MB with 16 MiB and 486 MB with 128 MiB, a 2 GB Register at
-261-273 MB with either.
+faulted every page in again: a Register pose's photograph, luminance, masks and
+maps, and a Fit tile's whole working memory (up to ``FIT_TASK_BYTES``) for every
+tile, so the threshold is at least a Fit tile's working memory.  Each heap
+keeps at most that much free at its top, whatever the scan, so peaks stay set
+by live memory (the fit and Register benchmarks peak alike with a small and a
+large threshold).
 
 :data:`CLUSTER_CONFIG` is the dask configuration to start a cluster with
 (``dask.config.set(CLUSTER_CONFIG)``): it passes :data:`WORKER_ENV` to the

@@ -4,9 +4,9 @@ OpenCV parallelises its calls (``remap``, ``detectMarkers``, colour
 transforms, ...) on a pthreads pool as large as the machine.  Called from
 dask's worker threads, every task then starts as many more threads: on 2
 cores, 2 tasks x 2 OpenCV threads, and OpenCV's workers spin a while before
-they sleep.  Register on the 0.5 GB benchmark capture (dask's threaded
-scheduler, 2 workers, this VM) took 3.50-3.69 s wall and 5.77-5.83 s CPU with
-OpenCV's pool, 3.15-3.29 s and 5.06-5.23 s without it.
+they sleep, so the extra threads add CPU time and no speed: Register on a
+benchmark capture under dask's threaded scheduler took more wall and CPU time
+with OpenCV's pool than without it.
 
 :func:`single_level` turns the pool off for a process whose runs execute tasks
 in parallel: the ``sbrdf`` command calls it at start-up

@@ -24,10 +24,10 @@ magnitudes are solved in closed form at every evaluation; the result is then
 projected onto the limits and, where that moved it, refined by the general
 LM.  It is taken where the form says it is exact (``separable_exact``:
 Lambert's closed form) or the caller asks (``separable=True``, the ``lm``
-fitter's ``variable_projection``): for Lafortune it was 1.3–1.4× faster until the general LM was compiled per
-texel too (now within 5 %, benchmarks/fit.py), and it found
-fits with a higher error at unseen directions (benchmarks/fidelity.py:
-median 0.153 → 0.204 with 2 lobes on GGX truth), so it is not the default.
+fitter's ``variable_projection``): with the general LM compiled per texel
+too it saves no time (benchmarks/fit.py), and it finds fits with a higher
+error at unseen directions (benchmarks/fidelity.py, GGX truth), so it is not
+the default.
 
 Starting points do not depend on luck: the model's own initial guess and a
 Sobol set over the parameters' typical ranges, each with its magnitudes
@@ -613,13 +613,13 @@ def diffuse_percentile(f_r: np.ndarray, valid: np.ndarray, percentile: float) ->
     samples sort to the end, and each texel interpolates linearly between
     its own order statistics, as numpy's default method does.
     """
-    # (T, C, S): each texel's channel sorted as one contiguous row (NumPy's SIMD sort; 30 % less time than
-    # sorting the strided sample axis of (T, S, C)).  Photographed values are float32, and then sorted as such:
-    # the same order statistics, in twice the SIMD lanes (9.2 -> 6.0 ms a Fit tile, the check included).
+    # (T, C, S): each texel's channel sorted as one contiguous row (NumPy's SIMD sort runs on contiguous rows, not
+    # on the strided sample axis of (T, S, C)).  Photographed values are float32, and then sorted as such: the same
+    # order statistics, in twice the SIMD lanes.
     if f_r.shape[1] == 0:  # no samples at all
         return np.zeros((f_r.shape[0], f_r.shape[-1]))
-    # Invalid samples set to inf in the copy by a boolean index: np.where's broadcast of the mask took 1.7 ms a tile
-    # against 0.6.
+    # Invalid samples set to inf in the copy by a boolean index, which writes only those samples where np.where
+    # would broadcast the mask over the whole array.
     channels = np.moveaxis(f_r, -1, 1)
     narrow = channels.astype(np.float32)
     data = narrow if np.array_equal(narrow, channels) else channels.astype(np.float64)

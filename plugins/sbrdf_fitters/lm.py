@@ -60,7 +60,8 @@ class LevenbergMarquardtFitter:
         START,
         Param("variable_projection", "bool", False, "fit 1-2 isotropic Lafortune lobes by variable projection "
               "(magnitudes in closed form inside the LM; with starts 1, linear loss, absolute weighting): "
-              "little faster at 2 lobes since the default LM is compiled per texel too (benchmarks/fit.py: 0.154 against 0.163 ms CPU per texel; 1 lobe 0.095 against 0.129), and measured a higher error at unseen directions (benchmarks/fidelity.py, 2 lobes: median 0.204 against 0.153)"),
+              "no faster than the default LM, which is compiled per texel too (benchmarks/fit.py), and a higher error at "
+              "unseen directions (benchmarks/fidelity.py), hence off by default"),
     )
 
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006

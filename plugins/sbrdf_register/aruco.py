@@ -159,7 +159,7 @@ def grid_to_pixels(xs: np.ndarray, ys: np.ndarray, H: np.ndarray, K: np.ndarray,
     """:func:`plane_to_pixels` of the grid ``xs × ys`` (mm), ``(len(ys), len(xs), 2)``: every texel of a pose.
 
     ``compiled``: one numba loop (a texel's ~40 flops in registers, not ~40 NumPy passes over
-    the grid with their temporaries: ~1 ms less a call at 256² texels), the same arithmetic in the
+    the grid, each writing a temporary as large as the grid), the same arithmetic in the
     same order, so the same bits; loading numba costs about 80 MB in the process (the aruco
     parameter ``compiled_mapping``).
     """
@@ -219,8 +219,8 @@ def texel_maps(texels_uv, size_mm, offset: tuple[float, float], H: np.ndarray, K
 
     Why OpenCV: the grid's axes are affine in the texel index, so texel → normalised camera
     coordinates is one 3×3 matrix (K⁻¹·H·A), and ``cv2.initUndistortRectifyMap`` applies exactly
-    that, then the same 5-term distortion and K, in float64 SIMD lanes on OpenCV's threads: about 6×
-    less CPU than the NumPy passes (0.3 against 1.8 ms at 256² texels, one thread).  It rounds
+    that, then the same 5-term distortion and K, in float64 SIMD lanes on OpenCV's threads, in one pass
+    where NumPy makes one per operation.  It rounds
     differently inside float64, so a float32 map entry may differ from :func:`remap_maps`' by an ulp
     (of 1 px near 0, where the distortion's terms cancel; tested).  It has no skew term and does not mark points behind the camera, so a skewed K, a grid
     reaching behind the camera or anything non-finite goes to :func:`remap_maps`, as does
@@ -417,7 +417,7 @@ def tone_map(image: np.ndarray, valid: np.ndarray, grey: np.ndarray | None = Non
         return np.zeros(grey.shape, np.uint8)
     # Saturated pixels keep their clipped value, which is bright: fine for black/white markers.
     # In place (255·clip(grey / white, 0, 1)^(1/2.2) + 0.5): no full-image temporaries.  The power is
-    # exp(log(·)/2.2) in float32 SIMD lanes, 8x faster than np.power's float32 loop (log 0 = -inf -> 0).
+    # exp(log(·)/2.2): NumPy's log and exp run in float32 SIMD lanes, its float32 power does not (log 0 = -inf -> 0).
     np.divide(grey, np.float32(white), out=grey)
     np.clip(grey, 0.0, 1.0, out=grey)
     with np.errstate(divide="ignore"):
@@ -431,7 +431,7 @@ def tone_map(image: np.ndarray, valid: np.ndarray, grey: np.ndarray | None = Non
 
 def _percentile(values: np.ndarray, q: float) -> float:
     """``np.percentile(values, q)`` (linear interpolation) from one in-place partition of ``values`` at the two
-    order statistics it needs: a third of ``np.percentile``'s time on a photograph (0.7 against 1.9 ms)."""
+    order statistics it needs, in place, where ``np.percentile`` first copies the whole photograph."""
     pos = q / 100.0 * (values.size - 1)
     k = int(pos)
     k1 = min(k + 1, values.size - 1)

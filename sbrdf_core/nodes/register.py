@@ -64,8 +64,8 @@ def pose_block(texels_vu: tuple[int, int], poses: int, gather_bytes: int = 32 <<
     One task resamples ``k`` poses into ``(k, V, U, 4)`` float32 (``V·U·16`` bytes
     a pose) and writes them as one zarr shard of texel-tile chunks, so memory
     per task is bounded whatever the number of poses, and the graph has one task
-    per block, not per pose and tile (a 2170-pose scan in 16² tiles of pose
-    blocks was 63 000 tasks, ~95 MB in the client).  At least ``min_blocks``
+    per block, not per pose and tile (per pose and tile, a scan of thousands of
+    poses would be tens of thousands of tasks, held in the client).  At least ``min_blocks``
     blocks keep every core busy on small scans.
     """
     V, U = texels_vu
