@@ -33,7 +33,6 @@ import sys
 import tempfile
 import textwrap
 import time
-import zlib
 from collections import Counter
 from pathlib import Path
 
@@ -452,20 +451,13 @@ def image_in_subfolder_replaced(c: Case, base: Path) -> None:
 
 
 def png_bomb(c: Case, base: Path) -> None:
-    """An 8-bit grey PNG of 30000 x 30000 pixels (900 MB decoded) in about 1 MB."""
+    """An 8-bit grey PNG of 30000 x 30000 pixels (900 MB decoded) in about 1 MB, in place of a pose's image."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.acquisition.test_capture_hostile import png_bomb as write_bomb
+
     folder = capture_folder(c, base)
     manifest = json.loads((folder / "capture.json").read_text())
-    target = folder / manifest["poses"][1]["exposures"][0]["file"]
-    w = h = 30000
-    comp = zlib.compressobj(9)
-    row = b"\x00" * (w + 1)
-    data = b"".join(comp.compress(row) for _ in range(h)) + comp.flush()
-
-    def chunk(kind: bytes, body: bytes) -> bytes:
-        return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
-
-    ihdr = w.to_bytes(4, "big") + h.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
-    target.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", data) + chunk(b"IEND", b""))
+    write_bomb(folder / manifest["poses"][1]["exposures"][0]["file"], 30000)
     # Refusing it takes a header read; decoding it, then the other poses, is what a hang looks like.
     c.sbrdf("run", folder_graph(c, folder, c.root / "store"), timeout=30, ok=False)
 

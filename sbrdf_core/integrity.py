@@ -28,9 +28,7 @@ import hashlib
 import json
 import logging
 import os
-import shutil
 import socket
-import stat
 import threading
 import time
 from dataclasses import dataclass, field
@@ -59,6 +57,7 @@ from .store import (
     join,
     members,
     regular_file,
+    remove_unfollowed,
     special_entries,
 )
 
@@ -305,28 +304,8 @@ def _marker_crcs(url: str, name: str, d: Damage) -> np.ndarray | None:
 
 
 def _remove_local(root: str, rel: str) -> None:
-    """Remove ``rel`` below the local directory ``root`` without following a link on the way.
-
-    Every directory between ``root`` and it must be a real directory (not a
-    link): where one is not, that entry is removed instead (as a link, never
-    what it points to) and the path below it is gone with it.  A directory at
-    the end is removed with its contents (links inside it as links).
-    """
-    path = root
-    parts = [p for p in rel.split("/") if p]
-    for i, part in enumerate(parts):
-        path = os.path.join(path, part)
-        try:
-            mode = os.lstat(path).st_mode
-        except FileNotFoundError:
-            return
-        if stat.S_ISDIR(mode) and i < len(parts) - 1:
-            continue
-        if stat.S_ISDIR(mode):
-            shutil.rmtree(path)
-        else:
-            os.unlink(path)
-        return
+    """Remove ``rel`` below the local directory ``root``, following no link (:func:`.store.remove_unfollowed`)."""
+    remove_unfollowed(root, [p for p in rel.split("/") if p])
 
 
 def drop_chunks(url: str, chunks: dict[str, set[str] | None]) -> None:

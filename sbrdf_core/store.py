@@ -493,16 +493,16 @@ def _all_keys(lay: ArrayLayout) -> set[str]:
     return {chunk_key(i) for i in np.ndindex(*lay.grid)} if lay.shape else {"0"}
 
 
-def _clear_chunk_path(array_root: str, key: str, lay: ArrayLayout) -> None:
-    """Remove whatever stands where chunk ``key`` of a local array will be written, but is not a chunk file.
+def remove_unfollowed(root: str, parts: list[str], keep_file: bool = False) -> None:
+    """Remove ``root/parts...`` (local) without following a link on the way.
 
-    A directory (or a file where a directory of the key belongs) there makes
-    every write of the chunk fail.  Only entries inside the array's own ``c``
-    directory are touched, links are removed as links, and a chunk file that
-    is a plain file is left for the writer to replace.
+    Every directory between ``root`` and the end must be a real directory (not
+    a link): where one is not, that entry is removed instead (as a link, never
+    what it points to) and the path below it is gone with it.  A directory at
+    the end is removed with its contents (links inside it as links); a plain
+    file at the end is kept when ``keep_file``.
     """
-    parts = ["c", *key.split(".")] if lay.shape else ["c"]
-    path = array_root
+    path = root
     for i, part in enumerate(parts):
         path = os.path.join(path, part)
         try:
@@ -512,13 +512,24 @@ def _clear_chunk_path(array_root: str, key: str, lay: ArrayLayout) -> None:
         last = i == len(parts) - 1
         if stat.S_ISDIR(mode) and not last:
             continue
-        if stat.S_ISREG(mode) and last:
+        if stat.S_ISREG(mode) and last and keep_file:
             return
         if stat.S_ISDIR(mode):
             shutil.rmtree(path)
         else:
             os.unlink(path)
         return
+
+
+def _clear_chunk_path(array_root: str, key: str, lay: ArrayLayout) -> None:
+    """Remove whatever stands where chunk ``key`` of a local array will be written, but is not a chunk file.
+
+    A directory (or a file where a directory of the key belongs) there makes
+    every write of the chunk fail.  Only entries inside the array's own ``c``
+    directory are touched, links are removed as links, and a chunk file that
+    is a plain file is left for the writer to replace.
+    """
+    remove_unfollowed(array_root, ["c", *key.split(".")] if lay.shape else ["c"], keep_file=True)
 
 
 _CHUNK_KEY = re.compile(r"\d+(\.\d+)*")
