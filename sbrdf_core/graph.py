@@ -652,7 +652,8 @@ class _Validator:
             if self._allowed[2]:
                 self.problem(self._allowed[2], (outputs.OPT_IN,))
         anywhere, folders, _ = self._allowed
-        nodes = doc.get("nodes") if isinstance(doc.get("nodes"), dict) else {}
+        nodes = doc.get("nodes")
+        nodes = nodes if isinstance(nodes, dict) else {}
         where = f"node {path[1]!r}: parameter {'.'.join(map(str, path[3:]))!r}"
         problem, outside = outputs.output_problem(value, store, map(str, nodes), anywhere, folders)
         if problem:

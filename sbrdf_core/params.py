@@ -209,7 +209,7 @@ INT_RANGE = (-(2**63), 2**63 - 1)
 
 def _short(value: Any) -> str:
     """``repr(value)``, shortened: a 5000-digit integer in an error message helps nobody."""
-    if isinstance(value, numbers.Integral) and abs(value) >= 10**40:
+    if isinstance(value, numbers.Integral) and abs(int(value)) >= 10**40:
         try:
             return f"an integer of {len(str(abs(int(value))))} digits"
         except ValueError:  # more digits than Python converts to text
