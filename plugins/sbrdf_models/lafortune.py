@@ -220,7 +220,7 @@ class LafortuneModel(BRDFModel):
         energy bound integrates, compiled.  Seen from a fixed ω_i a lobe is C·(ω_i ⊙ ω_o) = a·ω_o with
         a = (C ⊙ ω_i) (in the β frame), a cosine lobe about a: its sum over the quadrature is a compiled loop
         (``lafortune_kernels.lobe_quadrature``), the diffuse term ρ_d Σ w_o."""
-        from .lafortune_kernels import lobe_quadrature
+        from .lafortune_kernels import lobe_quadrature, run_parallel
 
         wi = np.asarray(wi, np.float64)
         T = wi.shape[0]
@@ -241,7 +241,7 @@ class LafortuneModel(BRDFModel):
             n[:, j] = np.asarray(lobe["exponent"], np.float64)[:, 0]
         up = np.asarray(dirs)[:, 2] > 0  # eval's horizon: directions below it add nothing
         dirs, weights = np.asarray(dirs, np.float64)[up], np.asarray(weights, np.float64)[up]
-        sums = lobe_quadrature(a, n, np.ascontiguousarray(dirs), np.ascontiguousarray(weights))
+        sums = run_parallel(lobe_quadrature, a, n, np.ascontiguousarray(dirs), np.ascontiguousarray(weights))
         out = np.asarray(params["rho_d"], np.float64) * float(np.sum(weights))
         for j, lobe in enumerate(lobes):
             out = out + np.asarray(lobe["rho_s"], np.float64) * sums[:, j:j + 1]

@@ -23,6 +23,14 @@ from numba import njit, prange
 
 LOG_CAP = 60.0
 
+# Every kernel callable from Python is ``nogil=True``, so a dask thread inside one never keeps the Fit node's
+# other threads out of Python.  numba already releases the GIL inside a ``parallel=True`` kernel's parallel
+# region; the flag covers the serial kernels (:func:`constrain_packed`) and the serial code around a ``prange``.
+# Safe because every kernel here is nopython code on arrays the caller owns for the call (a tile's own
+# problem): no Python objects, no shared mutable state.  Concurrent calls of a ``parallel=True`` kernel are
+# safe on numba's OpenMP and TBB layers and serialised on the workqueue layer by :func:`run_parallel`.
+# ``inline="always"`` helpers are only called from compiled code, where the flag has no effect.
+
 # OpenMP workers that spin while waiting for the next parallel region burn CPU time that no fit uses (a quarter
 # of the fit's CPU time on a shared 2-core machine, measured); waiting passively costs microseconds of latency.
 # Read by libgomp when numba's OpenMP layer starts (the first parallel call), so setting it here is in time;
@@ -123,7 +131,7 @@ def _assemble(x, t, G, H, lobes, aniso, has_beta, C, K, M, A, g):
             A[t, p, r] = A[t, r, p]
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def normal_equations(x, idx, wi, wo, f, w, lobes, aniso, has_beta):
     """``(JᵀJ (T,K,K), Jᵀr (T,K), cost (T,))`` for parameter rows ``x`` of texels ``idx``.
 
@@ -200,7 +208,7 @@ _P = (1.66666666666666019037e-01, -2.77777777770155933842e-03, 6.613756321437934
 _SQRT2 = 1.4142135623730951
 
 
-@njit(cache=True, fastmath={"contract"}, error_model="numpy")
+@njit(cache=True, nogil=True, fastmath={"contract"}, error_model="numpy")
 def simd_log(x, out, mant, expo, nb):
     """``out[:nb] = log(x[:nb])`` for positive normal ``x`` (the caller keeps the rest out); ``mant``, ``expo``:
     scratch of the same length (float64, int64).  ``error_model="numpy"``: no zero-division branch to stop SIMD."""
@@ -227,7 +235,7 @@ def simd_log(x, out, mant, expo, nb):
         out[k] = s * (hfsq + t2 + t1) + e * _LN2_LO - hfsq + f + e * _LN2_HI
 
 
-@njit(cache=True, fastmath={"contract"}, error_model="numpy")
+@njit(cache=True, nogil=True, fastmath={"contract"}, error_model="numpy")
 def simd_exp(y, out, scale, expo, nb):
     """``out[:nb] = exp(y[:nb])`` for ``y`` ≤ 709; 0 at or below -708, NaN for NaN; ``scale``, ``expo``: scratch."""
     p1, p2, p3, p4, p5 = _P
@@ -250,7 +258,7 @@ def simd_exp(y, out, scale, expo, nb):
         out[k] = out[k] * scale[k] if yk > -708.0 else (0.0 if yk <= -708.0 else yk)
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _gram_block(Bw, Rw, nb, G, H):
     """``G += Bw Bwᵀ`` (its upper triangle), ``H += Bw Rwᵀ`` over a block's ``nb`` samples: each sum runs along a
     contiguous row, so it is done in SIMD lanes (``reassoc`` lets the sum be split across them; the order of the
@@ -293,7 +301,7 @@ def _pair_sums(b0, b1, other, nb, out, i, col):
     out[i + 1, col] += a1
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def _weigh_residuals(Rw, W, nb, store):
     """Σ_c Σ_k (Rw[c, k]·W[k])² over a block, and (``store``) the weighted residuals written back into ``Rw``.
 
@@ -313,7 +321,7 @@ def _weigh_residuals(Rw, W, nb, store):
     return total
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _lobe_values(cj, nj, P, Z, nb, dot, lx, y, sv, scratch, expo):
     """One isotropic lobe (C_xy ``cj``, n ``nj``) over a block of ``nb`` samples: ``sv`` = max(0, x)^n with
     x = C_xy·pxy + pzz (0 where x ≤ 0), ``dot`` = x (1 where x ≤ 0) and ``lx`` = log ``dot``, which its derivatives
@@ -331,7 +339,7 @@ def _lobe_values(cj, nj, P, Z, nb, dot, lx, y, sv, scratch, expo):
         sv[k] = sv[k] if cj * P[k] + Z[k] > 1e-300 else 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _lobe_rows(cj, nj, P, Z, W, nb, dot, lx, sv, bs, bc, bn, derivatives):
     """The weighted basis rows of a lobe from its :func:`_lobe_values`: s·w, ∂s/∂C_xy·w = n s pxy / x·w and
     ∂s/∂log n·w = n s log x·w (zeros without ``derivatives``)."""
@@ -347,7 +355,7 @@ def _lobe_rows(cj, nj, P, Z, W, nb, dot, lx, sv, bs, bc, bn, derivatives):
             bn[k] = 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _lobe(cj, nj, P, Z, W, nb, dot, lx, y, sv, scratch, expo, bs, bc, bn, derivatives):
     """:func:`_lobe_values` then :func:`_lobe_rows`: a lobe's weighted basis rows over a block in one call."""
     _lobe_values(cj, nj, P, Z, nb, dot, lx, y, sv, scratch, expo)
@@ -388,7 +396,7 @@ def _assemble_isotropic(x, t, G, H, lobes, C, K, basis_of, coef, A, g):
             A[t, p, r] = A[t, r, p] = G[bp, basis_of[r]] * a
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def normal_equations_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
     """:func:`normal_equations` for isotropic lobes without β (the usual 1-2 lobe fit), in SIMD lanes.
 
@@ -413,7 +421,7 @@ def normal_equations_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
     return A, g, cost
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ne_scratch(K, C, lobes, S):
     """The working arrays of :func:`_texel_normal_equations`, made once per task and reused texel after texel:
     a block's basis rows, and every block's residual rows and lobe values (:func:`_texel_values` keeps them for
@@ -427,7 +435,7 @@ def _ne_scratch(K, C, lobes, S):
             np.zeros((C, K)), np.empty((L, C)), np.empty(L), np.empty(L), np.empty(L))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _texel_normal_equations(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, A, g, G, H, Bw, Rw, V, y, scratch, expo,
                             basis_of, coef, rho, cx, cy, n):
     """Row ``t`` of :func:`normal_equations_isotropic` (parameters ``x[t]``, the data of texel ``d``): writes
@@ -437,7 +445,7 @@ def _texel_normal_equations(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, A, g,
     return total
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _texel_values(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, Rw, V, y, scratch, expo, rho, cx, cy, n):
     """Texel ``d``'s cost at parameters ``x[t]``, keeping what its normal equations need: per block ``b``, the
     weighted residuals ``Rw[b]`` (a row per channel) and each lobe's values ``V[b]`` (rows 3j, 3j + 1, 3j + 2:
@@ -455,7 +463,7 @@ def _texel_values(x, t, d, pxy, pzz, w_lit, f_t, e_unlit, lobes, Rw, V, y, scrat
     return total
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _texel_gram(x, t, d, pxy, pzz, w_lit, lobes, A, g, G, H, Bw, Rw, V, basis_of, coef, cx, n):
     """``A[t]``, ``g[t]`` from what :func:`_texel_values` left at the same parameters: ``Bw`` holds a block's basis
     b times the sample's weight, a row per basis function (:func:`_lobe_rows`), summed by :func:`_gram_block`."""
@@ -483,7 +491,7 @@ def _texel_gram(x, t, d, pxy, pzz, w_lit, lobes, A, g, G, H, Bw, Rw, V, basis_of
     _assemble_isotropic(x, t, G, H, lobes, C, K, basis_of, coef, A, g)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _block_values(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, Rw, V, y, scratch, expo, rho, cx, n):
     """Texel ``d``'s samples ``s0:s0 + nb`` at parameters ``x[t]`` (unpacked in ``rho``, ``cx``, ``n``): the
     prediction minus f_r in ``Rw`` (a row per channel, not yet weighted) and each lobe's values in ``V`` (rows
@@ -504,7 +512,7 @@ def _block_values(x, t, d, s0, nb, pxy, pzz, w_lit, f_t, lobes, Rw, V, y, scratc
     return W
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def cost_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
     """The ``cost`` of :func:`normal_equations_isotropic` alone, from the same prepared data: no derivative rows, no
     Gram sums.  Why: the fit's last step (its unweighted cost, when it minimised a weighted one) and the scoring of
@@ -520,7 +528,7 @@ def cost_isotropic(x, idx, pxy, pzz, w_lit, f_t, e_unlit, lobes):
     return cost
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _project_row(v, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C, work):
     """:func:`constrain_packed` on one packed row ``v``, in place (``work``: (4, L) scratch)."""
     K = v.shape[0]
@@ -568,7 +576,7 @@ def _project_row(v, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, r
         v[ln_at[j]] = math.log(n_new[j])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def constrain_packed(x, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C):
     """:meth:`LafortuneFitForm.constrain` on packed fit-form rows ``x`` ``(T, K)``, returned as a new array.
 
@@ -595,7 +603,7 @@ def constrain_packed(x, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_h
     return out
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def lm_isotropic(x0, wi, wo, w, f, lobes, lo, hi, free, has_limits, peak, has_peak,
                  n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, iterations, tolerance, damping, max_damping,
                  exact, max_step):
@@ -752,7 +760,7 @@ def _damped_step(A, g, diag, lam, keep, M, b, out, reduced):
         out[i] = v if np.isfinite(v) and (keep[i] or not reduced) else 0.0
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def eval_lobes(rho_d, rho_s, c_x, c_y, c_z, n, wi, wo):
     """:meth:`LafortuneModel.eval` without β: ``ρ_d + Σ_j ρ_s,j max(0, C_j·(ω_i ⊙ ω_o))^n_j`` above the horizon,
     0 below, ``(T, S, C)``.  The same arithmetic in the same order as the NumPy path; the log and exp in SIMD
@@ -776,7 +784,7 @@ def eval_lobes(rho_d, rho_s, c_x, c_y, c_z, n, wi, wo):
     return out
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def squared_residuals_lobes(rho_d, rho_s, c_x, c_y, c_z, n, wi, wo, f_r):
     """Σ_c (:func:`eval_lobes` − ``f_r``)² per sample, ``(T, S)``: the bits of ``sample_squares(eval − f_r)``
     (the same prediction, the channels' squares summed in order) without the ``(T, S, C)`` prediction and
@@ -804,7 +812,7 @@ def squared_residuals_lobes(rho_d, rho_s, c_x, c_y, c_z, n, wi, wo, f_r):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _prediction_scratch(C, S):
     """The working rows of :func:`_predict_block`, made once per task: ω_i ⊙ ω_o's three rows, the lobe's
     x, log x, n log x and value, the exp/log scratch, and the prediction a row per channel (last)."""
@@ -813,7 +821,7 @@ def _prediction_scratch(C, S):
             np.empty(B, np.int64), np.empty((C, B)))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _predict_block(rho_d, rho_s, c_x, c_y, c_z, n, wi, wo, t, s0, nb, pxx, pyy, pzz, dot, lx, y, sv, scratch, expo,
                    f):
     """Texel ``t``'s prediction above the horizon over samples ``s0 : s0 + nb``, into ``f`` (a row per channel, so
@@ -846,7 +854,7 @@ def _predict_block(rho_d, rho_s, c_x, c_y, c_z, n, wi, wo, t, s0, nb, pxx, pyy, 
                 fc[k] += rs * sv[k]
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def lobe_quadrature(a, n, dirs, weights):
     """``Σ_o w_o max(0, a_j·ω_o)^n_j`` per texel and lobe, ``(T, L)``: each lobe seen from one ω_i is a cosine
     lobe about the vector ``a`` (``LafortuneModel.albedo_quadrature``), summed over a quadrature's directions
@@ -909,7 +917,7 @@ def _candidate_sums(ev, wl, r, s2, m, second, G, h):
         G[0, 1] = G[1, 0] = g01
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     """Starting point: for each texel, the lobe-1 exponent from ``log_exponents`` with the smallest cost.
 
@@ -1037,7 +1045,7 @@ def scan_first_exponent(x, log_exponents, wi, wo, f, w, lobes, aniso, has_beta):
     return out
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def prepare_isotropic(wi, wo, w, f):
     """What :func:`normal_equations_isotropic` and :func:`cost_isotropic` read, in one pass over the samples:
     ``(ω_i,xy·ω_o,xy, ω_i,z·ω_o,z, the weight where the sample is lit (0 elsewhere), f_r channel-major (T, C, S),
@@ -1053,7 +1061,7 @@ def prepare_isotropic(wi, wo, w, f):
     return pxy, pzz, w_lit, f_t, e_unlit, energy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _prepare_texel(wi, wo, w, f, t, pxy, pzz, w_lit, f_t, d):
     """Texel ``t``'s samples prepared into row ``d`` of ``pxy``, ``pzz``, ``w_lit``, ``f_t`` (as
     :func:`prepare_isotropic` describes them); returns ``(unlit energy, energy, any sample weighted)``.  Below
@@ -1205,7 +1213,7 @@ def _solve(A, b, n):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _nnls(G, h, sel, L1, a, free, A, rhs):
     """min over a ≥ 0 of aᵀGa − 2aᵀh on the basis rows ``sel[:L1]`` of ``G``, ``h`` (one channel).
 
@@ -1269,7 +1277,7 @@ def _accumulate(G, H, b, m, w2, f, d, s):
             H[i, k] += bi * f[d, s, k]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _gram(pxy, pz, ws, S, lobes, c, n, f, d, G, H, derivatives):
     """One pass over a texel's samples: ``G = Σ w² b bᵀ``, ``H = Σ w² b fᵀ`` for the basis
     ``b = [1, s_1..s_L, (∂s_j/∂c_j, ∂s_j/∂log n_j) per lobe]`` (the derivatives only if asked; else those rows are 0).
@@ -1320,7 +1328,7 @@ def _magnitudes(G, H, L1, sel, a, free, A, rhs, col, acol, fcol):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _box(theta, lobes, c_lo, c_hi, ln_lo, ln_hi, growth, s2, c2):
     """Clip lobe shapes to their box; with a grazing-growth bound, |c| ≤ max((g^(1/n) − cos²θ)/sin²θ, 1)."""
     for j in range(lobes):
@@ -1333,7 +1341,7 @@ def _box(theta, lobes, c_lo, c_hi, ln_lo, ln_hi, growth, s2, c2):
         theta[2 * j] = min(max(theta[2 * j], lo), hi)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _scan(jq, cand_c, cand_k, theta, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi):
     """Lobe ``jq``'s best shape among candidates, the other lobes held, magnitudes by NNLS; writes theta.
 
@@ -1411,7 +1419,7 @@ def _scan(jq, cand_c, cand_k, theta, pxy, pz, ws, S, L, f, t, ln_lo, ln_hi):
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _kaufman(G, H, a, free, L, JJ, g, DB, Y, y):
     """Kaufman's JᵀJ = Σ_c DᵀD − DᵀB (BᵀB)⁻¹ BᵀD (over the channel's free magnitudes) and the gradient Dᵀr,
     all from the Gram sums."""
@@ -1457,7 +1465,7 @@ def _kaufman(G, H, a, free, L, JJ, g, DB, Y, y):
                 JJ[k, l] -= acc
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def separable_lm(wi, wo, f, w, theta0, ln_hi, c_lo, c_hi, ln_lo, growth, s2, c2, scan, iterations, tolerance,
                  damping, max_damping, exact):
     """Levenberg–Marquardt over the lobe shapes alone (c_j, log n_j), magnitudes by non-negative least squares.
