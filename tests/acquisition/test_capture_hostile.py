@@ -11,17 +11,7 @@ import pytest
 
 from sbrdf_lib.capture_folder import CaptureFolderError
 from tests.acquisition.test_virtual_folder import params
-
-
-def snapshot(root: Path) -> dict[str, bytes | str]:
-    out: dict[str, bytes | str] = {}
-    for dirpath, dirs, files in os.walk(root):
-        for name in dirs + files:
-            p = Path(dirpath) / name
-            rel = str(p.relative_to(root))
-            out[rel] = ("link:" + os.readlink(p)) if p.is_symlink() else "dir" if p.is_dir() else p.read_bytes()
-    return out
-
+from tests.plugins.test_output_confinement import snapshot
 
 # -- virtual-folder writes only into its own folders -------------------------------------------------------------
 
