@@ -123,6 +123,15 @@ class BRDFModel:
         fn = "brdf_" + self.name.replace("-", "_")
         return f"{fn}({wi}, {wo}, " + ", ".join(args[p.name] for p in self.parameters) + ")"
 
+    def kernel_config(self) -> np.ndarray:
+        """The configuration a compiled ``fit_kernel`` reads, as float64 numbers (flags, choices).
+
+        A model that declares ``fit_kernel`` (a numba function computing f_r and
+        its Jacobian in the fit form at one direction pair) and has options that
+        change its mathematics returns them here; default: none.
+        """
+        return np.zeros(0)
+
     def fit_form(self) -> BRDFModel:
         """An equivalent, better-conditioned parametrisation for fitters (default: ``self``).
 
@@ -314,6 +323,14 @@ class LogFitForm(BRDFModel):
 
     def glsl(self) -> str:
         return self.model.glsl()
+
+    @property
+    def kernel(self):
+        """The wrapped model's compiled ``fit_kernel`` (it works in this fit form), or None."""
+        return getattr(self.model, "fit_kernel", None)
+
+    def kernel_config(self) -> np.ndarray:
+        return self.model.kernel_config()
 
     def canonical(self, params):
         return self.from_model(self.model.canonical(self.to_model(params)))
