@@ -123,6 +123,11 @@ class BRDFModel:
         fn = "brdf_" + self.name.replace("-", "_")
         return f"{fn}({wi}, {wo}, " + ", ".join(args[p.name] for p in self.parameters) + ")"
 
+    @property
+    def kernel(self):
+        """This fit form's compiled ``fit_kernel``, or None: a model whose fit form is itself declares it."""
+        return getattr(self, "fit_kernel", None)
+
     def kernel_config(self) -> np.ndarray:
         """The configuration a compiled ``fit_kernel`` reads, as float64 numbers (flags, choices).
 
