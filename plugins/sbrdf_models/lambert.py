@@ -13,10 +13,22 @@ YAML::
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
 from sbrdf_core.constraints_glsl import clip_lines
 from sbrdf_core.plugin import PluginSpec, hookimpl
+
+
+@njit(cache=True, nogil=True)
+def fit_kernel(x, cfg, wi, wo, f, J):
+    """f_r = ρ_d and its Jacobian, the identity, at one direction pair (the fit form is the model: x = ρ_d);
+    zeros below the horizon, as :meth:`LambertModel.eval`."""
+    up = wi[2] > 0.0 and wo[2] > 0.0  # written so, not as ≤ 0, that NaN directions give 0 as above_horizon does
+    for c in range(3):
+        f[c] = x[c] if up else 0.0
+        for k in range(3):
+            J[c, k] = 1.0 if up and k == c else 0.0
 
 
 class LambertModel(BRDFModel):
@@ -24,6 +36,7 @@ class LambertModel(BRDFModel):
     anisotropic = False
     suggested_starts = 1  # linear in ρ_d: one minimum
     reads_peak_cosine = False
+    fit_kernel = staticmethod(fit_kernel)
     parameters = (
         ModelParameter("rho_d", channels=3, bounds=(0.0, 10.0), typical=(0.02, 0.3), default=0.1, unit="sr^-1",
                        doc="diffuse reflectance per channel", magnitude=True),
