@@ -24,9 +24,12 @@ YAML::
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
+import numpy as np
+from numba import njit
+
+from sbrdf_core.brdf import LOG_CAP, BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints import clip_shape
 from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -34,10 +37,38 @@ from sbrdf_core.plugin import PluginSpec, hookimpl
 EXPONENT_BOUNDS = (0.1, 20000.0)
 
 
+@njit(cache=True, nogil=True)
+def fit_kernel(x, cfg, wi, wo, f, J):
+    """f_r and ∂f_r/∂x in the fit form x = (ρ_d, ρ_s, log n) at one direction pair; zeros below the horizon.
+
+    The lobe is :func:`~sbrdf_core.brdf.positive_power`'s: cos^n with n·log cos clipped to [−745, LOG_CAP], 0 where
+    cos α ≤ 0.  ∂lobe/∂log n = n (cos^n/2π + lobe·log cos)."""
+    for c in range(3):
+        f[c] = 0.0
+        for k in range(7):
+            J[c, k] = 0.0
+    if not (wi[2] > 0.0 and wo[2] > 0.0):  # not ≤ 0: NaN directions give 0, as above_horizon does
+        return
+    n = math.exp(x[6])
+    cos_a = wi[2] * wo[2] - wi[0] * wo[0] - wi[1] * wo[1]
+    p, log_c = 0.0, 0.0
+    if cos_a > 0.0:
+        log_c = math.log(cos_a)
+        p = math.exp(min(max(n * log_c, -745.0), LOG_CAP))
+    lobe = (n + 2.0) / (2.0 * math.pi) * p
+    dlobe = (p / (2.0 * math.pi) + lobe * log_c) * n
+    for c in range(3):
+        f[c] = x[c] + x[3 + c] * lobe
+        J[c, c] = 1.0
+        J[c, 3 + c] = lobe
+        J[c, 6] = x[3 + c] * dlobe
+
+
 class PhongModel(BRDFModel):
     name = "phong"
     anisotropic = False
     reads_peak_cosine = False  # its peak is bounded on f_r itself
+    fit_kernel = staticmethod(fit_kernel)
     parameters = (
         ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
         ModelParameter("rho_s", 3, (0.0, 10.0), (0.05, 0.8), 0.3, unit="1", doc="specular albedo at normal incidence",
