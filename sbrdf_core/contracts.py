@@ -26,11 +26,8 @@ if TYPE_CHECKING:  # the contract never imports the engine or numpy at runtime
     import numpy as np
 
     from .brdf import ModelParameter
-    from .constraints import Limits
-    from .nodes.capture import CaptureDescription
-    from .nodes.quantize import Encoded
-    from .nodes.register import Registration as RegistrationResult
-    from .nodes.render import Material, RenderResult
+    from .types import CaptureDescription, Encoded, Limits, Material, RenderResult
+    from .types import Registration as RegistrationResult
 
 
 # ---------------------------------------------------------------------------
@@ -481,3 +478,51 @@ __all__ = [
     "Quantizer", "Registration", "Renderer", "SceneEffect", "contract_table", "missing", "optional",
     "optional_table", "required_members",
 ]
+
+
+# ---------------------------------------------------------------------------
+# Frame cameras: physical cameras (and their vendors' emulators)
+# ---------------------------------------------------------------------------
+
+
+@runtime_checkable
+class FrameCamera(Protocol):
+    """A physical camera that a capture source configures once, then triggers frame by frame.
+
+    Unlike :class:`Camera` (the virtual camera, which renders the sample for a
+    given light and pose) it knows nothing of the scene: the ``gonio`` source
+    moves the motors, waits for them to settle, sets the exposure and grabs.
+    :mod:`sbrdf_lib.camera` holds the base class the built-in drivers share
+    and the errors they raise.  Invariants every implementation keeps:
+
+    * ``grab`` returns ``(H, W, 3)`` uint8 or uint16 codes, MSB-aligned (full
+      scale is the dtype's maximum whatever the bit depth); a mono code is
+      repeated in the three channels;
+    * automatic exposure, gain and white balance are off where the camera has
+      them, so a code depends only on radiance, exposure time and gain;
+    * ``info()`` says who the camera is and how it is set (vendor, model,
+      serial, pixel format, bit depth, linear readout, gain, black level,
+      trigger, white balance "off"): the capture records it;
+    * failures raise :class:`sbrdf_lib.camera.CameraError` subclasses
+      (``CameraLost``, ``FrameTimeout``, ``ExposureRefused``).
+    """
+
+    def info(self) -> dict:
+        """Identity and settings of the camera, recorded in the capture's ``camera.device``."""
+
+    def exposure_range_s(self) -> tuple[float, float]:
+        """``(shortest, longest)`` exposure time the camera accepts, s (checked before anything moves)."""
+
+    def set_exposure(self, exposure_s: float) -> float:
+        """Set the exposure; return the time the camera actually uses (refused outside the range)."""
+
+    def grab(self, *, timeout_s: float | None = None, **kw: Any) -> np.ndarray:
+        """Trigger (or await a hardware trigger for) one frame; ``(H, W, 3)`` uint8/uint16 codes."""
+
+    def close(self) -> None:
+        """Stop acquisition and release the camera; idempotent."""
+
+
+# A device is a motor controller, a scene-rendering camera or a frame camera.
+PROTOCOLS["device"] = (MotorController, Camera, FrameCamera)
+__all__ += ["FrameCamera"]

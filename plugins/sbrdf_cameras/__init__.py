@@ -22,6 +22,8 @@ def sbrdf_devices():
             "sbrdf_cameras.virtual:VirtualCamera",
             summary="Simulated camera photographing a known SBRDF on an ArUco carrier under a point light",
         ),
+        PluginSpec("pylon", "sbrdf_cameras.pylon:PylonCamera",
+                   summary="Basler camera through pypylon (PYLON_CAMEMU=N emulates N cameras)"),
     ]
 
 
