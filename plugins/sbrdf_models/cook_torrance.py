@@ -29,7 +29,10 @@ YAML::
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
@@ -40,6 +43,62 @@ from sbrdf_core.plugin import PluginSpec, hookimpl
 COS_FLOOR = 1e-6
 ALPHA_BOUNDS = (1e-3, 2.0)
 SQRT_PI = float(np.sqrt(np.pi))
+#: ``distribution`` as :meth:`CookTorranceModel.kernel_config` numbers it.
+DISTRIBUTIONS = ("beckmann", "ggx")
+
+
+@njit(cache=True, nogil=True)
+def fit_kernel(x, cfg, wi, wo, f, J):
+    """f_r and ∂f_r/∂x in the fit form x = (ρ_d, F0, log α) at one direction pair; zeros below the horizon.
+    ``cfg`` = (index in :data:`DISTRIBUTIONS`,).  The floors and clips are :meth:`CookTorranceModel._terms`'."""
+    for c in range(3):
+        f[c] = 0.0
+        for k in range(7):
+            J[c, k] = 0.0
+    if not (wi[2] > 0.0 and wo[2] > 0.0):  # not ≤ 0: NaN directions give 0, as above_horizon does
+        return
+    beckmann = cfg[0] == 0.0
+    alpha = math.exp(x[6])
+    a2 = alpha * alpha
+    ci, co = max(wi[2], COS_FLOOR), max(wo[2], COS_FLOOR)
+    hx, hy, hz = wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]
+    hh = max(hx * hx + hy * hy + hz * hz, 1e-300)
+    cos2_h = min(max(max(hz, 0.0) ** 2 / hh, COS_FLOOR**2), 1.0)
+    cos_d = min(max((wi[0] * hx + wi[1] * hy + wi[2] * hz) / math.sqrt(hh), 0.0), 1.0)
+    if beckmann:
+        tan2_h = (1.0 - cos2_h) / cos2_h
+        D = math.exp(-tan2_h / a2) / (math.pi * a2 * cos2_h * cos2_h)
+        dD = D * (2.0 * tan2_h / (a2 * alpha) - 2.0 / alpha)
+    else:
+        kk = cos2_h * a2 + (1.0 - cos2_h)
+        D = a2 / (math.pi * kk * kk)
+        dD = D * (2.0 / alpha - 4.0 * cos2_h * alpha / kk)
+    # Smith Λ(ω_i) + Λ(ω_o) and its α derivative, for G = 1/(1 + Λ_i + Λ_o)
+    lam, dlam = 1.0, 0.0
+    for cos_t in (ci, co):
+        tan2 = max(1.0 - cos_t * cos_t, 0.0) / (cos_t * cos_t)
+        if beckmann:
+            a = 1.0 / (alpha * math.sqrt(max(tan2, 1e-30)))
+            g = math.exp(-a * a) / (a * SQRT_PI)
+            lam += 0.5 * (g - math.erfc(a))
+            dlam += 0.5 * g / alpha
+        else:
+            xg = a2 * tan2
+            root = math.sqrt(1.0 + xg)
+            lam += 0.5 * xg / (1.0 + root)
+            dlam += 0.5 * alpha * tan2 / root
+    G = 1.0 / lam
+    dG = -G * G * dlam
+    denom = 4.0 * ci * co
+    spec = D * G / denom
+    dspec = (dD * G + D * dG) / denom
+    schlick = (1.0 - cos_d) ** 5
+    for c in range(3):
+        F = x[3 + c] + (1.0 - x[3 + c]) * schlick
+        f[c] = x[c] + F * spec
+        J[c, c] = 1.0
+        J[c, 3 + c] = spec * (1.0 - schlick)
+        J[c, 6] = F * dspec * alpha
 
 
 def schlick_lobe(params, wi, wo, spec, schlick):
@@ -66,6 +125,7 @@ def schlick_lobe_jacobian(params, wi, wo, spec, dspec, schlick):
 class CookTorranceModel(BRDFModel):
     name = "cook-torrance"
     anisotropic = False
+    fit_kernel = staticmethod(fit_kernel)
     parameters = (
         ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
         ModelParameter("f0", 3, (0.0, 1.0), (0.02, 0.9), 0.04, unit="1", doc="Fresnel reflectance at normal incidence",
@@ -81,6 +141,10 @@ class CookTorranceModel(BRDFModel):
         if distribution not in ("beckmann", "ggx"):
             raise ValueError(f"cook-torrance: distribution must be 'beckmann' or 'ggx', got {distribution!r}")
         self.distribution = distribution
+
+    def kernel_config(self) -> np.ndarray:
+        """``distribution`` as a number for :func:`fit_kernel`."""
+        return np.array([float(DISTRIBUTIONS.index(self.distribution))])
 
     # -- the three factors, each with its α derivative ------------------------------------
 
