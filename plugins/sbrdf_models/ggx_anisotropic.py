@@ -30,7 +30,10 @@ YAML::
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
@@ -42,9 +45,61 @@ COS_FLOOR = 1e-6
 ALPHA_BOUNDS = (1e-3, 1.0)
 
 
+@njit(cache=True, nogil=True)
+def fit_kernel(x, cfg, wi, wo, f, J):
+    """f_r and ∂f_r/∂x in the fit form x = (ρ_d, F0, log α_t, log α_b, φ) at one direction pair; zeros below the
+    horizon.  The floors and the derivatives of log D and of the Smith roots are :meth:`GGXAnisotropicModel._terms`'."""
+    for c in range(3):
+        f[c] = 0.0
+        for k in range(9):
+            J[c, k] = 0.0
+    if not (wi[2] > 0.0 and wo[2] > 0.0):  # not ≤ 0: NaN directions give 0, as above_horizon does
+        return
+    at, ab, phi = math.exp(x[6]), math.exp(x[7]), x[8]
+    cp, sp = math.cos(phi), math.sin(phi)
+    ci, co = max(wi[2], COS_FLOOR), max(wo[2], COS_FLOOR)
+    hx, hy, hz = wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]
+    hl = math.sqrt(max(hx * hx + hy * hy + hz * hz, 1e-300))
+    hx, hy, hz = hx / hl, hy / hl, hz / hl
+    hxr, hyr = cp * hx + sp * hy, -sp * hx + cp * hy  # in the anisotropy frame
+    hzf = max(hz, COS_FLOOR)
+    q = max((hxr / at) ** 2 + (hyr / ab) ** 2 + hzf * hzf, 1e-300)
+    D = 1.0 / (math.pi * at * ab * q * q)
+    dlnD_t = -1.0 / at + 4.0 * hxr**2 / (q * at**3)
+    dlnD_b = -1.0 / ab + 4.0 * hyr**2 / (q * ab**3)
+    dlnD_phi = -4.0 * hxr * hyr * (1.0 / at**2 - 1.0 / ab**2) / q
+    # Smith roots |(α_t ω_x', α_b ω_y', cos θ)| / cos θ of ω_i and ω_o, and their derivatives by α_t, α_b, φ
+    rsum, dr_t, dr_b, dr_phi = 0.0, 0.0, 0.0, 0.0
+    for j in range(2):
+        w = wi if j == 0 else wo
+        cz = ci if j == 0 else co
+        wx, wy = cp * w[0] + sp * w[1], -sp * w[0] + cp * w[1]
+        r = math.sqrt(1.0 + (at * at * wx * wx + ab * ab * wy * wy) / (cz * cz))
+        rsum += r
+        dr_t += at * wx * wx / (cz * cz * r)
+        dr_b += ab * wy * wy / (cz * cz * r)
+        dr_phi += wx * wy * (at * at - ab * ab) / (cz * cz * r)
+    V = 0.5 / (ci * co * rsum)
+    spec = D * V
+    dspec_t = spec * (dlnD_t - dr_t / rsum)
+    dspec_b = spec * (dlnD_b - dr_b / rsum)
+    dspec_phi = spec * (dlnD_phi - dr_phi / rsum)
+    cos_d = min(max(wi[0] * hx + wi[1] * hy + wi[2] * hz, 0.0), 1.0)
+    schlick = (1.0 - cos_d) ** 5
+    for c in range(3):
+        F = x[3 + c] + (1.0 - x[3 + c]) * schlick
+        f[c] = x[c] + F * spec
+        J[c, c] = 1.0
+        J[c, 3 + c] = spec * (1.0 - schlick)
+        J[c, 6] = F * dspec_t * at
+        J[c, 7] = F * dspec_b * ab
+        J[c, 8] = F * dspec_phi
+
+
 class GGXAnisotropicModel(BRDFModel):
     name = "ggx-anisotropic"
     anisotropic = True
+    fit_kernel = staticmethod(fit_kernel)
     parameters = (
         ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
         ModelParameter("f0", 3, (0.0, 1.0), (0.02, 0.9), 0.04, unit="1", doc="Fresnel reflectance at normal incidence",
