@@ -29,61 +29,19 @@ from __future__ import annotations
 
 import functools
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from .brdf_checks import energy_azimuths, energy_report, uncleared
 from .channels import all_finite, channel_max
 from .geometry import polar_direction
+from .types import Limits
 
-#: A cosine lobe cos^n α falls to half its peak at α = √(2 ln 2 / n).
-HALF_MAX = 2.0 * np.log(2.0)
 #: Samples counted when measuring how close the data comes to the mirror configuration.
 NEAREST = 2
 #: Incident elevations (degrees) where the energy bound is checked (those of brdf_checks.energy_report).
 ENERGY_THETAS = (0.0, 30.0, 60.0, 75.0, 85.0)
-
-
-@dataclass(frozen=True)
-class Limits:
-    """Per-texel bounds for a batch of T texels (``None``: that bound is off)."""
-
-    #: Largest f_r (sr⁻¹, any channel) the model may reach on the hemisphere up to ``max_theta``, ``(T,)``.
-    peak: np.ndarray | None = None
-    #: Finest angular detail (radians) the texel's samples resolve, ``(T,)``.
-    resolution: np.ndarray | None = None
-    #: The hemisphere the peak bound covers, radians from the normal.
-    max_theta: float = float(np.radians(89.0))
-    #: Directional albedo bound (1: reflect at most what arrives), or ``None``.
-    albedo: float | None = 1.0
-    #: How much a lobe's *shape* may grow from normal incidence toward grazing (Lafortune m^n), or ``None``.
-    growth: float | None = None
-    #: Largest f_r·cos θ_i·cos θ_o a microfacet lobe may reach, ``(T,)``: its peak with the 1/cos² growth toward
-    #: grazing (the model's physics, not an artefact of the fit) divided out.
-    peak_cosine: np.ndarray | None = None
-
-    def take(self, idx) -> Limits:
-        """The limits of the texels ``idx`` (an index array or a mask)."""
-        pick = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
-        return replace(self, peak=pick(self.peak), resolution=pick(self.resolution), peak_cosine=pick(self.peak_cosine))
-
-    def max_cosine_exponent(self) -> np.ndarray | float:
-        """The sharpest cosine lobe cos^n α the sampling resolves: HWHM ≥ resolution / 2, ``(T, 1)``."""
-        if self.resolution is None:
-            return np.inf
-        r = np.maximum(np.asarray(self.resolution, np.float64), 1e-4)[:, None]
-        return 4.0 * HALF_MAX / (r * r)
-
-    def min_roughness(self) -> np.ndarray | float:
-        """The smallest microfacet slope α (Beckmann/GGX/Ward) the sampling resolves, ``(T, 1)``.
-
-        A Gaussian in tan θ_h of width α has HWHM α√ln2 in θ_h, twice that in
-        the mirror angle; requiring that to be ≥ resolution / 2 gives the bound.
-        """
-        if self.resolution is None:
-            return 0.0
-        return np.asarray(self.resolution, np.float64)[:, None] / (4.0 * np.sqrt(np.log(2.0)))
 
 
 def sample_support(f_r: np.ndarray, valid: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:

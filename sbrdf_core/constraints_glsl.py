@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constraints import HALF_MAX
+from .types import HALF_MAX
 
 #: The function a model's ``glsl_fit_constrain()`` defines (``K`` = ``fit_form().size``).
 SIGNATURE = ("void brdf_fit_constrain(inout float x[K], float peak, float resolution, float peak_cosine, "

@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # importing the contract never imports the engine
     from .nodes.base import NodeKind
     from .params import Param
     from .plugin import PluginSpec
-    from .registry import Registry
+    from .types import PluginRegistry
 
 hookspec = pluggy.HookspecMarker("sbrdf")
 
@@ -96,7 +96,7 @@ def sbrdf_scene_keys() -> dict[str, tuple[Param, ...]]:
 
 
 @hookspec
-def sbrdf_reference_pages(registry: Registry) -> dict[str, str]:
+def sbrdf_reference_pages(registry: PluginRegistry) -> dict[str, str]:
     """Generated reference pages a plugin contributes: ``{path under docs/: markdown}``.
 
     The scene-file reference comes from the renderers this way, so the core's
@@ -121,7 +121,7 @@ def sbrdf_captures() -> list[PluginSpec]:
     :returns: specs whose ``impl`` is a class constructed with the declared
         parameters and providing
 
-        - ``describe() -> sbrdf_core.nodes.capture.CaptureDescription``:
+        - ``describe() -> sbrdf_core.types.CaptureDescription``:
           pose count, image size, per-pose light/camera metadata; no pixels.
         - ``read_pose(index) -> (image, valid)``: linear HDR image
           ``(H, W, 3) float32`` in relative radiance and a ``(H, W) bool``
@@ -163,7 +163,7 @@ def sbrdf_registrations() -> list[PluginSpec]:
 
     :returns: specs whose ``impl`` provides
 
-        - ``register(capture) -> sbrdf_core.nodes.register.Registration``:
+        - ``register(capture) -> sbrdf_core.types.Registration``:
           given the opened ``CaptureSet`` artifact, the texel grid and per-pose
           geometry (homography, RMS in mm, recovered camera centre, rejected
           poses with reasons).  May read pixels (e.g. fiducials) eagerly: it
@@ -210,7 +210,7 @@ def sbrdf_fitters() -> list[PluginSpec]:
           per-texel parameters for a batch of T texels with S samples each:
           ``f_r (T, S, 3)`` in sr^-1, ``valid (T, S)`` (held-out samples are
           already removed), directions ``(T, S, 3)`` in the sample frame.
-          ``limits`` (:class:`~sbrdf_core.constraints.Limits`, optional
+          ``limits`` (:class:`~sbrdf_core.types.Limits`, optional
           keyword) are the texels' physical bounds: a fitter that takes it
           should fit inside them (``model.fit_form().constrain`` projects a
           trial point); the node projects whatever a fitter returns onto
@@ -257,7 +257,7 @@ def sbrdf_quantizers() -> list[PluginSpec]:
     Contract: :class:`~sbrdf_core.contracts.Quantizer`.
 
     :returns: specs whose ``impl`` provides ``encode(params, model)``
-        returning an ``Encoded`` (lazy textures, scale, bias) and
+        returning an ``sbrdf_core.types.Encoded`` (lazy textures, scale, bias) and
         ``decode(textures, scale, bias, model)`` returning parameter maps,
         optionally ``write_files`` and ``bytes_per_texel``; see
         :mod:`sbrdf_core.nodes.quantize`.  ``decode`` must not depend on the
@@ -278,8 +278,8 @@ def sbrdf_renderers() -> list[PluginSpec]:
 
     Contract: :class:`~sbrdf_core.contracts.Renderer`.
 
-    :returns: specs whose ``impl`` provides ``render(material) -> RenderResult``
-        where ``material`` is a :class:`sbrdf_core.nodes.render.Material`
+    :returns: specs whose ``impl`` provides ``render(material) -> sbrdf_core.types.RenderResult``
+        where ``material`` is a :class:`sbrdf_core.types.Material`
         (model + lazy parameter maps); see :mod:`sbrdf_core.nodes.render`.
 
     Call semantics: collected; called once when the registry loads.

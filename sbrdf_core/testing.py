@@ -199,7 +199,7 @@ class BRDFModelTests(PluginTests):
 
     def test_constrain_is_a_projection(self):
         """Constrained parameters stay inside the declared bounds and constraining twice changes nothing."""
-        from .constraints import Limits
+        from .types import Limits
 
         for model in self.models():
             form = model.fit_form()
@@ -313,7 +313,7 @@ class BRDFModelTests(PluginTests):
         bind (a zero peak, resolutions below the floor and of π/2 among them), each bound on and off (growth None
         or set, peak_cosine None or set).  Float32: 2·10⁻⁴ + 2·10⁻³
         relative per parameter (log parameters: the bisection's last bracket, 1.2·10⁻⁴, plus round-off)."""
-        from .constraints import Limits
+        from .types import Limits
 
         models, ctx = self._compute_models("glsl_fit_constrain")
         try:
@@ -674,7 +674,7 @@ class RendererTests(PluginTests):
         import dask.array as da
 
         from .contracts import optional
-        from .nodes.render import Material
+        from .types import Material
 
         r = self.create(self.params)
         bind = optional(r, "bind", "renderer")

@@ -47,8 +47,8 @@ from struct import error as struct_error
 
 import numpy as np
 
-from sbrdf_core.nodes.capture import CaptureDescription
 from sbrdf_core.params import REQUIRED, Param
+from sbrdf_core.types import CaptureDescription
 from sbrdf_lib.capture_folder import (
     MANIFEST,
     CaptureFolderError,

@@ -18,8 +18,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from sbrdf_core.geometry import directions_to, fibonacci_hemisphere, look_at, texel_centres
-from sbrdf_core.nodes.capture import CaptureDescription
 from sbrdf_core.params import Param
+from sbrdf_core.types import CaptureDescription
 from sbrdf_lib.patterns import pattern  # re-exported: sbrdf_capture.synthetic.pattern is its old home
 
 

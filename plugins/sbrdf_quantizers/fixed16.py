@@ -32,8 +32,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sbrdf_core.nodes.quantize import Encoded
 from sbrdf_core.params import Param
+from sbrdf_core.types import Encoded
 
 TOP = 65535
 #: Positive parameters whose declared bounds span more than this ratio are stored as logarithms.

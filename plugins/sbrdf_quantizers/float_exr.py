@@ -24,9 +24,9 @@ import numpy as np
 
 from sbrdf_core.brdf import LUMINANCE_WEIGHTS
 from sbrdf_core.io import read_exr_channels, write_exr_channels
-from sbrdf_core.nodes.quantize import Encoded
 from sbrdf_core.params import Param
 from sbrdf_core.store import join
+from sbrdf_core.types import Encoded
 
 FORMAT = "sbrdf-material/1"
 RGB = "RGB"

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sbrdf_core.nodes.quantize import Encoded
 from sbrdf_core.params import Param
+from sbrdf_core.types import Encoded
 
 
 class LinearQuantizer:

@@ -43,8 +43,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from sbrdf_core.nodes.quantize import Encoded
 from sbrdf_core.params import Param
+from sbrdf_core.types import Encoded
 
 RESCALES = ("max", "balanced", "none")
 

@@ -30,9 +30,9 @@ import numpy as np
 
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.io import read_png, write_png
-from sbrdf_core.nodes.quantize import Encoded
 from sbrdf_core.params import Param
 from sbrdf_core.store import join
+from sbrdf_core.types import Encoded
 
 
 def sample_directions(n: int = 12) -> tuple[np.ndarray, np.ndarray]:

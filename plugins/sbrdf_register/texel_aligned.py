@@ -13,8 +13,8 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import camera_centre
-from sbrdf_core.nodes.register import Registration
 from sbrdf_core.params import Param
+from sbrdf_core.types import Registration
 
 
 class TexelAligned:

@@ -6,8 +6,8 @@ import logging
 
 from sbrdf_core import contracts
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.nodes.render import RenderResult
 from sbrdf_core.params import Param
+from sbrdf_core.types import RenderResult
 from sbrdf_lib.mesh import load_mesh
 from sbrdf_lib.scene import SceneError, load_scene, scene_fingerprint
 

@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from sbrdf_core import contracts
-from sbrdf_core.nodes.render import RenderResult
+from sbrdf_core.types import RenderResult
 from sbrdf_lib.scene import downsample
 from sbrdf_lib.surface import Hits, cast, local_frame
 

@@ -36,8 +36,8 @@ import numpy as np
 
 from sbrdf_core import contracts
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.nodes.render import RenderResult
 from sbrdf_core.params import Param
+from sbrdf_core.types import RenderResult
 from sbrdf_lib.gl import Drawer, Frame, check_size, clip_planes, context, device_name, parameter_exprs
 from sbrdf_lib.scene import Features, downsample, load_scene
 from sbrdf_lib.surface import tessellate

@@ -20,7 +20,8 @@ import numpy as np
 
 from sbrdf_core.contracts import optional
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.nodes.render import Material, open_material
+from sbrdf_core.nodes.render import open_material
+from sbrdf_core.types import Material
 
 logger = logging.getLogger(__name__)
 

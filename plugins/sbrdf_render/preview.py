@@ -17,8 +17,8 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import tile_directions
-from sbrdf_core.nodes.render import RenderResult
 from sbrdf_core.params import Param
+from sbrdf_core.types import RenderResult
 
 
 def _shade(stacked, model, texels, size_mm, light, eye, intensity, block_info=None):

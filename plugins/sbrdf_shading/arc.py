@@ -167,7 +167,7 @@ class MesostructureArcCapture:
 
     def describe(self):
         from sbrdf_core.geometry import look_at
-        from sbrdf_core.nodes.capture import CaptureDescription
+        from sbrdf_core.types import CaptureDescription
 
         n_u, n_v = self.texels
         P = len(self.theta)

@@ -23,8 +23,8 @@ if TYPE_CHECKING:
     import dask.array as da
 
     from ..plugin import PluginSpec
-    from ..registry import Registry
     from ..store import Artifact
+    from ..types import PluginRegistry
 
 
 def shared(obj: Any):
@@ -114,7 +114,7 @@ class BuildContext:
     inputs: dict[str, Artifact]
     plugin: Any = None
     spec: PluginSpec | None = None
-    registry: Registry | None = None
+    registry: PluginRegistry | None = None
     url: str = ""
     #: What :meth:`NodeKind.prepare` asked for, computed (same keys, NumPy/Python values);
     #: ``None`` until the runner has run the prepare step.

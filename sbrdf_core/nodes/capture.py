@@ -9,45 +9,17 @@ interrupted capture resumes from the last pose written.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ..artifacts import CaptureSet
 from ..contracts import optional
+from ..types import CaptureDescription
 from .base import BuildContext, NodeKind, Output, shared
 
 #: The node's summary of what reading found; ``sbrdf run -q`` silences it (``sbrdf_core.cli.REPORT_LOGGER``).
 report_logger = logging.getLogger("sbrdf.report.capture")
-
-
-@dataclass
-class CaptureDescription:
-    """Everything about a capture except its pixels.
-
-    ``sample``, ``camera`` and ``light`` follow the capture-folder format
-    (``sbrdf-capture/1`` in DESIGN.md); ``camera["model"]`` is ``"pinhole"``
-    for ordinary photographs or ``"texel-aligned"`` for images that are
-    already resampled onto the texel grid (simulators).
-    """
-
-    height: int
-    width: int
-    light_pos: np.ndarray  # (P, 3) mm
-    camera_R: np.ndarray  # (P, 3, 3)
-    camera_t: np.ndarray  # (P, 3) mm
-    exposure_s: np.ndarray  # (P,)
-    sample: dict[str, Any] = field(default_factory=dict)
-    camera: dict[str, Any] = field(default_factory=dict)
-    light: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def n_poses(self) -> int:
-        return int(self.light_pos.shape[0])
-
-    def attrs(self) -> dict[str, Any]:
-        return {"sample": self.sample, "camera": self.camera, "light": self.light}
 
 
 def _read_block(index: np.ndarray, source) -> np.ndarray:

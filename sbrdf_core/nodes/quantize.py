@@ -33,21 +33,13 @@ the own set weighs what was measured.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance, TextureSet
 from ..contracts import optional
 from ..geometry import fibonacci_hemisphere, tile_directions
+from ..types import Encoded
 from .base import BuildContext, NodeKind, Output, Port
-
-
-@dataclass
-class Encoded:
-    textures: dict = field(default_factory=dict)
-    scale: dict = field(default_factory=dict)
-    bias: dict = field(default_factory=dict)
 
 
 def error_directions(n: int = 64) -> tuple[np.ndarray, np.ndarray]:

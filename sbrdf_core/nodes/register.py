@@ -12,7 +12,6 @@ and ``register(capture, prepared=...)`` receives the results.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -20,25 +19,8 @@ import numpy as np
 from ..artifacts import CaptureSet, RegisteredStack
 from ..contracts import optional
 from ..store import texel_tile
+from ..types import Registration
 from .base import BuildContext, NodeKind, Output, Port, shared
-
-
-@dataclass
-class Registration:
-    """Geometry of the accepted poses, as measured by a registration plugin."""
-
-    texels: tuple[int, int]  # (U, V)
-    size_mm: tuple[float, float]
-    pose_ids: np.ndarray  # (P',) accepted capture pose indices
-    light_pos: np.ndarray  # (P', 3)
-    camera_pos: np.ndarray  # (P', 3)
-    homography: np.ndarray  # (P', 3, 3)
-    rms_mm: np.ndarray  # (P',)
-    rejected: list[dict] = field(default_factory=list)  # [{"pose": i, "reason": "..."}]
-    extra: dict = field(default_factory=dict)  # scalars and settings: the stack's ``registration`` attribute
-    #: Other per-pose measurements, ``(P', ...)`` arrays stored as ``registration/<name>``: arrays, not
-    #: attribute lists, so they cost bytes, not Python objects, per pose.
-    per_pose: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _resample_poses(index: np.ndarray, images, valid, plugin, registration: Registration) -> np.ndarray:

@@ -18,7 +18,7 @@ renderer gets ``render(material, prepared=...)`` — building never computes.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -27,31 +27,8 @@ from .. import contracts
 from ..artifacts import KINDS, Images, ParamMaps, TextureSet
 from ..io import linear_to_srgb8, write_exr, write_png
 from ..store import join, open_artifact
+from ..types import Material, RenderResult
 from .base import BuildContext, NodeKind, Output, Port
-
-
-@dataclass
-class Material:
-    """A BRDF model plus its (lazy) per-texel parameter maps."""
-
-    model: Any
-    params: dict[str, Any]  # name -> (V, U, C) dask array
-    texels: tuple[int, int]  # (U, V)
-    size_mm: tuple[float, float]
-    source: str = ""
-    alpha: Any = None  # (V, U, 1) transparency in [0, 1] (alpha-kill below 0.5), or None when opaque
-    #: For TextureSets: the quantizer's name and its stored ``textures``, ``scale``, ``bias`` (lazy).
-    encoded: dict | None = None
-    #: MIP levels 1 … L (a Mip node's ``mip/<l>/<parameter>``): ``[{name: (V >> l, U >> l, C)}]``, lazy.
-    levels: list = field(default_factory=list)
-
-
-@dataclass
-class RenderResult:
-    image: Any  # (H, W, 3) linear RGB, lazy or NumPy
-    exposure: float | None = None  # display exposure for the PNG; None = automatic
-    attrs: dict = field(default_factory=dict)
-    gamma: str = "srgb"  # display transfer of the PNG: "srgb" or "2.2"
 
 
 def load_material(registry, art) -> Material:

@@ -498,7 +498,7 @@ def _preview_of_bright_bottom_half(texels=(8, 6)):
     """A Lambertian material twice as bright at v < V/2 as above, drawn by ``preview``."""
     import dask.array as da
 
-    from sbrdf_core.nodes.render import Material
+    from sbrdf_core.types import Material
     from sbrdf_render.preview import PreviewRenderer
 
     U, V = texels
@@ -676,7 +676,7 @@ def test_a_renderers_prepare_step_gives_what_render_would_compute(registry):
     import dask
     import dask.array as da
 
-    from sbrdf_core.nodes.render import Material
+    from sbrdf_core.types import Material
     from sbrdf_render.cpu import CPURenderer
 
     model = registry.create("brdf-model", "lambert", {})
