@@ -126,6 +126,7 @@ class FrameCameraBase:
         self.serial, self.pixel_format, self.gain_db, self.black_level = serial, pixel_format, float(gain_db), black_level
         self.trigger, self.timeout_s, self.nominal_exposure_s = trigger, float(timeout_s), nominal_exposure_s
         self.exposure_s: float | None = None
+        self.width = self.height = 0  # set by the driver once the camera is open
         self.bit_depth = 8
         self.linear = True
         self.identity = {"vendor": "", "model": "", "serial": serial or ""}
@@ -156,7 +157,8 @@ class FrameCameraBase:
 
     def info(self) -> dict:
         """Who the camera is and how it is set: the capture's ``camera.device`` record."""
-        return {"driver": self.name, **self.identity, "pixel_format": self.pixel_format, "bit_depth": self.bit_depth,
+        return {"driver": self.name, **self.identity, "width": self.width, "height": self.height,
+                "pixel_format": self.pixel_format, "bit_depth": self.bit_depth,
                 "linear": self.linear, "gain_db": self.gain_db, "black_level": self.black_level,
                 "white_balance": "off", "trigger": self.trigger, "timeout_s": self.timeout_s}
 

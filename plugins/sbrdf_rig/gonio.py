@@ -39,6 +39,31 @@ halts every motor and stops the capture with :class:`GonioCaptureError`,
 naming the pose, the motor, its port and the command; the folder then holds
 exactly the completed poses and the CaptureSet stays incomplete.
 
+**Frame cameras** (``pylon``, ``genicam``, ``uvc``, ``gphoto``: any device with
+:class:`~sbrdf_core.contracts.FrameCamera`'s API) know nothing of the sample or
+the rig, so the source needs ``sample`` (the manifest's sample section: size
+and fiducials) and ``intrinsics`` (``K``, ``dist`` from a calibration) beside
+them; the camera's identity and settings (``info()``) go into the manifest's
+``camera.device``.  The camera opens in :meth:`describe` with the motors, and
+every planned exposure is checked against its range there, before anything
+moves.  Per pose, after the motors report their positions and ``settle_s``
+has passed, each bracket exposure is set (the time the camera actually uses
+is recorded as the exposure's ``time_s``, the planned one under
+``camera.requested_s``) and one frame grabbed.  Camera faults, like motor
+faults, stop the capture with a :class:`GonioCaptureError` (``motor`` is
+``"camera"``) and leave the folder with exactly the completed poses:
+
+* the camera disappears (:class:`~sbrdf_lib.camera.CameraLost`): no retry;
+* a frame times out or arrives incomplete (:class:`~sbrdf_lib.camera.FrameTimeout`):
+  the trigger is repeated up to ``frame_retries`` times, then the error;
+* the camera refuses an exposure (:class:`~sbrdf_lib.camera.ExposureRefused`):
+  refused for the whole plan before any motion, or at the pose if it happens later;
+* a saturated frame: its saturated pixels are masked when the pose is read
+  (as for any camera) and the share is recorded per exposure under
+  ``camera.saturated``; with ``max_saturated_fraction`` a pose whose shortest
+  exposure saturates more than that share of pixels stops the capture
+  (shorten the bracket or lower the gain, then resume).
+
 ``port: sim`` in a motor's parameters starts the matching pty simulator
 (:mod:`sbrdf_rig.sim`) inside this process and connects the real driver to
 it, so ``graphs/gonio-virtual.yaml`` runs the whole rig without hardware.
@@ -61,6 +86,7 @@ from sbrdf_core.contracts import optional
 from sbrdf_core.errors import ParameterError, SbrdfError
 from sbrdf_core.nodes.capture import CaptureDescription
 from sbrdf_core.params import REQUIRED, Param, plugin_reference
+from sbrdf_lib.camera import CameraError, CameraLost, ExposureRefused, FrameTimeout, saturated_fraction
 from sbrdf_lib.capture_folder import (
     MANIFEST,
     CaptureFolderError,
@@ -169,8 +195,15 @@ class _Devices:
     """What must be halted and released, kept apart from the source so a finalizer can reach it."""
 
     motors: list = field(default_factory=list)
+    camera: Any = None  # a frame camera once opened (the virtual camera holds nothing to release)
 
     def close(self) -> None:
+        if self.camera is not None:
+            camera, self.camera = self.camera, None
+            try:
+                camera.close()
+            except Exception:  # noqa: BLE001 - closing must reach every device
+                log.exception("gonio: closing the camera failed")
         for m in self.motors:
             if m.driver is not None:
                 try:
@@ -186,6 +219,12 @@ class _Devices:
 def _jsonable(value: Any) -> Any:
     """What ``value`` reads back as from capture.json (tuples -> lists, numpy -> Python)."""
     return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def _requested(pose) -> list[float]:
+    """The exposure times a recorded pose was planned with (a frame camera's actual times may be rounded)."""
+    requested = (pose.extra.get("camera") or {}).get("requested_s")
+    return [float(t) for t in requested] if isinstance(requested, list) else [e.time_s for e in pose.exposures]
 
 
 def _fmt_angles(angles: dict) -> str:
@@ -220,6 +259,15 @@ class GonioCapture:
         Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
               choices=("png", "tif")),
         Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
+        Param("sample", "dict", None, "frame cameras: the manifest's sample section {size_mm, fiducials, ...} "
+              "(the virtual camera supplies its own)", nullable=True),
+        Param("intrinsics", "dict", None, "frame cameras: {K: 3x3, dist: [k1, k2, p1, p2, k3]} from a calibration",
+              nullable=True),
+        Param("frame_retries", "int", 1, "frame cameras: re-triggers after a frame timeout before the capture stops",
+              bounds=(0, 10)),
+        Param("max_saturated_fraction", "float", None, "frame cameras: stop when the shortest exposure of a pose "
+              "has more than this share of pixels saturated (default: record it and mask them)", nullable=True,
+              bounds=(0.0, 1.0)),
     )
 
     @staticmethod
@@ -244,7 +292,8 @@ class GonioCapture:
     def __init__(self, *, path: str, motors: dict, camera: dict = {"device": "virtual-camera", "params": {}},  # noqa: B006
                  light: dict | None = None, geometry: dict = {}, plan: dict = {"theta_d_deg": 20.0, "isotropic": True},  # noqa: B006
                  exposures: dict = {"times_s": [1.0]}, read: dict = {}, settle_s: float = 0.0,  # noqa: B006
-                 image_format: str = "png", durable: bool = True):
+                 image_format: str = "png", durable: bool = True, sample: dict | None = None,
+                 intrinsics: dict | None = None, frame_retries: int = 1, max_saturated_fraction: float | None = None):
         self.path = Path(str(path)).expanduser()
         self.motors = self._parse_motors(motors)
         self.camera_config = self._parse_device(camera, "camera")
@@ -259,6 +308,13 @@ class GonioCapture:
             raise ParameterError(f"gonio: read: {bad} are set by the gonio source itself; give only response, "
                                  "response_method, response_poses, saturation, underexposure, colour_matrix")
         self.settle_s, self.image_format, self.durable = float(settle_s), image_format, bool(durable)
+        self.sample = None if sample is None else dict(sample)
+        self.intrinsics = None if intrinsics is None else dict(intrinsics)
+        self.frame_retries, self.max_saturated_fraction = int(frame_retries), max_saturated_fraction
+        #: Frame camera (physical) rather than a scene-rendering one; known once bound.
+        self.frame_camera = False
+        #: Seconds spent, summed over the poses this process took: motion, settle, exposure, transfer, write.
+        self.timings = dict.fromkeys(("motion", "settle", "exposure", "transfer", "write"), 0.0)
         self.registry = None
         self.camera = None
         self.reader = None
@@ -361,9 +417,23 @@ class GonioCapture:
                 raise ParameterError(f"gonio: motors.{m.name}.axes: {m.device!r} has no axis {bad}; its axes are {list(axes)}")
             m.values = values
         device, params = self.camera_config
-        self.camera = registry.create("device", device, params)
-        if optional(self.camera, "bind", "device") is not None:
-            self.camera.bind(registry)
+        impl = registry.load(registry.get("device", device))
+        self.frame_camera = hasattr(impl, "grab") and not hasattr(impl, "photograph")
+        if self.frame_camera:
+            # A physical camera opens in describe() with the motors; here its parameters are only checked.
+            values, problems = resolve(registry.get("device", device).params, params, f"gonio camera (device {device!r})")
+            if problems:
+                raise ParameterError("; ".join(msg for _, msg in problems))
+            self.camera_config = (device, values)
+            missing = [k for k in ("sample", "intrinsics") if getattr(self, k) is None]
+            if missing:
+                raise ParameterError(f"gonio: camera {device!r} is a frame camera, which knows nothing of the sample or "
+                                     f"its own optics: give {' and '.join(missing)} (sample: {{size_mm, fiducials}}, "
+                                     "intrinsics: {K, dist} from a calibration)")
+        else:
+            self.camera = registry.create("device", device, params)
+            if optional(self.camera, "bind", "device") is not None:
+                self.camera.bind(registry)
         self.reader = registry.create("capture", "folder", {**self.read_config, "path": str(self.path)})
 
     def __dask_tokenize__(self):
@@ -434,7 +504,7 @@ class GonioCapture:
     def describe(self) -> CaptureDescription:
         """Nominal poses of the plan; connects the rig and checks every angle against the limits first."""
         angles, times = self.planned()
-        if self.camera is None:
+        if self.registry is None:
             from sbrdf_core.registry import default_registry
 
             self.bind(default_registry())
@@ -480,15 +550,42 @@ class GonioCapture:
         """The capture.json header this capture writes (and a resumed one must match)."""
         if not hasattr(self, "_header_cache"):
             cam = self.camera
-            rig = {"source": "gonio", "geometry": asdict(self.geometry),
-                   "motors": {m.name: {"device": m.device, "axes": m.axes} for m in self.motors},
-                   "plan": self.plan_config, "exposures": self.exposure_config}
-            header = {"format": "sbrdf-capture/1", "sample": cam.sample_info(), "camera": cam.camera_info(),
-                      "light": self.light if self.light is not None else cam.light_info(), "rig": rig}
-            if hasattr(cam, "simulation_info"):
-                header["simulation"] = cam.simulation_info()
+            if self.frame_camera:
+                header = {"format": "sbrdf-capture/1", "sample": self.sample, "camera": self._frame_camera_section(),
+                          "light": self.light if self.light is not None else {"type": "point", "intensity": 1.0},
+                          "rig": self._rig()}
+            else:
+                header = {"format": "sbrdf-capture/1", "sample": cam.sample_info(), "camera": cam.camera_info(),
+                          "light": self.light if self.light is not None else cam.light_info(), "rig": self._rig()}
+                if hasattr(cam, "simulation_info"):
+                    header["simulation"] = cam.simulation_info()
             self._header_cache = _jsonable(header)
         return self._header_cache
+
+    def _rig(self) -> dict:
+        """The manifest's ``rig`` record: what a resumed capture must have been planned with."""
+        rig = {"source": "gonio", "geometry": asdict(self.geometry),
+               "motors": {m.name: {"device": m.device, "axes": m.axes} for m in self.motors},
+               "plan": self.plan_config, "exposures": self.exposure_config}
+        return _jsonable(rig)
+
+    def _frame_camera_section(self) -> dict:
+        """The manifest's ``camera`` section of a frame camera: size, intrinsics, linearity, device record.
+
+        A camera delivering linear codes declares ``response: linear``; any
+        other leaves the response to be recovered from the brackets (or given
+        to the reader).  Before the camera is open (a complete folder that is
+        only read) the recorded section stands.
+        """
+        if self.camera is None:
+            return self._recorded_camera
+        info = dict(self.camera.info())
+        section = {"width": int(info.pop("width")), "height": int(info.pop("height")),
+                   "K": self.intrinsics.get("K"), "dist": self.intrinsics.get("dist", [0.0] * 5)}
+        if info.get("linear"):
+            section["response"] = "linear"
+        section["device"] = info
+        return section
 
     def _needs_all_poses(self) -> bool:
         mode = self.reader.response_mode
@@ -500,11 +597,12 @@ class GonioCapture:
         manifest = self.path / MANIFEST
         if manifest.exists():
             old = load_manifest(self.path)
-            if old.extra.get("rig") != self._header()["rig"]:
+            if old.extra.get("rig") != self._rig():
                 raise CaptureFolderError(
                     f"{manifest}: holds a capture taken with a different rig, plan or exposures "
                     f"({'complete' if old.complete else 'unfinished'}); use another path or remove that folder")
             if old.complete:
+                self._recorded_camera = old.header_json()["camera"]
                 expected = parse_manifest({**self._header(), "complete": False, "poses": []}, str(manifest)).header_json()
                 if old.header_json() != expected:
                     raise CaptureFolderError(f"{manifest}: holds a complete capture with a different sample, camera or "
@@ -517,6 +615,8 @@ class GonioCapture:
         self._connect()
         try:
             self._check_limits(angles)
+            if self.frame_camera:
+                self._check_exposures(times)
             extra = {k: v for k, v in self._header().items() if k not in ("format", "sample", "camera", "light")}
             h = self._header()
             self.writer = CaptureFolderWriter(self.path, h["sample"], h["camera"], h["light"],
@@ -543,7 +643,7 @@ class GonioCapture:
             target = (p.extra.get("motors") or {}).get("target_deg")
             ok = (0 <= p.id < P and isinstance(target, dict)
                   and np.allclose([target.get(j, np.nan) for j in JOINTS], angles[p.id], rtol=0, atol=1e-9)
-                  and np.allclose(sorted(e.time_s for e in p.exposures), sorted(times[p.id])))
+                  and np.allclose(sorted(_requested(p)), sorted(times[p.id])))
             if not ok:
                 raise CaptureFolderError(f"{self.path / MANIFEST}: recorded pose {p.id} (motors {target}) is not pose "
                                          f"{p.id} of this plan; the folder belongs to another plan - use another path")
@@ -566,6 +666,13 @@ class GonioCapture:
                 except DeviceError as e:
                     raise GonioCaptureError(f"gonio: motor {m.name!r} ({m.device} on {values['port']}) could not be "
                                             f"connected: {e}", pose=-1, motor=m.name, cause=e) from e
+            if self.frame_camera:
+                device, values = self.camera_config
+                try:
+                    self.camera = self._devices.camera = self.registry.load(self.registry.get("device", device))(**values)
+                except CameraError as e:
+                    raise GonioCaptureError(f"gonio: camera {device!r} could not be opened: {e}. Nothing moved",
+                                            pose=-1, motor="camera", cause=e) from e
         except BaseException:
             self._devices.close()
             raise
@@ -632,10 +739,71 @@ class GonioCapture:
             self._devices.close()
             raise error
 
+    def _check_exposures(self, times: list[list[float]]) -> None:
+        """Refuse, before any motion, a plan with exposure times the frame camera cannot take."""
+        try:
+            lo, hi = self.camera.exposure_range_s()
+        except CameraError as e:
+            self._devices.close()
+            raise GonioCaptureError(f"gonio: the plan is refused before any motion: {e}", pose=-1, motor="camera",
+                                    cause=e) from e
+        bad = [(i, t) for i, bracket in enumerate(times) for t in bracket if not lo * (1 - 1e-9) <= t <= hi * (1 + 1e-9)]
+        if bad:
+            name = self.camera_config[0]
+            cause = self.camera.error(ExposureRefused, f"exposure {bad[0][1]:g} s is outside the camera's range "
+                                      f"[{lo:g}, {hi:g}] s", command=f"exposure {bad[0][1]:g} s")
+            self._devices.close()
+            raise GonioCaptureError(
+                f"gonio: the plan is refused before any motion: {len(bad)} exposure(s) outside camera {name!r}'s range "
+                f"[{lo:g}, {hi:g}] s, first pose {bad[0][0]} at {bad[0][1]:g} s. Change exposures (or the gain)",
+                pose=bad[0][0], motor="camera", cause=cause)
+
+    def _grab_bracket(self, index: int, bracket: list[float], n_poses: int) -> tuple[list, dict]:
+        """Set each exposure and grab a frame, re-triggering after a timeout; ``(images, camera record)``."""
+        cam, name = self.camera, self.camera_config[0]
+        images, actual, saturated = [], [], []
+        try:
+            for k, ts in enumerate(bracket):
+                used = cam.set_exposure(ts)
+                for attempt in range(self.frame_retries + 1):
+                    try:
+                        frame = cam.grab(pose_id=index, exposure_index=k)
+                        break
+                    except FrameTimeout:
+                        if attempt == self.frame_retries:
+                            raise
+                        log.warning("gonio: pose %d exposure %d: frame timeout, re-triggering (%d of %d)", index, k,
+                                    attempt + 1, self.frame_retries)
+                timing = getattr(cam, "last_timing", {})
+                self.timings["exposure"] += timing.get("exposure", 0.0)
+                self.timings["transfer"] += timing.get("transfer", 0.0)
+                images.append((frame, used))
+                actual.append(used)
+                saturated.append(saturated_fraction(frame))
+        except CameraError as e:
+            done = len(self.writer.done_ids)
+            what = {CameraLost: "disappeared", FrameTimeout: f"delivered no frame after {self.frame_retries + 1} "
+                    "triggers", ExposureRefused: "refused the exposure"}.get(type(e), "failed")
+            raise GonioCaptureError(
+                f"gonio: pose {index} of {n_poses} failed: camera {name!r} {what}: {e}. All motors halted; {self.path} "
+                f"holds the {done} completed poses - fix the cause and re-run the graph to resume from pose {index}",
+                pose=index, motor="camera", cause=e) from e
+        shortest = int(np.argmin(bracket))
+        if self.max_saturated_fraction is not None and saturated[shortest] > self.max_saturated_fraction:
+            done = len(self.writer.done_ids)
+            cause = cam.error(CameraError, f"{saturated[shortest]:.1%} of the pixels saturated at {bracket[shortest]:g} s")
+            raise GonioCaptureError(
+                f"gonio: pose {index} of {n_poses}: the shortest exposure ({bracket[shortest]:g} s) saturates "
+                f"{saturated[shortest]:.1%} of the pixels, over max_saturated_fraction {self.max_saturated_fraction:g}; "
+                f"shorten the bracket or lower the gain, then re-run to resume from pose {index} ({done} poses kept)",
+                pose=index, motor="camera", cause=cause)
+        return images, {"requested_s": [float(t) for t in bracket], "saturated": saturated}
+
     def _take(self, index: int, angles: np.ndarray, times: list[list[float]]) -> None:
         """Move, settle, photograph the bracket at the read-back pose, record the pose."""
         target = dict(zip(JOINTS, (float(a) for a in angles[index])))
         read = {j: 0.0 for j in JOINTS}
+        clock = time.perf_counter()
         try:
             for m in self.motors:
                 goal = {axis: target[joint] for joint, axis in m.axes.items()}
@@ -652,23 +820,37 @@ class GonioCapture:
                         pose=index, motor=m.name, cause=e) from e
                 for joint, axis in m.axes.items():
                     read[joint] = float(position[axis])
+            clock = self._tick("motion", clock)
             if self.settle_s:
                 time.sleep(self.settle_s)
+            clock = self._tick("settle", clock)
             at = forward(self.geometry, *(read[j] for j in JOINTS))
             light, R, t = at.light_pos_mm[0], at.camera_R[0], at.camera_t[0]
-            images = [(self.camera.photograph(light, R, t, ts, pose_id=index, exposure_index=k), ts)
-                      for k, ts in enumerate(times[index])]
             extra: dict[str, Any] = {"motors": {"target_deg": target, "read_deg": read}}
+            if self.frame_camera:
+                # The motors have reported their positions and settle_s has passed: only now is a frame triggered.
+                images, extra["camera"] = self._grab_bracket(index, times[index], len(angles))
+            else:
+                images = [(self.camera.photograph(light, R, t, ts, pose_id=index, exposure_index=k), ts)
+                          for k, ts in enumerate(times[index])]
+                self.timings["transfer"] += time.perf_counter() - clock  # a rendered frame: no exposure to wait for
+            clock = time.perf_counter()
             true = getattr(self.camera, "true_poses", {}).get(index)
             if true is not None:
                 extra["simulation"] = {"true_light_pos_mm": true[0].tolist(), "true_R": true[1].tolist(),
                                        "true_t": true[2].tolist()}
             self.writer.write_pose(index, light, R, t, images, extra=extra)
+            self._tick("write", clock)
         except BaseException:
             self._devices.close()
             raise
         log.debug("gonio: pose %d/%d recorded at %s", index + 1, len(angles), _fmt_angles(read))
         self._maybe_finish(len(angles))
+
+    def _tick(self, phase: str, since: float) -> float:
+        now = time.perf_counter()
+        self.timings[phase] += now - since
+        return now
 
     def _maybe_finish(self, n_poses: int) -> None:
         if len(self.writer.done_ids) == n_poses and not self._complete:
