@@ -23,10 +23,24 @@ The private dask API this needs is imported from :mod:`sbrdf_core._dask_compat` 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-if TYPE_CHECKING:
-    from .runner import ChunkWrites
+
+class ChunkWrites(Protocol):
+    """What :func:`chunk_groups` needs of the chunks a node still has to write.
+
+    The runner's :class:`~sbrdf_core.runner.ChunkWrites` is one; a test's
+    stand-in that writes into a dict is another.
+    """
+
+    #: ``(output, chunk index)`` pairs still to write, in order.
+    pending: list[tuple[str, tuple]]
+    #: Each output's number of chunks along every axis.
+    numblocks: dict[str, tuple[int, ...]]
+
+    def task(self, name: str, index: tuple) -> Any:
+        """The (dask Delayed) task that computes chunk ``index`` of output ``name`` and writes it."""
+        ...
 
 
 class Subgraph:
@@ -51,7 +65,7 @@ def chunk_groups(node: str, token: str, writes: ChunkWrites, axes: int, data: Ca
     """Yield ``(task, chunks)``: one fused task per group of ``writes.pending`` chunks,
     and the ``(output, chunk index)`` pairs it writes.
 
-    ``writes`` is the runner's :class:`~sbrdf_core.runner.ChunkWrites`: the
+    ``writes`` (:class:`ChunkWrites`, the runner's in a run) gives the
     ``(output, chunk index)`` pairs still to write, their outputs' ``numblocks``,
     and ``task(output, index)``, which makes a chunk's write task.  Outputs
     chunked alike on the streamed axes group together (radiance and valid of a
