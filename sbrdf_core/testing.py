@@ -508,33 +508,20 @@ class FitterTests(PluginTests):
         assert np.median(res.rms / np.maximum(scale, 1e-12)) < self.tolerance
 
     def test_skipping_the_rms_changes_no_parameter(self):
-        """A ``fit`` that declares the ``rms`` keyword (the Fit node passes ``rms=False``) gives the same
-        parameters without its training RMS, and ``rms`` None or one value per texel."""
-        import inspect
-
-        import pytest
-
+        """``rms=False`` (what the Fit node passes) gives the same parameters without the training RMS, and
+        ``rms`` None or one value per texel."""
         fitter, model, f, valid, wi, wo = self._problem()
-        if "rms" not in inspect.signature(fitter.fit).parameters:
-            pytest.skip("fit has no rms keyword (optional)")
         full, bare = fitter.fit(model, f, valid, wi, wo), fitter.fit(model, f, valid, wi, wo, rms=False)
         assert bare.rms is None or np.shape(bare.rms) == (f.shape[0],)
         for p in model.parameters:
             np.testing.assert_array_equal(bare.params[p.name], full.params[p.name], err_msg=p.name)
 
     def test_usable_samples_are_fitted_as_the_raw_ones(self):
-        """A ``fit`` that declares the ``usable`` keyword (the Fit node passes ``usable=True`` with samples
-        :func:`~sbrdf_core.nodes.fit.usable` cleaned) gives the parameters it gives the raw samples, a NaN and
-        an inf among them."""
-        import inspect
-
-        import pytest
-
+        """``usable=True`` with samples :func:`~sbrdf_core.nodes.fit.usable` cleaned (what the Fit node passes)
+        gives the parameters the raw samples give, a NaN and an inf among them."""
         from sbrdf_core.nodes.fit import usable
 
         fitter, model, f, valid, wi, wo = self._problem()
-        if "usable" not in inspect.signature(fitter.fit).parameters:
-            pytest.skip("fit has no usable keyword (optional)")
         f = np.array(f, dtype=np.float64)
         f[0, 0, 1], f[-1, 1, 0] = np.nan, np.inf
         clean, ok = usable(f, valid, np.float64)
@@ -697,3 +684,78 @@ class RendererTests(PluginTests):
         assert image.ndim == 3 and image.shape[2] == 3
         assert np.isfinite(image).all() and (image >= 0).all()
         assert image.max() > 0, "the material is lit and in view: the image should not be black"
+
+
+# ---------------------------------------------------------------------------
+# Frame cameras
+# ---------------------------------------------------------------------------
+
+
+class CameraTests(PluginTests):
+    """The frame-camera contract (:class:`~sbrdf_core.contracts.FrameCamera`), against the driver's emulator.
+
+    ``params`` open the emulated (or seam-backed) camera; override
+    :meth:`open_camera` when the emulator needs more than parameters (an
+    environment variable, a fake library).  ``exposure_s`` is a time the
+    camera accepts.  Errors are checked by class name
+    (``ExposureRefused``, ``CameraLost``), so the suite imports no driver code.
+    """
+
+    category = "device"
+    params: ClassVar[dict] = {}
+    exposure_s: ClassVar[float] = 0.01
+
+    def open_camera(self) -> Any:
+        return self.create(self.params)
+
+    def test_info_names_the_camera_and_its_settings(self):
+        cam = self.open_camera()
+        try:
+            info = cam.info()
+            for key in ("vendor", "model", "serial", "pixel_format", "bit_depth", "linear", "gain_db", "black_level",
+                        "trigger", "white_balance", "width", "height"):
+                assert key in info, f"info() lacks {key!r}"
+            assert info["white_balance"] == "off"
+            assert info["width"] > 0 and info["height"] > 0 and 8 <= info["bit_depth"] <= 16
+        finally:
+            cam.close()
+
+    def test_frames_are_full_scale_rgb_codes_of_the_declared_size(self):
+        cam = self.open_camera()
+        try:
+            used = cam.set_exposure(self.exposure_s)
+            assert abs(used - self.exposure_s) <= 0.05 * self.exposure_s, (used, self.exposure_s)
+            frame = cam.grab(pose_id=0, exposure_index=0)
+            info = cam.info()
+            assert frame.shape == (info["height"], info["width"], 3)
+            assert frame.dtype == (np.uint8 if info["bit_depth"] == 8 else np.uint16)
+            if info["bit_depth"] not in (8, 16):  # MSB-aligned: the unused low bits are zero
+                assert not (frame & ((1 << (16 - info["bit_depth"])) - 1)).any()
+        finally:
+            cam.close()
+
+    def test_an_exposure_outside_the_range_is_refused_before_the_camera_sees_it(self):
+        import pytest
+
+        cam = self.open_camera()
+        try:
+            lo, hi = cam.exposure_range_s()
+            assert 0 < lo <= hi
+            with pytest.raises(Exception) as err:
+                cam.set_exposure(hi * 10 + 1.0)
+            assert type(err.value).__name__ == "ExposureRefused" and "range" in str(err.value)
+        finally:
+            cam.close()
+
+    def test_close_is_idempotent_and_a_closed_camera_is_lost(self):
+        import pytest
+
+        cam = self.open_camera()
+        cam.close()
+        cam.close()
+        with pytest.raises(Exception) as err:
+            cam.grab()
+        assert type(err.value).__name__ == "CameraLost"
+
+
+__all__ += ["CameraTests"]

@@ -24,6 +24,10 @@ def sbrdf_devices():
         ),
         PluginSpec("pylon", "sbrdf_cameras.pylon:PylonCamera",
                    summary="Basler camera through pypylon (PYLON_CAMEMU=N emulates N cameras)"),
+        PluginSpec("uvc", "sbrdf_cameras.uvc:UVCCamera",
+                   summary="UVC webcam or capture card through OpenCV VideoCapture (a file stands in for one)"),
+        PluginSpec("gphoto", "sbrdf_cameras.gphoto:GPhotoCamera",
+                   summary="DSLR or mirrorless camera over USB (PTP) through python-gphoto2"),
     ]
 
 

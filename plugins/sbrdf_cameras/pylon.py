@@ -177,11 +177,18 @@ class PylonCamera(FrameCameraBase):
 
     # -- FrameCameraBase ----------------------------------------------------------------------
 
+    def _alive(self, command: str) -> None:
+        """Refuse to touch the node map of a removed device: its nodes dangle (calling one aborts the process)."""
+        if self._removed():
+            raise self.error(CameraLost, "the camera disappeared (unplugged or powered off)", command=command)
+
     def _device_range_s(self) -> tuple[float, float] | None:
+        self._alive("exposure range")
         n = self._exposure_node
         return None if n is None else (n.GetMin() * 1e-6, n.GetMax() * 1e-6)
 
     def _set_exposure(self, exposure_s: float) -> float:
+        self._alive(f"ExposureTime = {exposure_s * 1e6:g} us")
         try:
             self._exposure_node.SetValue(float(exposure_s) * 1e6)
             return float(self._exposure_node.GetValue()) * 1e-6
@@ -192,6 +199,7 @@ class PylonCamera(FrameCameraBase):
         pylon, genicam = self._pylon, self._genicam
         cam = self._cam
         ms = max(1, int(round(timeout_s * 1000)))
+        self._alive("trigger and retrieve")
         try:
             if self.emulation_frames:
                 path = self.emulation_frames.format(pose=pose_id if pose_id is not None else 0, exposure=exposure_index)

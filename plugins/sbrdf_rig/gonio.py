@@ -49,7 +49,7 @@ every planned exposure is checked against its range there, before anything
 moves.  Per pose, after the motors report their positions and ``settle_s``
 has passed, each bracket exposure is set (the time the camera actually uses
 is recorded as the exposure's ``time_s``, the planned one under
-``camera.requested_s``) and one frame grabbed.  Camera faults, like motor
+``frames.requested_s``) and one frame grabbed.  Camera faults, like motor
 faults, stop the capture with a :class:`GonioCaptureError` (``motor`` is
 ``"camera"``) and leave the folder with exactly the completed poses:
 
@@ -60,7 +60,7 @@ faults, stop the capture with a :class:`GonioCaptureError` (``motor`` is
   refused for the whole plan before any motion, or at the pose if it happens later;
 * a saturated frame: its saturated pixels are masked when the pose is read
   (as for any camera) and the share is recorded per exposure under
-  ``camera.saturated``; with ``max_saturated_fraction`` a pose whose shortest
+  ``frames.saturated``; with ``max_saturated_fraction`` a pose whose shortest
   exposure saturates more than that share of pixels stops the capture
   (shorten the bracket or lower the gain, then resume).
 
@@ -223,7 +223,7 @@ def _jsonable(value: Any) -> Any:
 
 def _requested(pose) -> list[float]:
     """The exposure times a recorded pose was planned with (a frame camera's actual times may be rounded)."""
-    requested = (pose.extra.get("camera") or {}).get("requested_s")
+    requested = (pose.extra.get("frames") or {}).get("requested_s")
     return [float(t) for t in requested] if isinstance(requested, list) else [e.time_s for e in pose.exposures]
 
 
@@ -829,7 +829,7 @@ class GonioCapture:
             extra: dict[str, Any] = {"motors": {"target_deg": target, "read_deg": read}}
             if self.frame_camera:
                 # The motors have reported their positions and settle_s has passed: only now is a frame triggered.
-                images, extra["camera"] = self._grab_bracket(index, times[index], len(angles))
+                images, extra["frames"] = self._grab_bracket(index, times[index], len(angles))
             else:
                 images = [(self.camera.photograph(light, R, t, ts, pose_id=index, exposure_index=k), ts)
                           for k, ts in enumerate(times[index])]
