@@ -39,7 +39,7 @@ store, and timed with ``time.perf_counter`` (wall clock):
     computed in memory instead of being stored.
 
     The graph reads and writes whole chunks straight from and to their files
-    (``sbrdf_core.chunk_files``) where plain zarr, as here, goes through its
+    (``sbrdf_core.store._shards``) where plain zarr, as here, goes through its
     per-chunk machinery, so a ratio below 1 is the project's I/O being faster
     than a user's zarr calls, not a runner costing nothing.
 
@@ -171,7 +171,8 @@ def run_plain_variant(workdir: Path, texels: tuple[int, int], poses: int) -> tup
     from sbrdf_core.nodes.reflectance import reflectance_tile
     from sbrdf_core.nodes.register import pose_block
     from sbrdf_core.registry import default_registry
-    from sbrdf_core.store import _codecs, texel_tile
+    from sbrdf_core.store import texel_tile
+    from sbrdf_core.store._artifact import _codecs
 
     workdir.mkdir(parents=True)
     store = workdir / "store"

@@ -31,7 +31,7 @@ run; the median of three such processes): the bytes Register must read.
 ``stack_read_s`` is the same plain read of the registered stack (Reflectance's
 input) and ``reflectance_read_ratio`` = Reflectance seconds / ``stack_read_s``.
 The project's own reads of aligned chunks skip zarr's per-chunk overhead
-(``sbrdf_core.chunk_files``), so Reflectance can take less time than this
+(``sbrdf_core.store._shards``), so Reflectance can take less time than this
 plain zarr read of its input.
 ``register_floor_s`` = what Register cannot go below with its resampling filter
 on this machine: every accepted pose's photograph read through the node's own

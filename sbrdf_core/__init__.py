@@ -7,7 +7,8 @@ renderer by name.  Where things live:
 - ``registry.py``   plugin discovery through the ``sbrdf`` entry-point group
 - ``params.py``     how a plugin declares its parameters
 - ``artifacts.py``  the typed artifacts that flow between nodes
-- ``store.py``      how an artifact lives in zarr, chunk by chunk
+- ``types.py``      the data types the contract hands to plugins and back
+- ``store/``        how an artifact lives in zarr, chunk by chunk; integrity, the store's lock
 - ``graph.py``      YAML -> validated graph, errors with file and line
 - ``runner.py``     executes a graph with dask: caching, resume, progress
 - ``nodes/``        one module per node kind

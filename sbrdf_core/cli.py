@@ -110,8 +110,7 @@ def cmd_verify(args) -> int:
     store this process cannot write is verified read-only.
     """
     from .errors import ArtifactError
-    from .integrity import StoreLock, artifact_dirs, check_artifact, repair, stray_entries
-    from .store import ARTIFACT_MARKER, disk_errors
+    from .store import ARTIFACT_MARKER, StoreLock, artifact_dirs, check_artifact, disk_errors, repair, stray_entries
 
     urls, unproven = artifact_dirs(args.store)
     strays = stray_entries(args.store)

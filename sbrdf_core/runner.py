@@ -6,7 +6,7 @@ For each node, in dependency order:
 2. compute its *token*: ``tokenize`` of node kind, plugin name and version,
    parameters, the plugin's fingerprint and the input tokens;
 3. if the artifact at ``<store>/<node>`` is complete with that token and
-   passes the cheap integrity check (:func:`sbrdf_core.integrity.check_artifact`),
+   passes the cheap integrity check (:func:`sbrdf_core.store.check_artifact`),
    skip it (cached); if it is damaged, drop what is damaged and recompute it
    (noted in the report); if it is partial with that token, resume; otherwise
    start fresh;
@@ -23,7 +23,7 @@ Execution is on dask's threaded scheduler by default, or on a
 recomputed elsewhere by distributed; writes are idempotent, so results are
 identical.
 
-The whole run holds the store's lock (:class:`~sbrdf_core.integrity.StoreLock`):
+The whole run holds the store's lock (:class:`~sbrdf_core.store.StoreLock`):
 a second run on the same store is refused at once, naming the holder, or
 waits (``wait``).  A chunk of an input that fails its checksum stops the node
 with a :class:`~sbrdf_core.store.ChunkError` naming artifact, array and chunk;
@@ -56,10 +56,21 @@ from .contracts import optional
 from .errors import RunError, SbrdfError
 from .extras import require
 from .graph import Graph, Node
-from .integrity import StoreLock, check_artifact, drop_chunks, repair
 from .nodes.base import BuildContext, Output, Port
 from .registry import Registry, default_registry
-from .store import ArrayLayout, ArtifactWriter, ChunkError, chunk_key, inside_store, open_artifact, write_chunk
+from .store import (
+    ArrayLayout,
+    ArtifactWriter,
+    ChunkError,
+    StoreLock,
+    check_artifact,
+    chunk_key,
+    drop_chunks,
+    inside_store,
+    open_artifact,
+    repair,
+    write_chunk,
+)
 from .streaming import chunk_groups
 
 if TYPE_CHECKING:

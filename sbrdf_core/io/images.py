@@ -5,8 +5,13 @@ from __future__ import annotations
 import os
 import tempfile
 
-import fsspec
 import numpy as np
+
+
+def _url_to_fs(url: str):
+    import fsspec  # on first use: node kinds import this module while a graph is only validated
+
+    return fsspec.core.url_to_fs(url)
 
 
 def linear_to_srgb8(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:
@@ -24,7 +29,7 @@ def _is_local(fs) -> bool:
 
 
 def _put(url: str, write_local) -> None:
-    fs, path = fsspec.core.url_to_fs(url)
+    fs, path = _url_to_fs(url)
     if _is_local(fs):
         os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
         write_local(path)
@@ -56,7 +61,7 @@ def read_exr(url: str, max_pixels: int = MAX_PIXELS) -> np.ndarray:
     """
     import OpenEXR
 
-    fs, path = fsspec.core.url_to_fs(url)
+    fs, path = _url_to_fs(url)
     with tempfile.TemporaryDirectory() as d:
         local = path if _is_local(fs) else os.path.join(d, "x.exr")
         if local != path:
@@ -95,6 +100,7 @@ def write_png(url: str, image: np.ndarray) -> None:
 def read_png(url: str) -> np.ndarray:
     """Read a PNG as RGB(A) at its stored bit depth."""
     import cv2
+    import fsspec
 
     with fsspec.open(url, "rb") as f:
         data = np.frombuffer(f.read(), np.uint8)
@@ -132,7 +138,7 @@ def read_exr_channels(url: str) -> tuple[dict, dict]:
     """Every channel of an EXR as ``name -> (H, W)`` array at its stored precision, plus the header."""
     import OpenEXR
 
-    fs, path = fsspec.core.url_to_fs(url)
+    fs, path = _url_to_fs(url)
     with tempfile.TemporaryDirectory() as d:
         local = path if _is_local(fs) else os.path.join(d, "x.exr")
         if local != path:

@@ -26,7 +26,7 @@ import numpy as np
 from .. import contracts
 from ..artifacts import KINDS, Images, ParamMaps, TextureSet
 from ..io import linear_to_srgb8, write_exr, write_png
-from ..store import join, open_artifact
+from ..store import join
 from ..types import Material, RenderResult
 from .base import BuildContext, NodeKind, Output, Port
 
@@ -54,6 +54,8 @@ def load_material(registry, art) -> Material:
 
 def open_material(registry, url: str) -> Material:
     """:func:`load_material` of the store at ``url`` (a scene's ``materials: {x: {artifact: path}}``)."""
+    from ..store import open_artifact
+
     return load_material(registry, open_artifact(url, (ParamMaps, TextureSet)))
 
 

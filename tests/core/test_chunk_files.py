@@ -1,4 +1,4 @@
-"""Direct chunk-file reads (sbrdf_core.chunk_files) return exactly what zarr returns, or leave the read to zarr."""
+"""Direct chunk-file reads (sbrdf_core.store._shards) return exactly what zarr returns, or leave the read to zarr."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import zarr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sbrdf_core.chunk_files import read_direct
-from sbrdf_core.store import CheckedArray, ChunkError, _codecs
+from sbrdf_core.store import CheckedArray, ChunkError
+from sbrdf_core.store._artifact import _codecs
+from sbrdf_core.store._shards import read_direct
 
 
 def _array(root: str, shape, chunks, dtype, shards=None, seed=0) -> zarr.Array:
@@ -124,7 +125,7 @@ def test_other_stores_are_left_to_zarr():
 def test_direct_writes_are_zarrs_bytes(layout, seed, zeros):
     """Every chunk or shard written by write_direct is the file zarr writes for it (edge chunks and shards
     padded with the fill value; a shard's inner chunks in zarr's order, then its index), all-fill ones too."""
-    from sbrdf_core.chunk_files import write_direct
+    from sbrdf_core.store._shards import write_direct
 
     shape, chunks, shards, dtype = layout
     with tempfile.TemporaryDirectory() as tmp:
@@ -151,7 +152,7 @@ def test_direct_writes_are_zarrs_bytes(layout, seed, zeros):
 
 
 def test_writes_zarr_must_make_are_refused(tmp_path):
-    from sbrdf_core.chunk_files import write_direct
+    from sbrdf_core.store._shards import write_direct
 
     s = _array(str(tmp_path / "s"), (8, 4), (4, 4), "float32", shards=(8, 4))
     shard = (tmp_path / "s" / "c" / "0" / "0").read_bytes()
@@ -168,7 +169,7 @@ def test_writes_zarr_must_make_are_refused(tmp_path):
 
 
 def test_zero_dimensional_arrays_are_left_to_zarr(tmp_path):
-    from sbrdf_core.chunk_files import write_direct
+    from sbrdf_core.store._shards import write_direct
 
     z = _array(str(tmp_path / "z"), (), (), "float32")
     assert read_direct(z, ()) is None

@@ -24,9 +24,8 @@ import zarr
 from sbrdf_core.cli import main as cli
 from sbrdf_core.errors import ArtifactError, GraphError, RunError
 from sbrdf_core.graph import load_graph
-from sbrdf_core.integrity import StoreBusy, StoreLock, check_artifact
 from sbrdf_core.runner import Runner
-from sbrdf_core.store import ArtifactWriter, inside_store, open_artifact
+from sbrdf_core.store import ArtifactWriter, StoreBusy, StoreLock, check_artifact, inside_store, open_artifact
 
 from ..conftest import assert_stores_equal, graph_yaml
 
@@ -505,7 +504,7 @@ def test_info_on_an_edited_dtype_says_what_is_wrong(store, capsys):
 def test_a_full_disk_during_a_run_is_a_clear_error_and_the_run_resumes(store, finished, monkeypatch):
     import errno
 
-    from sbrdf_core import chunk_files
+    from sbrdf_core.store import _shards as chunk_files
 
     s, run = store
     shutil.rmtree(s / "fit")

@@ -66,3 +66,73 @@ def test_the_core_names_no_plugin():
         for i, line in enumerate(f.read_text().splitlines(), 1):
             hits += [f"{f.relative_to(ROOT)}:{i} names {m.group(1)}" for m in pattern.finditer(line)]
     assert not hits, "\n".join(hits)
+
+
+def core_import_graph() -> dict[str, set[str]]:
+    """``{module: core modules it imports}`` over every import statement, those under ``TYPE_CHECKING`` and
+    inside functions included: a cycle of annotations still ties two modules together for a reader."""
+    mods = {}
+    for f in (ROOT / CORE).rglob("*.py"):
+        parts = list(f.relative_to(ROOT).with_suffix("").parts)
+        mods[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = f
+
+    def resolve(name: str) -> str | None:
+        while name and name not in mods:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    edges: dict[str, set[str]] = {m: set() for m in mods}
+    for m, f in mods.items():
+        package = m if f.name == "__init__.py" else m.rpartition(".")[0]
+        for node in ast.walk(ast.parse(f.read_text(), str(f))):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = package.split(".")[: len(package.split(".")) - node.level + 1] if node.level else []
+                mod = ".".join(base + [node.module] if node.module else base)
+                targets = [mod] + [f"{mod}.{a.name}" for a in node.names]
+            else:
+                continue
+            edges[m] |= {r for t in targets if t.startswith(CORE) and (r := resolve(t)) and r != m}
+    return edges
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_core_has_no_import_cycles():
+    """A reader can take the core's modules in an order where each names only those before it."""
+    assert cycles(core_import_graph()) == []
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]

@@ -25,9 +25,14 @@ distributed = pytest.importorskip("distributed")
 import fsspec  # noqa: E402
 import fsspec.config  # noqa: E402
 
-from sbrdf_core.integrity import HOLDER_FILE, S3Lease, StoreBusy, StoreLock  # noqa: E402
 from sbrdf_core.runner import run_graph  # noqa: E402
-from sbrdf_core.store import open_artifact  # noqa: E402
+from sbrdf_core.store import (  # noqa: E402
+    HOLDER_FILE,
+    S3Lease,
+    StoreBusy,
+    StoreLock,
+    open_artifact,  # noqa: E402
+)
 
 ENV = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1"}
 
@@ -228,7 +233,7 @@ def test_a_run_on_s3_killed_mid_way_resumes_without_recomputing(s3, cluster, loc
 
 
 def test_a_store_on_a_non_lockable_file_system_warns(caplog):
-    with caplog.at_level("WARNING", logger="sbrdf_core.integrity"):
+    with caplog.at_level("WARNING", logger="sbrdf_core.store"):
         with StoreLock("memory://unlocked-store"):
             pass
     assert "is not locked" in caplog.text

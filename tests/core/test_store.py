@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 import pytest
 
@@ -164,7 +166,7 @@ def test_a_partial_artifacts_bad_metadata_or_a_directory_where_a_chunk_goes_is_f
     meta.write_text(json.dumps({**json.loads(meta.read_text()), "data_type": "float64"}))
     (Path(url) / "rms" / "c" / "1").mkdir(parents=True)  # where chunk 1 is written
     (Path(url) / "rms" / "c" / "1" / "x").write_text("x")
-    from sbrdf_core import store as store_module
+    from sbrdf_core.store import _artifact as store_module
 
     store_module._ARRAYS.clear()
     done = ArtifactWriter(url, ParamMaps, "t").prepare(lay, {})
@@ -197,3 +199,20 @@ def test_a_run_killed_while_removing_an_artifact_leaves_nothing_half_deleted(tmp
     assert not Path(url).exists() and [p.name[:13] for p in (tmp_path / "s").iterdir()] == [".sbrdf-trash-"]
     assert ArtifactWriter(url, ParamMaps, "u").prepare(lay, {}) == {"rms": set()}
     assert [p.name for p in (tmp_path / "s").iterdir()] == ["a"]
+
+
+def test_the_store_package_exports_each_public_name_from_its_module():
+    """``sbrdf_core.store`` loads its private modules on first use: every name in ``__all__`` resolves, and
+    the names a graph's validation needs come without zarr (checked in a fresh process)."""
+    import subprocess
+    import sys
+
+    import sbrdf_core.store as store
+
+    assert sorted(store._WHERE) == store.__all__
+    for name in store.__all__:
+        assert getattr(store, name) is getattr(importlib.import_module(f"sbrdf_core.store.{store._WHERE[name]}"), name)
+    code = ("import sys; from sbrdf_core.store import ARTIFACT_MARKER, NODE_NAME, join, texel_tile; "
+            "print([m for m in ('zarr', 'fsspec') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

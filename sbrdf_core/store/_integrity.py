@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import errno
 import getpass
-import hashlib
 import json
 import logging
 import os
@@ -37,8 +36,10 @@ from datetime import UTC, datetime
 import numpy as np
 import zarr
 
-from .errors import ArtifactError, RunError
-from .store import (
+from ..errors import ArtifactError, RunError
+from ._artifact import ArtifactWriter, members
+from ._digests import chunk_crc, file_digest, written
+from ._layout import (
     _ARRAY_NAME,
     _CHUNK_KEY,
     ARTIFACT_MARKER,
@@ -49,13 +50,11 @@ from .store import (
     _is_local,
     _marker_name,
     _what,
-    chunk_crc,
     chunk_key,
     disk_errors,
     done_keys,
     inside_store,
     join,
-    members,
     regular_file,
     remove_unfollowed,
     special_entries,
@@ -64,34 +63,7 @@ from .store import (
 LOCK_FILE = ".sbrdf.lock"
 HOLDER_FILE = ".sbrdf.lock.json"
 
-logger = logging.getLogger(__name__)
-
-
-def file_digest(fs, path: str) -> dict | None:
-    """Size and sha256 of a side file (None when it does not exist)."""
-    if not fs.exists(path):
-        return None
-    h = hashlib.sha256()
-    with fs.open(path, "rb") as f:
-        while block := f.read(1 << 20):
-            h.update(block)
-    return {"size": int(fs.size(path)), "sha256": h.hexdigest()}
-
-
-def written(fs, root: str, name: str, lay: ArrayLayout) -> set[str]:
-    """Keys of the chunk files of array ``name`` that exist and can hold their 4-byte checksum.
-
-    Every chunk is written (fill-valued ones too), so a key missing here is a lost chunk.
-    """
-    base = join(root, name, "c")
-    if not lay.shape:
-        return {"0"} if fs.exists(base) and fs.size(base) >= 4 else set()
-    try:
-        found = fs.find(base, detail=True)
-    except FileNotFoundError:
-        return set()
-    keys = {p[len(base) + 1:].replace("/", "."): info.get("size", 0) for p, info in found.items()}
-    return {k for k, size in keys.items() if _CHUNK_KEY.fullmatch(k) and size >= 4}
+logger = logging.getLogger("sbrdf_core.store")
 
 
 @dataclass
@@ -349,8 +321,6 @@ def repair(damage: Damage, store: str, node: str) -> None:
     when it is a link) are removed first, each as itself: what a link points to
     is never touched.
     """
-    from .store import ArtifactWriter
-
     fs, root = _fs(damage.url)
     if _is_local(fs) and damage.unlink:
         if damage.unlink == ["."]:

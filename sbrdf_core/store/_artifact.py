@@ -1,104 +1,54 @@
-"""How an artifact lives in zarr: layout, chunking, attributes, completion.
+"""Artifacts in zarr: opening them read-only, writing a node's arrays chunk by chunk, completing them.
 
-Every artifact is a zarr group with attributes
-
-``kind``, ``version``
-    which :class:`~sbrdf_core.artifacts.ArtifactKind` it is and its layout version;
-``token``
-    the node's cache key (kind, plugin and version, parameters, input tokens);
-``complete``
-    ``True`` only once every chunk of every array has been written;
-``provenance``
-    graph, node, parameters, plugin name and version, input digests.
-
-Chunks are written by dask tasks, each followed by a *done marker*: one chunk
-of the array ``_done/<name>``, whose grid mirrors the data array's chunk grid
-(its value is the crc32c of the chunk's values: see :func:`write_chunk`).  A run killed part-way leaves the markers of the
-chunks it finished, and a re-run with the same token writes only the others.
-The marker, not the chunk file, is the proof: a killed writer can leave a torn
-chunk file, but a marker is only created after its chunk was written whole.
-
-Integrity (docs/reliability.md).  Every array is written with a ``crc32c``
-codec after its compressor (:func:`_codecs`) in its codec chain, so a damaged chunk fails to decode
-instead of reading back as other numbers, and every chunk is written even when
-it equals the fill value, so a missing chunk file means a lost chunk, not an
-empty one.  Arrays opened through :class:`Artifact` raise
-:class:`ChunkError` naming the artifact, array and chunk.  The group records
-the ``layout`` its node declared (shape, chunks, dtype per array), against
-which :mod:`sbrdf_core.integrity` checks a cached artifact before reuse.
-
-Confinement.  A node writes only below ``<store>/<node>``: names are checked
-against :data:`NODE_NAME` at validation, every artifact path is proven inside
-the store by :func:`inside_store`, and a directory is removed only when it
-carries this node's marker file (:data:`ARTIFACT_MARKER`) or its group
-attributes name this node.  Inside an artifact there are only plain files and
-directories: an artifact path that is a link is refused, and a link, FIFO or
-device found below it (:func:`special_entries`) is removed as itself before
-anything there is read, written or deleted, never followed.
-
-Resume.  A partial artifact always resumes, wherever its run was killed:
-arrays whose metadata a kill left missing are created again (:meth:`ArtifactWriter.prepare`).
+See :mod:`sbrdf_core.store` for the layout, integrity and confinement rules
+these classes keep.
 """
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import itertools
 import json
 import logging
-import math
 import os
-import posixpath
-import re
 import shutil
-import signal
-import stat
 import threading
 import uuid
 from collections import OrderedDict
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
-import fsspec
 import numpy as np
 import zarr
 
-from .artifacts import KINDS, ArtifactKind
-from .chunk_files import read_direct, write_direct
-from .errors import ArtifactError
+from ..artifacts import KINDS, ArtifactKind
+from ..errors import ArtifactError
+from ._digests import chunk_crc, file_digest, written
+from ._layout import (
+    _ARRAY_NAME,
+    ARTIFACT_MARKER,
+    MARKERS,
+    TRASH,
+    ArrayLayout,
+    ChunkError,
+    _all_keys,
+    _clear_chunk_path,
+    _fs,
+    _is_local,
+    _kill_point,
+    _marker_name,
+    _what,
+    chunk_key,
+    disk_errors,
+    done_keys,
+    inside_store,
+    join,
+    regular_file,
+    special_entries,
+)
+from ._shards import read_direct, write_direct
 
-__all__ = [
-    "Artifact",
-    "ArrayLayout",
-    "ArtifactWriter",
-    "ChunkError",
-    "NODE_NAME",
-    "inside_store",
-    "open_artifact",
-    "pose_major_chunks",
-    "texel_tile",
-    "write_chunk",
-]
-
-MARKERS = "_done"
-
-#: Prefix of a directory :meth:`ArtifactWriter.remove` renamed aside before deleting it (hidden: not an artifact).
-TRASH = ".sbrdf-trash-"
-
-logger = logging.getLogger(__name__)
-
-#: What a node name may be: it becomes a directory of the store, so no path
-#: separators, no ``.``/``..``, nothing empty, and short enough for any file system.
-NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,63}")
-
-#: File in each artifact directory naming the node that owns it: the proof
-#: that a directory may be removed (a directory with a ``zarr.json`` is not).
-ARTIFACT_MARKER = ".sbrdf-artifact"
-
-#: Array names (``params/rho_d``): relative, no ``.``/``..`` components.
-_ARRAY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*(/[A-Za-z0-9_][A-Za-z0-9_-]*)*")
+#: One name for the store's messages, whichever private module logs them.
+logger = logging.getLogger("sbrdf_core.store")
 
 
 def _codecs():
@@ -115,178 +65,6 @@ def _codecs():
     from zarr.codecs import BloscCodec, Crc32cCodec
 
     return [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"), Crc32cCodec()]
-
-
-def _fs(url: str) -> tuple[fsspec.AbstractFileSystem, str]:
-    return fsspec.core.url_to_fs(url)
-
-
-def join(url: str, *parts: str) -> str:
-    return "/".join([url.rstrip("/"), *[p.strip("/") for p in parts]])
-
-
-def _is_local(fs) -> bool:
-    return "file" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,))
-
-
-def inside_store(store: str, url: str) -> str:
-    """Return ``url`` once proven strictly inside ``store``; raise :class:`ArtifactError` otherwise.
-
-    Every path the runner writes or deletes goes through here first.  Local
-    paths are resolved (``..`` and symbolic links) before the comparison, so
-    neither a node name nor a link planted in the store leads out of it; the
-    store root itself is refused too (writing a group there wipes the store).
-    """
-    fs, root = _fs(store)
-    fs2, path = _fs(url)
-    if _is_local(fs) != _is_local(fs2):
-        raise ArtifactError(f"{url} is not in the store {store}; refusing to write or delete there")
-    if _is_local(fs):
-        root, path = os.path.realpath(root), os.path.realpath(path)
-    else:
-        root, path = posixpath.normpath("/" + root.lstrip("/")), posixpath.normpath("/" + path.lstrip("/"))
-    if path == root or os.path.commonpath([root, path]) != root:
-        raise ArtifactError(f"{url} resolves to {path}, outside the store {root}; refusing to write or delete there")
-    return url
-
-
-def regular_file(path: str) -> bool:
-    """Whether ``path`` is a plain file (not a link, FIFO, socket, device or directory).
-
-    Metadata is opened only then: opening a FIFO put in place of a ``zarr.json``
-    blocks for ever, holding the store lock.
-    """
-    try:
-        return stat.S_ISREG(os.lstat(path).st_mode)
-    except OSError:
-        return False
-
-
-def _what(path: str, mode: int) -> str:
-    if stat.S_ISLNK(mode):
-        try:
-            return f"a symbolic link to {os.readlink(path)}"
-        except OSError:
-            return "a symbolic link"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    return "not a plain file"
-
-
-def special_entries(root: str) -> list[tuple[str, str]]:
-    """Entries below a local artifact directory that are neither plain files nor directories.
-
-    ``(path relative to root, what it is)``.  sbrdf writes only plain files and
-    directories there, so anything else was put there by something else: a link
-    would lead reads and writes (and a repair's deletes) out of the store, a FIFO
-    or device would block the reader.  Links are listed, never followed.
-    """
-    out = []
-    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
-        for name in dirnames + filenames:
-            path = os.path.join(dirpath, name)
-            try:
-                mode = os.lstat(path).st_mode
-            except OSError:
-                continue
-            if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-                out.append((os.path.relpath(path, root), _what(path, mode)))
-    return sorted(out)
-
-
-def no_space(e: OSError, store: str, what: str) -> ArtifactError | None:
-    """``e`` as a clear :class:`ArtifactError` when it is a full disk (or quota); else ``None``."""
-    if e.errno not in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
-        return None
-    full = "no space left on the device" if e.errno == errno.ENOSPC else "the disk quota is exhausted"
-    return ArtifactError(f"store {store}: {full} writing {what}. Free space on the file system of {store} (or run "
-                         f"with another --store), then re-run: what was already written is kept")
-
-
-@contextlib.contextmanager
-def disk_errors(store: str, what: str):
-    """Turn a full disk while writing ``what`` into :func:`no_space`'s error; other errors pass unchanged."""
-    try:
-        yield
-    except OSError as e:
-        clear = no_space(e, store, what)
-        if clear is None:
-            raise
-        raise clear from e
-
-
-def _kill_point(node: str, point: str) -> None:
-    """Test-only: ``SBRDF_TEST_KILL_AT=node:point:SIGNAL[:n]`` makes this process send itself SIGNAL the n-th
-    time ``node`` passes ``point``, so tests can kill a run exactly between two writes (tests/core/test_kill_resume.py)."""
-    spec = os.environ.get("SBRDF_TEST_KILL_AT")
-    if not spec:
-        return
-    want_node, want_point, sig, *nth = spec.split(":")
-    if (want_node, want_point) != (node, point):
-        return
-    with _ARRAYS_LOCK:
-        _KILL_COUNTS[point] = _KILL_COUNTS.get(point, 0) + 1
-        if _KILL_COUNTS[point] != int(nth[0] if nth else 1):
-            return
-    os.kill(os.getpid(), getattr(signal, sig))
-    if sig == "SIGINT":  # delivered to the main thread; this thread waits for it there
-        import time
-
-        time.sleep(5)
-
-
-_KILL_COUNTS: dict[str, int] = {}
-
-
-class ChunkError(ArtifactError):
-    """A stored chunk cannot be read back: checksum mismatch, torn or foreign bytes."""
-
-    def __init__(self, url: str, array: str, keys: list[str], cause: str):
-        self.url, self.array, self.keys, self.cause = url, array, list(keys), cause
-        where = f"chunk{'s' if len(keys) > 1 else ''} {', '.join(keys)}" if keys else "a chunk"
-        super().__init__(f"damaged artifact {url}: array {array!r}, {where}: {cause}")
-
-    def __reduce__(self):  # distributed pickles exceptions raised on workers
-        return ChunkError, (self.url, self.array, self.keys, self.cause)
-
-
-# ---------------------------------------------------------------------------
-# chunking policies
-# ---------------------------------------------------------------------------
-
-
-#: Smallest automatic texel tile (see texel_tile).
-MIN_TILE = 8
-
-
-def pose_major_chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
-    """One pose per chunk: how captures arrive and how registration reads them."""
-    return (1, *shape[1:])
-
-
-def texel_tile(texels_vu: tuple[int, int], poses: int, channels: int = 3, itemsize: int = 4,
-               target_bytes: int = 16 * 2**20, tile: int | None = None) -> int:
-    """Edge of the square texel tile holding *all poses* of its texels in one chunk.
-
-    Fitting needs every sample of a texel at once, so sampled reflectance is
-    stored tile-major.  The tile is the largest power of two in [32, 128]
-    (DESIGN.md) whose chunk stays under ``target_bytes``; past 1024 samples
-    per texel (4 channels) even 32² would not, and the tile keeps halving down
-    to 8², so that a chunk, and the memory a worker needs to transpose or fit
-    one, stays bounded however many poses a scan has (a fixed 32² tile of 8000
-    poses would be a 131 MB chunk).  Never larger than the grid; an explicit
-    ``tile`` wins.
-    """
-    if tile is None:
-        per_texel = max(poses, 1) * channels * itemsize
-        tile = 128
-        while tile > MIN_TILE and tile * tile * per_texel > target_bytes:
-            tile //= 2
-    return max(1, min(tile, max(texels_vu)))
 
 
 # ---------------------------------------------------------------------------
@@ -450,106 +228,6 @@ def open_artifact(url: str, kind: ArtifactKind | str | tuple | None = None, requ
     return art
 
 
-# ---------------------------------------------------------------------------
-# writing
-# ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ArrayLayout:
-    """Shape, chunking and dtype of one output array.
-
-    ``chunks`` is what one task writes (and one done marker covers).  With
-    ``inner``, each of those is a zarr *shard* of ``inner``-sized chunks that
-    readers fetch on their own: a writer can produce a whole pose block in one
-    task while a reader takes one texel tile of it.
-    """
-
-    shape: tuple[int, ...]
-    chunks: tuple[int, ...]
-    dtype: str
-    fill_value: Any = 0
-    inner: tuple[int, ...] | None = None
-
-    @property
-    def grid(self) -> tuple[int, ...]:
-        return tuple(math.ceil(s / c) if c else 0 for s, c in zip(self.shape, self.chunks))
-
-    @property
-    def nchunks(self) -> int:
-        return int(np.prod(self.grid)) if self.shape else 1
-
-    def record(self) -> dict:
-        """What the group's ``layout`` attribute keeps of it (JSON)."""
-        return {"shape": list(self.shape), "chunks": list(self.chunks), "dtype": str(np.dtype(self.dtype)),
-                "inner": list(self.inner) if self.inner else None}
-
-
-def chunk_key(index: tuple[int, ...]) -> str:
-    return ".".join(map(str, index)) or "0"
-
-
-def _all_keys(lay: ArrayLayout) -> set[str]:
-    return {chunk_key(i) for i in np.ndindex(*lay.grid)} if lay.shape else {"0"}
-
-
-def remove_unfollowed(root: str, parts: list[str], keep_file: bool = False) -> None:
-    """Remove ``root/parts...`` (local) without following a link on the way.
-
-    Every directory between ``root`` and the end must be a real directory (not
-    a link): where one is not, that entry is removed instead (as a link, never
-    what it points to) and the path below it is gone with it.  A directory at
-    the end is removed with its contents (links inside it as links); a plain
-    file at the end is kept when ``keep_file``.
-    """
-    path = root
-    for i, part in enumerate(parts):
-        path = os.path.join(path, part)
-        try:
-            mode = os.lstat(path).st_mode
-        except FileNotFoundError:
-            return
-        last = i == len(parts) - 1
-        if stat.S_ISDIR(mode) and not last:
-            continue
-        if stat.S_ISREG(mode) and last and keep_file:
-            return
-        if stat.S_ISDIR(mode):
-            shutil.rmtree(path)
-        else:
-            os.unlink(path)
-        return
-
-
-def _clear_chunk_path(array_root: str, key: str, lay: ArrayLayout) -> None:
-    """Remove whatever stands where chunk ``key`` of a local array will be written, but is not a chunk file.
-
-    A directory (or a file where a directory of the key belongs) there makes
-    every write of the chunk fail.  Only entries inside the array's own ``c``
-    directory are touched, links are removed as links, and a chunk file that
-    is a plain file is left for the writer to replace.
-    """
-    remove_unfollowed(array_root, ["c", *key.split(".")] if lay.shape else ["c"], keep_file=True)
-
-
-_CHUNK_KEY = re.compile(r"\d+(\.\d+)*")
-
-
-def _marker_name(name: str) -> str:
-    return f"{MARKERS}/{name.replace('/', '.')}"
-
-
-def done_keys(fs, root: str, name: str) -> set[str]:
-    """Chunk keys of array ``name`` of the artifact at ``root`` whose done marker exists."""
-    path = join(root, _marker_name(name), "c")
-    try:
-        found = fs.find(path)
-    except FileNotFoundError:
-        return set()
-    keys = (p[len(path) + 1:].replace("/", ".") for p in found)
-    return {k for k in keys if _CHUNK_KEY.fullmatch(k)}
-
-
 class ArtifactWriter:
     """Creates or resumes one artifact and tracks which chunks are done.
 
@@ -704,8 +382,6 @@ class ArtifactWriter:
         what it points to), and so is whatever stands where a chunk that is not
         done will be written (a directory, say), so that writing it cannot fail.
         """
-        from .integrity import written
-
         if self.local:
             for rel, what in special_entries(self.root):
                 logger.warning("artifact %s: removing %s, %s (sbrdf writes only plain files there)", self.url, rel, what)
@@ -761,8 +437,6 @@ class ArtifactWriter:
                 raise ArtifactError(f"{self.url}: {missing} chunks of {name!r} were not written; not marking complete")
         group = zarr.open_group(store=self.url, mode="r+")
         files = attrs.get("files", group.attrs.get("files")) or []
-        from .integrity import file_digest
-
         digests = {f: file_digest(self.fs, join(self.root, f)) for f in files if isinstance(f, str)}
         group.attrs.update({**attrs, "file_digests": digests, "complete": True})
 
@@ -804,23 +478,6 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
             marker[where] = crc
     _kill_point(url.rstrip("/").rsplit("/", 1)[-1], "chunk")
     return int(block.nbytes)
-
-
-def chunk_crc(data: np.ndarray) -> int:
-    """crc32c of a chunk's values (C order), as its done marker keeps it.
-
-    Read in place when contiguous, else one slice of the first axis at a time
-    (crc32c extends over concatenated bytes: the same value), never as a whole copy.
-    """
-    import google_crc32c
-
-    data = np.asarray(data)
-    if data.ndim == 0 or data.flags.c_contiguous:
-        return int(google_crc32c.value(np.ascontiguousarray(data).reshape(-1).view(np.uint8)))
-    crc = 0
-    for part in data:
-        crc = google_crc32c.extend(crc, np.ascontiguousarray(part).reshape(-1).view(np.uint8))
-    return int(crc)
 
 
 def _open_cached(url: str, name: str, token: str) -> zarr.Array:
