@@ -194,9 +194,7 @@ class FrameCameraBase:
         (drivers may use them to name files or emulated frames; others ignore them).
         """
         self._check_open()
-        if self.exposure_s is None:
-            self.set_exposure(self.exposure_range_s()[0] if self._device_range_s() is None
-                              else min(max(0.01, self.exposure_range_s()[0]), self.exposure_range_s()[1]))
+        # Before any set_exposure the camera keeps whatever exposure it has (its timing then counts as transfer).
         wait = (self.timeout_s if timeout_s is None else float(timeout_s)) + float(self.exposure_s or 0.0)
         t0 = time.perf_counter()
         raw = self._grab(wait, **kw)
