@@ -8,7 +8,7 @@ registration -> reflectance -> Lambert fit) is run for N seeds:
                 does, without the interpreter start-up);
 ``batch``       :func:`sbrdf_core.batch.run_batch` on a ``distributed.LocalCluster``
                 (2 worker processes, 1 thread each, under
-                ``sbrdf_core.memory.CLUSTER_CONFIG``), ``--concurrent`` scans in
+                ``sbrdf_core.runner.CLUSTER_CONFIG``), ``--concurrent`` scans in
                 flight at once (default 4; every node's dask keys name its
                 artifact, so scans on one scheduler never share a task).
 
@@ -66,9 +66,8 @@ def main() -> None:
 
     from sbrdf_core.batch import Scan, run_batch
     from sbrdf_core.graph import load_graph
-    from sbrdf_core.memory import CLUSTER_CONFIG
     from sbrdf_core.registry import Registry
-    from sbrdf_core.runner import Runner
+    from sbrdf_core.runner import CLUSTER_CONFIG, Runner
 
     reg = Registry()
     with tempfile.TemporaryDirectory(prefix="sbrdf-batch-bench-") as tmp:

@@ -13,7 +13,7 @@ Reflectance are timed (the runner's node wall times) on
 
 ``threads``  dask's threaded scheduler in this process, and
 ``cluster``  a ``distributed.LocalCluster`` (2 worker processes, 1 thread each),
-             started under ``sbrdf_core.memory.CLUSTER_CONFIG`` (docs/cluster.md).
+             started under ``sbrdf_core.runner.CLUSTER_CONFIG`` (docs/cluster.md).
 
 ``mb_per_s`` = CaptureSet MB / (Register + Reflectance seconds), threads run.
 ``peak_rss_mb`` = peak resident set of the process running Register +
@@ -249,7 +249,7 @@ def floor_child(store: str, block: int = 32) -> None:
     from sbrdf_core.store import open_artifact
     from sbrdf_register.aruco import subsample_offsets, texel_maps
 
-    cv2.setNumThreads(1)  # as under the runner: the pool's threads are the parallelism (sbrdf_core.parallelism)
+    cv2.setNumThreads(1)  # as under the runner: the pool's threads are the parallelism (sbrdf_core._runtime)
     capture, reg = open_artifact(f"{store}/capture"), open_artifact(f"{store}/register")
     images, valid = capture.zarr_array("images"), capture.zarr_array("valid")
     U, V = reg.attrs["texels"]
@@ -296,7 +296,7 @@ def child_run(g: str, scheduler: str, nodes: list[str]) -> None:
             import dask
             from distributed import Client, LocalCluster
 
-            from sbrdf_core.memory import CLUSTER_CONFIG
+            from sbrdf_core.runner import CLUSTER_CONFIG
 
             stack.enter_context(dask.config.set(CLUSTER_CONFIG))
             lc = stack.enter_context(LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -424,8 +424,7 @@ def lafortune(tmp: Path) -> dict:
 
 
 def main() -> None:
-    from sbrdf_core.memory import limit_arenas
-    from sbrdf_core.parallelism import single_level
+    from sbrdf_core._runtime import limit_arenas, single_level
 
     limit_arenas()  # as the sbrdf CLI does for its runs: the memory figures assume capped malloc arenas
     single_level()  # and, for a parallel run, OpenCV's pool off (children inherit it; the cluster's workers get it)

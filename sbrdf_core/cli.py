@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ._runtime import tune_process
 from .errors import PluginError, SbrdfError
 
 logger = logging.getLogger(__name__)
@@ -626,32 +627,6 @@ def _run_command(reg, name: str, args) -> int:
     if bind is not None:
         bind(reg)
     return command.run(args)
-
-
-#: ``--scheduler`` values that run one task at a time.
-SEQUENTIAL = ("sync", "synchronous", "single-threaded")
-
-
-def tune_process(args=None) -> None:
-    """Process-wide settings for a command-line run, made once, before any dask thread starts.
-
-    glibc's malloc arenas are capped (:func:`sbrdf_core.memory.limit_arenas`):
-    each dask thread would otherwise keep its own heap of freed temporaries.  A
-    command that runs tasks in parallel (``--scheduler`` other than sync, and not
-    ``--workers 1``) gives OpenCV one thread (:func:`sbrdf_core.parallelism.single_level`):
-    dask's threads are the parallelism.  A library caller decides both for its own
-    process; dask workers get them from their environment
-    (:data:`sbrdf_core.memory.CLUSTER_CONFIG`).
-    """
-    from .memory import limit_arenas
-    from .parallelism import single_level
-
-    if limit_arenas():
-        logger.debug("malloc arenas capped for this process")
-    scheduler = getattr(args, "scheduler", None)
-    if scheduler is not None and scheduler not in SEQUENTIAL and getattr(args, "workers", None) != 1:
-        single_level()
-        logger.debug("OpenCV's thread pool off: dask's %s scheduler runs tasks in parallel", scheduler)
 
 
 if __name__ == "__main__":

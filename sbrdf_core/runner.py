@@ -29,8 +29,11 @@ waits (``wait``).  A chunk of an input that fails its checksum stops the node
 with a :class:`~sbrdf_core.store.ChunkError` naming artifact, array and chunk;
 the chunk's done marker is dropped first, so a re-run recomputes it.
 
-Process-wide tuning (glibc's malloc arenas) is not the runner's business: the
-``sbrdf`` command does it once at start-up (:func:`sbrdf_core.cli.tune_process`).
+Process-wide tuning (glibc's malloc arenas, OpenCV's thread pool) is the
+process owner's decision: the ``sbrdf`` command calls :func:`tune_process`
+once at start-up, and a program that runs graphs calls it itself.  A dask
+cluster's processes get the same settings from :data:`CLUSTER_CONFIG`
+(docs/cluster.md).
 What a run does is logged on ``sbrdf_core.runner`` (``sbrdf -v``).
 """
 
@@ -52,6 +55,11 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from . import __version__, compile_notice
+
+# The public names of process tuning (the module is private).
+from ._runtime import CLUSTER_CONFIG as CLUSTER_CONFIG
+from ._runtime import WORKER_ENV as WORKER_ENV
+from ._runtime import tune_process as tune_process
 from .contracts import optional
 from .errors import RunError, SbrdfError
 from .extras import require

@@ -466,7 +466,7 @@ def write_chunk(block: np.ndarray, url: str, name: str, token: str, index: tuple
     # inner chunk at a time (as zarr's encoding did), and chunk_crc reads it a slice at a time.
     # A whole copy (24 MiB a pose block), and the crc's bytes copy of it, were each the size of
     # the block again in every writing thread, and such block-sized temporaries are what glibc's
-    # arenas kept as freed memory (sbrdf_core.memory).
+    # arenas kept as freed memory (sbrdf_core._runtime).
     data = block.astype(arr.dtype, copy=False)
     with disk_errors(url.rstrip("/").rsplit("/", 1)[0], f"artifact {url}, array {name!r}, chunk {chunk_key(index)}"):
         if not write_direct(arr, region, data):  # part of a shard, another store or codec: zarr writes it

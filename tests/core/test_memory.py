@@ -1,4 +1,4 @@
-"""sbrdf_core.memory: the malloc arena cap the runner applies before running threads."""
+"""sbrdf_core._runtime: the malloc arena cap the runner applies before running threads."""
 
 import os
 import platform
@@ -9,7 +9,7 @@ import pytest
 
 glibc = pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt(M_ARENA_MAX) is glibc's")
 
-CODE = "from sbrdf_core.memory import limit_arenas; print(limit_arenas())"
+CODE = "from sbrdf_core._runtime import limit_arenas; print(limit_arenas())"
 
 
 def _run(env: dict) -> str:
@@ -29,7 +29,7 @@ def test_limit_arenas_leaves_a_users_setting_alone():
 #: mallinfo2 and raw malloc/free through ctypes, after limit_arenas.
 MALLOC = """
 import ctypes
-from sbrdf_core.memory import limit_arenas
+from sbrdf_core._runtime import limit_arenas
 
 class MI(ctypes.Structure):
     _fields_ = [(n, ctypes.c_size_t) for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()]
@@ -61,7 +61,7 @@ def test_block_sized_temporaries_stay_mapped_after_a_larger_one_was_freed():
     assert out.stdout.strip() == "True"
 
 
-TRIM_CODE = MALLOC + """from sbrdf_core.memory import TRIM_THRESHOLD
+TRIM_CODE = MALLOC + """from sbrdf_core._runtime import TRIM_THRESHOLD
 ps = [libc.malloc(1 << 20) for _ in range(3)]  # a pose's temporaries: in the heap, below the mmap threshold
 for p in reversed(ps):
     libc.free(p)

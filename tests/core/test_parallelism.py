@@ -1,4 +1,4 @@
-"""sbrdf_core.parallelism: OpenCV's own thread pool is off where dask's threads run tasks in parallel."""
+"""sbrdf_core._runtime: OpenCV's own thread pool is off where dask's threads run tasks in parallel."""
 
 import os
 import subprocess
@@ -57,7 +57,7 @@ def test_cluster_workers_start_with_opencvs_pool_off():
     import dask
     import distributed
 
-    from sbrdf_core.memory import CLUSTER_CONFIG, WORKER_ENV
+    from sbrdf_core.runner import CLUSTER_CONFIG, WORKER_ENV
 
     assert WORKER_ENV["OPENCV_FOR_THREADS_NUM"] == "1"
     with dask.config.set(CLUSTER_CONFIG), distributed.LocalCluster(

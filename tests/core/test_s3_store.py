@@ -70,7 +70,7 @@ def s3():
 def cluster(s3):
     import dask
 
-    from sbrdf_core.memory import CLUSTER_CONFIG
+    from sbrdf_core.runner import CLUSTER_CONFIG
 
     with dask.config.set(CLUSTER_CONFIG), distributed.LocalCluster(
             n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c, \

@@ -1,4 +1,16 @@
-"""Keep freed memory from piling up in glibc's per-thread heaps.
+"""Process tuning for a run: glibc's malloc heaps and one level of thread parallelism.
+
+Process-wide settings are not library code's decision, so nothing in the
+engine applies them by itself: the ``sbrdf`` command calls
+:func:`tune_process` once at start-up, a program using the runner calls it
+itself (:func:`sbrdf_core.runner.tune_process`), and dask worker processes
+read the same settings from their environment (:data:`CLUSTER_CONFIG`,
+re-exported by :mod:`sbrdf_core.runner`, docs/cluster.md).
+
+Memory
+------
+
+Freed memory is kept from piling up in glibc's per-thread heaps.
 
 glibc gives each thread that allocates its own heap ("arena"), up to 8 per
 core.  Freed NumPy temporaries stay in the arena that made them, so a run's
@@ -41,15 +53,45 @@ scheduler and every worker: more tasks or a longer run filled them further
 (after a 2170-pose Register + Reflectance the scheduler still held 7 MB of
 deserialized graphs in them, after a 543-pose one 2 MB).  It also
 queues exactly one root task per worker thread (see below).
+
+Threads
+-------
+
+OpenCV parallelises its calls (``remap``, ``detectMarkers``, colour
+transforms, ...) on a pthreads pool as large as the machine.  Called from
+dask's worker threads, every task then starts as many more threads: on 2
+cores, 2 tasks x 2 OpenCV threads, and OpenCV's workers spin a while before
+they sleep, so the extra threads add CPU time and no speed: Register on a
+benchmark capture under dask's threaded scheduler took more wall and CPU time
+with OpenCV's pool than without it.
+
+:func:`single_level` turns the pool off for a process whose runs execute tasks
+in parallel: the ``sbrdf`` command calls it at start-up
+(:func:`tune_process`) unless the run is sequential (``--scheduler
+sync`` or ``--workers 1``), where OpenCV's own threads are the only
+parallelism.  Dask worker processes read :data:`LIBRARY_ENV` instead
+(:data:`WORKER_ENV`, docs/cluster.md).  A value the user set is
+kept.  numba's kernels are left alone: the compiled fitters make their threads
+wait passively (``OMP_WAIT_POLICY``), and one numba thread per task measured no
+faster under the runner.
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+import logging
 import os
+from typing import TYPE_CHECKING
 
-from .parallelism import LIBRARY_ENV
+if TYPE_CHECKING:
+    import argparse
+
+logger = logging.getLogger("sbrdf_core.runtime")
+
+#: Environment that keeps libraries' own thread pools to one thread, read when they start (OpenCV: at import).
+LIBRARY_ENV = {"OPENCV_FOR_THREADS_NUM": "1"}
+
 
 #: glibc's ``mallopt`` parameter number for the arena limit (malloc.h ``M_ARENA_MAX``).
 M_ARENA_MAX = -8
@@ -64,7 +106,7 @@ M_TRIM_THRESHOLD = -1
 #: Free memory a heap keeps at its top rather than give back: a Fit task's working memory, fixed.
 TRIM_THRESHOLD = 128 << 20
 #: Environment for dask worker processes (``distributed.nanny.pre-spawn-environ``): these malloc settings, and
-#: OpenCV's pool off, since a worker's threads are the parallelism (:data:`sbrdf_core.parallelism.LIBRARY_ENV`).
+#: OpenCV's pool off, since a worker's threads are the parallelism (:data:`LIBRARY_ENV`).
 WORKER_ENV = {"MALLOC_ARENA_MAX": str(ARENAS), "MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD),
               "MALLOC_TRIM_THRESHOLD_": str(TRIM_THRESHOLD), **LIBRARY_ENV}
 #: Entries kept in distributed's debugging logs (``distributed.admin.low-level-log-length``, default 1000).
@@ -89,7 +131,7 @@ def limit_arenas(n: int = ARENAS) -> bool:
     Respects a ``MALLOC_ARENA_MAX``, ``MALLOC_MMAP_THRESHOLD_`` or ``MALLOC_TRIM_THRESHOLD_``
     the user already set.
     Process-wide, so not library code's decision: the ``sbrdf`` command calls it once at
-    start-up (:func:`sbrdf_core.cli.tune_process`); a program using the runner calls it itself.
+    start-up (:func:`tune_process`); a program using the runner calls it itself.
     """
     try:
         mallopt = ctypes.CDLL(None).mallopt  # the process's own C library, no search
@@ -103,3 +145,41 @@ def limit_arenas(n: int = ARENAS) -> bool:
     if "MALLOC_ARENA_MAX" in os.environ:
         return False
     return bool(mallopt(M_ARENA_MAX, int(n)))
+
+
+def single_level() -> None:
+    """Give OpenCV one thread in this process (dask's threads are the parallelism), unless the user set
+    ``OPENCV_FOR_THREADS_NUM``.
+
+    The environment variable covers an OpenCV imported later; ``setNumThreads`` the one loaded now.  OpenCV
+    is imported here either way, so the result does not depend on what happened to be imported before.
+    """
+    for name, value in LIBRARY_ENV.items():
+        if name in os.environ:
+            continue
+        os.environ[name] = value
+        import cv2
+
+        cv2.setNumThreads(int(value))
+
+
+#: ``--scheduler`` values that run one task at a time.
+SEQUENTIAL = ("sync", "synchronous", "single-threaded")
+
+
+def tune_process(args: argparse.Namespace | None = None) -> None:
+    """Process-wide settings for a run, made once, before any dask thread starts.
+
+    glibc's malloc arenas are capped (:func:`limit_arenas`): each dask thread
+    would otherwise keep its own heap of freed temporaries.  A run that
+    executes tasks in parallel (``args.scheduler`` other than sync, and not
+    ``args.workers == 1``) gives OpenCV one thread (:func:`single_level`):
+    dask's threads are the parallelism.  Without ``args`` only the arenas are
+    capped.
+    """
+    if limit_arenas():
+        logger.debug("malloc arenas capped for this process")
+    scheduler = getattr(args, "scheduler", None)
+    if scheduler is not None and scheduler not in SEQUENTIAL and getattr(args, "workers", None) != 1:
+        single_level()
+        logger.debug("OpenCV's thread pool off: dask's %s scheduler runs tasks in parallel", scheduler)
