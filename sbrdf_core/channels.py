@@ -10,9 +10,10 @@ as the reductions they replace (a NaN's sign bit aside): the same operations in 
 from __future__ import annotations
 
 import functools
-import sys
 
 import numpy as np
+
+from ._compiled import worth_compiling
 
 __all__ = ["abs_channel_mean", "all_finite", "channel_max", "channel_mean"]
 
@@ -47,11 +48,11 @@ def channel_mean(a: np.ndarray) -> np.ndarray:
 
 
 def abs_channel_mean(a: np.ndarray) -> np.ndarray:
-    """``channel_mean(np.abs(a))``; one compiled pass without the ``|a|`` copy where numba is loaded already and
-    ``a`` is a float64 ``(T, S, C)`` array (the shot-noise weights' level of a Fit tile: the copy costs more than
+    """``channel_mean(np.abs(a))``; one compiled pass without the ``|a|`` copy where the work is large
+    enough (:func:`sbrdf_core._compiled.worth_compiling`) and ``a`` is a float64 ``(T, S, C)`` array (the shot-noise weights' level of a Fit tile: the copy costs more than
     the sum)."""
     a = np.asarray(a)
-    if "numba" in sys.modules and a.ndim == 3 and a.dtype == np.float64 and a.shape[-1] > 0:
+    if worth_compiling(a.size) and a.ndim == 3 and a.dtype == np.float64 and a.shape[-1] > 0:
         return _compiled_abs_channel_mean()(a)
     return channel_mean(np.abs(a))
 

@@ -28,11 +28,11 @@ texels it moved.
 from __future__ import annotations
 
 import functools
-import sys
 from dataclasses import replace
 
 import numpy as np
 
+from ._compiled import worth_compiling
 from .brdf_checks import energy_azimuths, energy_report, uncleared
 from .channels import all_finite, channel_max
 from .geometry import polar_direction
@@ -89,10 +89,10 @@ def angular_resolution(wi: np.ndarray, wo: np.ndarray, valid: np.ndarray, neares
 def _negated_mirror_cosines(wi: np.ndarray, wo: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """−cos of each sample's angle between ω_o and ω_i's mirror direction, clipped to [−1, 1], −0 where invalid,
     ``(T, S)``: what :func:`angular_resolution` partitions."""
-    if ("numba" in sys.modules and wi.ndim == 3 and wi.shape == wo.shape and wi.shape[-1] == 3
+    if (worth_compiling(valid.size) and wi.ndim == 3 and wi.shape == wo.shape and wi.shape[-1] == 3
             and wi.dtype == wo.dtype == np.float64 and valid.shape == wi.shape[:2]):
-        # Loaded already (a compiled fitter), so free to use: one pass instead of NumPy's seven over strided
-        # channels, the same bits (tests/plugins/test_bounded_fits.py).
+        # One pass instead of NumPy's seven over strided channels, the same bits
+        # (tests/plugins/test_bounded_fits.py).
         return _compiled_negated_cosines()(wi, wo, valid)
     cos_a = wi[..., 2] * wo[..., 2] - wi[..., 0] * wo[..., 0] - wi[..., 1] * wo[..., 1]
     return -np.where(valid, np.clip(cos_a, -1.0, 1.0), 0.0)

@@ -8,9 +8,10 @@ area; directions point away from the surface.  Array index order is ``[v, u]``.
 from __future__ import annotations
 
 import functools
-import sys
 
 import numpy as np
+
+from ._compiled import worth_compiling
 
 
 def texel_centres(texels_uv: tuple[int, int], size_mm: tuple[float, float],
@@ -55,9 +56,8 @@ def tile_directions(texels_uv: tuple[int, int], size_mm: tuple[float, float], ro
     """
     p = texel_centres(texels_uv, size_mm, rows[0], rows[1], cols[0], cols[1]).reshape(-1, 3)
     light, camera = np.asarray(light_pos, float).reshape(-1, 3), np.asarray(camera_pos, float).reshape(-1, 3)
-    if "numba" in sys.modules and p.dtype == light.dtype == camera.dtype == np.float64:
-        # Loaded already (a compiled fitter), so free to use: one pass, the same values to an ulp
-        # (tests/core/test_geometry.py).
+    if worth_compiling(p.shape[0] * light.shape[0]) and p.dtype == light.dtype == camera.dtype == np.float64:
+        # One pass instead of NumPy's several, the same values to an ulp (tests/core/test_geometry.py).
         return _compiled_directions()(p, np.ascontiguousarray(light), np.ascontiguousarray(camera))
     wi, r = directions_to(p, light)
     wo, _ = directions_to(p, camera)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import numba  # noqa: F401  (loaded, so abs_channel_mean takes its compiled pass)
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from sbrdf_core import _compiled
 from sbrdf_core.channels import abs_channel_mean, all_finite, channel_max, channel_mean
 
 SPECIAL = st.sampled_from([np.nan, np.inf, -np.inf, 0.0, -0.0, 3e38, -3e38, 1.4e-45])  # all fit in float32
@@ -16,6 +17,14 @@ ARRAYS = hnp.arrays(
     hnp.array_shapes(min_dims=1, max_dims=4, max_side=5).map(lambda s: s[:-1] + (3,) if len(s) > 1 else (3,)),
     elements=st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32), SPECIAL),
 )
+
+
+@pytest.fixture(autouse=True, scope="module")
+def compiled_at_every_size():
+    """abs_channel_mean takes its compiled pass on these small arrays too, so both passes are compared."""
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(_compiled, "MIN_ELEMENTS", 0)
+        yield
 
 
 @settings(max_examples=200, deadline=None)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from sbrdf_core import _compiled
 from sbrdf_core.geometry import _compiled_directions, directions_to, texel_centres, tile_directions
 
 
@@ -25,5 +27,16 @@ def test_compiled_tile_directions_equal_numpy_to_an_ulp(seed, poses, side, scale
         assert a.shape == b.shape
         np.testing.assert_array_max_ulp(a, b, maxulp=1)
     assert tuple(got[0][0, 0]) == (0.0, 0.0, 1.0)
-    ref = tile_directions((side, side), size, (0, side), (0, side), light, camera)  # numba is loaded by now
+    with pytest.MonkeyPatch.context() as m:  # every size takes the compiled pass
+        m.setattr(_compiled, "MIN_ELEMENTS", 0)
+        ref = tile_directions((side, side), size, (0, side), (0, side), light, camera)
     assert all(a.tobytes() == b.tobytes() for a, b in zip(ref, got))
+
+
+def test_which_pass_runs_depends_on_the_size_not_on_what_is_imported():
+    from pathlib import Path
+
+    assert not _compiled.worth_compiling(_compiled.MIN_ELEMENTS - 1)
+    assert _compiled.worth_compiling(_compiled.MIN_ELEMENTS)
+    core = Path(_compiled.__file__).parent
+    assert [f for f in ("geometry.py", "channels.py", "constraints.py") if "sys.modules" in (core / f).read_text()] == []
