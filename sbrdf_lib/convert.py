@@ -1,10 +1,11 @@
 """Conversion of any model's per-texel BRDF to the GGX microfacet model that interchange formats share.
 
-glTF's metallic-roughness PBR, MaterialX standard_surface / OpenPBR, USD
-preview surfaces and Mitsuba's ``principled`` all carry one GGX lobe plus a
-diffuse term, not a Lafortune sum or a Ward lobe.  An exporter therefore does
-not copy parameters: it *refits* each texel's BRDF to GGX and reports how
-much was lost, per texel, on directions the fit did not see.
+glTF's metallic-roughness PBR (with ``KHR_materials_specular``), MaterialX
+standard_surface / OpenPBR, USD preview surfaces and Mitsuba's rough
+conductor all carry one GGX lobe plus a diffuse term, not a Lafortune sum or
+a Ward lobe.  An exporter therefore does not copy parameters: it *refits*
+each texel's BRDF to GGX and reports how much was lost, per texel, on
+directions the fit did not see.
 
 Method (vectorised over texels, in batches of :data:`BATCH`):
 
@@ -17,40 +18,57 @@ Method (vectorised over texels, in batches of :data:`BATCH`):
    directions on a cosine-weighted Fibonacci spiral (the diffuse part).  Pairs
    below 85° are kept.  The *held-out* set uses different spiral counts and a
    rotated azimuth, so no held-out pair is a fitting pair.
-2. **Fit.**  The source model is evaluated on the fitting pairs and the
-   installed ``cook-torrance`` model with ``distribution: ggx`` (ρ_d, F0, α;
-   the caller passes it, from ``registry.create("brdf-model", "cook-torrance",
-   {"distribution": "ggx"})``) is fitted with the shared batched LM
-   (:func:`sbrdf_lib.lm.fit_model`) from the best of five roughness values
-   (:data:`START_ALPHAS`, ρ_d and F0 solved linearly for each), on f_r itself, unweighted, as
-   every fitter of the project fits (the 85° limit keeps grazing f_r bounded).
-   A source that already is cook-torrance GGX skips the fit (its parameters,
-   clipped to the declared bounds, are the fit).
-3. **glTF** (:func:`to_gltf_pbr`).  glTF 2.0 Appendix B's BRDF with
+2. **Target.**  The GGX lobe of the installed ``cook-torrance`` model
+   (``distribution: ggx``; or ``ggx-anisotropic``), read the way glTF's
+   ``KHR_materials_specular``, OpenPBR and standard_surface weigh it
+   (:class:`SpecularGGX`)::
+
+       f = ρ_d + s (F0c + (1 − F0c)(1 − ω_i·h)⁵) D V
+
+   with a specular weight s ∈ [0, 1] (glTF's specularFactor) and a specular
+   colour F0c ∈ [0, 1] (normal-incidence Fresnel before the weight), α ≤ 1
+   (glTF's roughness = √α ≤ 1).  Why the weight: Schlick's term rises to 1 at
+   grazing whatever F0 is, and a measured lobe that does not brighten toward
+   grazing (every Lafortune or Phong fit) can only be matched with F0 → 0 and
+   the lobe spread flat (α at its bound) unless the grazing rise can be dimmed
+   too.  Formats whose Fresnel rises to 1 regardless (USD Preview Surface) are
+   fitted with s fixed at 1 (``grazing=False``).
+3. **Fit.**  Each texel starts from the best of a few shapes: the roughness
+   grid :data:`START_ALPHAS` and the source's own mapped roughness (a
+   Lafortune or Phong exponent n as α = √(2/(n + 2)), the Beckmann match of a
+   cosine lobe; a microfacet model's α as it is), with ρ_d, s·F0c and s solved
+   by linear least squares for each.  The shared batched LM
+   (:func:`sbrdf_lib.lm.fit_model`) then refines it on the cosine-weighted
+   objective Σ cos θ_i cos θ_o |f − f_src|² (:class:`CosineWeighted`): a
+   renderer's pixel sees f · cos θ_i under a light, and a surface seen at
+   θ_o covers cos θ_o of the image it would cover face-on.  An unweighted fit
+   is ruled by the grazing pairs, where GGX's 1/(cos θ_i cos θ_o) peak is
+   largest and a viewer rarely looks.  A source that already is cook-torrance
+   GGX skips the fit (its parameters, clipped to the target's bounds, s = 1,
+   are the fit).
+4. **glTF** (:func:`to_gltf_pbr`).  glTF 2.0 Appendix B's BRDF with
    ``KHR_materials_specular`` (ratified form)::
 
        f = (1 − m) [(1 − s·max(F)) c/π + s F D V] + m D V (c + (1 − c)(1 − v·h)⁵)
        F = F0 + (1 − F0)(1 − v·h)⁵,   F0 = min(0.04 · specularColor, 1),   α = roughness²
 
-   with D and V (height-correlated Smith) exactly the cook-torrance GGX
-   terms.  Each texel gets one of two readings of its GGX fit, whichever
-   reproduces the source better on the fitting pairs: *dielectric*
-   (metallic 0, s = specularFactor = 1, specularColor = F0/0.04, base colour
-   solved linearly against the source with the (1 − max F) diffuse weight) or
-   *metal* (metallic 1, base colour = F0, no diffuse); metal wins ties (within
+   Each texel gets one of two readings of its fit, whichever reproduces the
+   source better on the fitting pairs: *dielectric* (metallic 0,
+   specularFactor = s, specularColor = F0c/0.04, base colour solved linearly
+   against the source with the (1 − s·max F) diffuse weight) or *metal*
+   (metallic 1, base colour = s·F0c, no diffuse); metal wins ties (within
    :data:`METAL_PREFERENCE`), since core glTF readers without the extension
-   show it right.  roughness = √α
-   clipped to [0, 1].
-4. **Error.**  Per texel, the relative RMS of the converted BRDF against the
+   show it right.  roughness = √α.
+5. **Error.**  Per texel, the relative RMS of the converted BRDF against the
    source on the held-out pairs, weighted by cos θ_i cos θ_o:
-   ``sqrt(Σ w |f_conv − f_src|²) / sqrt(Σ w |f_src|²)`` over RGB.  A texel
-   whose source is zero on every fitting pair gets ρ_d = F0 = 0 (GGX cannot
-   be black: Schlick's F → 1 at grazing, so :func:`to_ggx` reports error 1
-   there) and in glTF base colour 0, specularFactor 0: exactly black, error 0; a texel with non-finite source parameters or values is
-   *invalid*: its outputs are the defaults (black, roughness 1) and its error
-   is 1 (everything lost), so maps stay finite.
-
-5. **Anisotropy** (glTF only, when the caller passes the installed
+   ``sqrt(Σ w |f_conv − f_src|²) / sqrt(Σ w |f_src|²)`` over RGB.  Texels whose
+   error is above the exporter's ``flag_error`` (default :data:`FLAG_ERROR`)
+   are flagged: the format cannot show them as fitted.  A texel whose source is
+   zero on every fitting pair converts to exactly black (ρ_d = s = 0), error 0;
+   a texel with non-finite source parameters or values is *invalid*: its
+   outputs are the defaults (black, roughness 1) and its error is 1
+   (everything lost), so maps stay finite.
+6. **Anisotropy** (glTF only, when the caller passes the installed
    ``ggx-anisotropic`` model, :func:`anisotropic_model`).  The source is also
    refitted to the anisotropic GGX lobe of ``KHR_materials_anisotropy``
    (α_t, α_b and a per-texel direction φ; starting points: the roughness
@@ -66,18 +84,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
+
 __all__ = [
     "ANISOTROPY_GAIN",
     "BATCH",
     "DIELECTRIC_F0",
+    "FLAG_ERROR",
+    "GGX_MAPS",
     "GLTF_MAPS",
     "MAX_THETA_DEG",
     "START_ALPHAS",
     "METAL_PREFERENCE",
+    "CosineWeighted",
+    "SpecularGGX",
     "anisotropic_model",
     "direction_pairs",
     "ggx_model",
     "gltf_brdf",
+    "mapped_alpha",
     "relative_error",
     "to_ggx",
     "to_ggx_blocks",
@@ -85,7 +110,7 @@ __all__ = [
     "to_gltf_pbr_blocks",
 ]
 
-#: Texels converted per batch (bounds memory: the LM's Jacobian is T × S × 3 × 7 doubles).
+#: Texels converted per batch (bounds memory: the LM's Jacobian is T × S × 3 × 8 doubles).
 BATCH = 512
 #: Largest angle from the normal of any fitting or held-out direction.
 MAX_THETA_DEG = 85.0
@@ -93,8 +118,14 @@ MAX_THETA_DEG = 85.0
 METAL_PREFERENCE = 0.01
 #: F0 of glTF's default dielectric (IOR 1.5).
 DIELECTRIC_F0 = 0.04
+#: A texel whose held-out conversion error is above this is flagged (the exporters' ``flag_error`` default).
+FLAG_ERROR = 0.25
+#: Largest GGX α any format carries (glTF, OpenPBR and USD: roughness = √α ≤ 1).
+MAX_ALPHA = 1.0
 #: The per-texel maps :func:`to_gltf_pbr` returns and their channels (linear values; ``specular_color`` may exceed 1).
 GLTF_MAPS = {"base_color": 3, "metallic": 1, "roughness": 1, "specular": 1, "specular_color": 3, "anisotropy": 3}
+#: The per-texel maps :func:`to_ggx_blocks` returns: ρ_d, s·F0c (the normal-incidence Fresnel), α, s, F0c, error.
+GGX_MAPS = {"rho_d": 3, "f0": 3, "alpha": 1, "specular": 1, "specular_color": 3, "error": 1}
 #: ``anisotropy`` map of an isotropic texel: direction (1, 0) (the tangent), strength 0.
 ISOTROPIC = (1.0, 0.0, 0.0)
 #: A texel reads as anisotropic when that lowers its relative error on the fitting pairs by more than this.
@@ -142,7 +173,7 @@ def direction_pairs(held_out: bool = False) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ggx_model(registry=None):
-    """The installed ``cook-torrance`` model with GGX facets, the conversion target.
+    """The installed ``cook-torrance`` model with GGX facets, the conversion target's lobe.
 
     ``registry`` is the run's (an exporter's ``bind``); without one, the
     installed plugins' (an exporter used directly, outside a graph).
@@ -161,6 +192,150 @@ def anisotropic_model(registry=None):
 
         registry = default_registry()
     return registry.create("brdf-model", "ggx-anisotropic", {})
+
+
+def _schlick(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """Schlick's weight (1 − ω_i·h)⁵, shaped like ``wi`` without its last axis."""
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    return (1.0 - np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)) ** 5
+
+
+class SpecularGGX(BRDFModel):
+    """The conversion target: a GGX lobe with a specular weight and colour, as glTF, OpenPBR and Standard Surface weigh it.
+
+        f_r = ρ_d + s (F0c + (1 − F0c)(1 − ω_i·h)⁵) D V
+
+    D V (the microfacet distribution times the height-correlated visibility)
+    is the ``lobe``'s (the installed ``cook-torrance`` GGX or
+    ``ggx-anisotropic``), evaluated with ρ_d = 0 and F0 = 1.  Parameters:
+    ``rho_d`` (3, sr⁻¹), ``specular_color`` F0c (3, in [0, 1]), ``specular``
+    s (1, in [0, 1]) and the lobe's shape (``alpha``, or ``alpha_t``,
+    ``alpha_b``, ``phi``) with α ≤ :data:`MAX_ALPHA`.  Normal-incidence Fresnel
+    is s·F0c, grazing s: with s = 1 it is the lobe model itself.
+
+    >>> import numpy as np
+    >>> from sbrdf_lib.convert import SpecularGGX, ggx_model
+    >>> m = SpecularGGX(ggx_model())
+    >>> [p.name for p in m.parameters]
+    ['rho_d', 'specular_color', 'specular', 'alpha']
+    >>> p = {"rho_d": np.zeros((1, 3)), "specular_color": np.full((1, 3), 0.5), "specular": np.ones((1, 1)),
+    ...      "alpha": np.full((1, 1), 0.3)}
+    >>> d = np.array([[[0.0, 0.0, 1.0]]])
+    >>> lobe = ggx_model().eval({"rho_d": np.zeros((1, 3)), "f0": np.full((1, 3), 0.5), "alpha": p["alpha"]}, d, d)
+    >>> bool(np.allclose(m.eval(p, d, d), lobe))
+    True
+    """
+
+    def __init__(self, lobe: BRDFModel):
+        self.lobe = lobe
+        self.name = f"{lobe.name}-specular"
+        self.anisotropic = getattr(lobe, "anisotropic", True)
+        by_name = {p.name: p for p in lobe.parameters}
+        self.shape = tuple(
+            ModelParameter(p.name, p.channels, (p.bounds[0], min(p.bounds[1], MAX_ALPHA)), p.typical, p.default, p.scope,
+                           unit=p.unit, doc=p.doc) if p.name.startswith("alpha") else p
+            for p in lobe.parameters if p.name not in ("rho_d", "f0"))
+        self.parameters = (
+            by_name["rho_d"],
+            ModelParameter("specular_color", 3, (0.0, 1.0), (0.02, 1.0), 0.04, unit="1", magnitude=True,
+                           doc="Fresnel reflectance at normal incidence before the specular weight (F0c)"),
+            ModelParameter("specular", 1, (0.0, 1.0), (0.05, 1.0), 1.0, unit="1",
+                           doc="specular weight s: the lobe's Fresnel runs from s F0c (normal) to s (grazing)"),
+            *self.shape,
+        )
+
+    def _lobe(self, params, T: int) -> dict:
+        return {"rho_d": np.zeros((T, 3)), "f0": np.ones((T, 3)), **{p.name: params[p.name] for p in self.shape}}
+
+    def _fresnel(self, params, wi, wo):
+        S = _schlick(wi, wo)[..., None]
+        c = np.asarray(params["specular_color"])[:, None, :]
+        s = np.asarray(params["specular"])[:, None, :1]
+        return S, c, s, s * (c + (1.0 - c) * S)
+
+    def eval(self, params, wi, wo):
+        T = wi.shape[0]
+        dv = self.lobe.eval(self._lobe(params, T), wi, wo)[..., :1]  # F = 1: D V alone
+        _, _, _, F = self._fresnel(params, wi, wo)
+        f = np.asarray(params["rho_d"])[:, None, :] + F * dv
+        return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
+
+    def jacobian(self, params, wi, wo):
+        T = wi.shape[0]
+        lp = self._lobe(params, T)
+        dv = self.lobe.eval(lp, wi, wo)[..., 0]
+        J = self.lobe.jacobian(lp, wi, wo)  # (T, S, 3, 6 + K): ρ_d, F0, then the shape columns (F = 1)
+        S, c, s, F = self._fresnel(params, wi, wo)
+        up = above_horizon(wi, wo).astype(float)[..., None]
+        eye = np.eye(3)
+        cols = [up * eye[k] for k in range(3)]
+        cols += [s * (1.0 - S) * dv[..., None] * eye[k] for k in range(3)]
+        cols += [(c + (1.0 - c) * S) * dv[..., None]]
+        cols += [F * J[..., :1, 6 + k] for k in range(J.shape[-1] - 6)]
+        return np.stack(cols, axis=-1)
+
+    def fit_form(self) -> BRDFModel:
+        """Roughness fitted as log α, like the lobe's own fit form."""
+        return LogFitForm(self, getattr(self.lobe.fit_form(), "log_names", ()))
+
+    def canonical(self, params):
+        """The lobe's canonical shape (``ggx-anisotropic``: α_t ≥ α_b, φ in [−π/2, π/2))."""
+        out = {k: np.asarray(v, np.float64) for k, v in params.items()}
+        T = np.asarray(params["rho_d"]).shape[0]
+        c = self.lobe.canonical({**self._lobe(out, T)})
+        out.update({p.name: c[p.name] for p in self.shape})
+        return out
+
+    def from_lobe(self, params) -> dict:
+        """The lobe model's ``rho_d``, ``f0`` and shape as this model's (s = 1, F0c = F0)."""
+        out = {"rho_d": params["rho_d"], "specular_color": params["f0"],
+               "specular": np.ones((np.asarray(params["f0"]).shape[0], 1))}
+        out.update({p.name: np.clip(params[p.name], *p.bounds) for p in self.shape})
+        return out
+
+
+class CosineWeighted(BRDFModel):
+    """A fit form whose f_r and Jacobian are scaled by √(cos θ_i cos θ_o).
+
+    An unweighted least squares of this against ``√w f_src`` is the
+    cosine-weighted least squares of ``form`` against ``f_src``: the engine
+    (:func:`sbrdf_lib.lm.fit_model`) stays unweighted and model-agnostic.  The
+    weight is a function of the directions alone, so any subset of texels the
+    engine refits sees the same objective.
+    """
+
+    def __init__(self, form: BRDFModel):
+        self.form = form
+        self.name = f"{form.name}-cosine-weighted"
+        self.parameters = form.parameters
+        self.anisotropic = getattr(form, "anisotropic", True)
+
+    @staticmethod
+    def weight(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """√(cos θ_i cos θ_o), 0 below the horizon; shaped like ``wi`` without its last axis."""
+        return np.sqrt(np.maximum(wi[..., 2], 0.0) * np.maximum(wo[..., 2], 0.0))
+
+    def eval(self, params, wi, wo):
+        return self.form.eval(params, wi, wo) * self.weight(wi, wo)[..., None]
+
+    def jacobian(self, params, wi, wo):
+        return self.form.jacobian(params, wi, wo) * self.weight(wi, wo)[..., None, None]
+
+    def to_model(self, params):
+        return self.form.to_model(params)
+
+    def from_model(self, params):
+        return self.form.from_model(params)
+
+    def canonical(self, params):
+        return self.form.canonical(params)
+
+    def constrain(self, params, limits):
+        return self.form.constrain(params, limits)
+
+    def fit_form(self):
+        return self
 
 
 def _eval(model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -204,51 +379,95 @@ def _prepare(model, params: dict, wi: np.ndarray, wo: np.ndarray):
     return np.where(ok[:, None, None], np.nan_to_num(f), 0.0), ok
 
 
-def to_ggx(model, params: dict, ggx, *, starts: int = 1, iterations: int = 50) -> dict[str, np.ndarray]:
-    """Refit ``model`` with per-texel ``params`` (``{name: (T, C)}``) to ``ggx`` (cook-torrance, GGX).
+def mapped_alpha(source: dict) -> np.ndarray | None:
+    """The GGX α a source's own parameters suggest, ``(T, 1)``, or None when it has no roughness-like parameter.
 
-    Returns ``{"rho_d": (T, 3), "f0": (T, 3), "alpha": (T, 1), "error": (T,), "valid": (T,) bool}``:
-    the GGX parameters (``ggx``'s: ``alpha_t``, ``alpha_b``, ``phi`` for the
-    ``ggx-anisotropic`` target), the held-out relative error of the GGX fit itself, and
-    which texels had finite source parameters (others: GGX defaults, error 1).
-    For exporters to formats that carry ρ_d, F0 and α directly (MaterialX, USD,
-    Mitsuba) this is the conversion; glTF adds its own reading (:func:`to_gltf_pbr`).
+    A cosine lobe cos^n (Lafortune's first lobe, Phong) falls off as
+    exp(−n θ²/2) about its peak, a Beckmann/GGX lobe as exp(−θ²/(4α²)) in the
+    angle of the reflected direction: α = √(2/(n + 2)) (Walter et al. 2007's
+    Phong–Beckmann match).  A microfacet source's α (or the geometric mean of
+    α_x, α_y) is taken as it is.
+    """
+    for key in ("exponent_1", "exponent"):
+        if key in source:
+            n = np.nan_to_num(np.asarray(source[key], np.float64)[:, :1], nan=1.0)
+            return np.clip(np.sqrt(2.0 / (np.maximum(n, 0.0) + 2.0)), 1e-3, MAX_ALPHA)
+    if "alpha" in source:
+        return np.clip(np.nan_to_num(np.asarray(source["alpha"], np.float64)[:, :1], nan=0.2), 1e-3, MAX_ALPHA)
+    ax = [k for k in source if k.startswith("alpha_")]
+    if len(ax) == 2:
+        a = np.sqrt(np.abs(np.asarray(source[ax[0]], np.float64)[:, :1] * np.asarray(source[ax[1]], np.float64)[:, :1]))
+        return np.clip(np.nan_to_num(a, nan=0.2), 1e-3, MAX_ALPHA)
+    return None
+
+
+def to_ggx(model, params: dict, ggx, *, starts: int = 1, iterations: int = 8, grazing: bool = True,
+           flag_error: float = FLAG_ERROR) -> dict[str, np.ndarray]:
+    """Refit ``model`` with per-texel ``params`` (``{name: (T, C)}``) to ``ggx``'s lobe with a specular weight.
+
+    ``ggx``: :func:`ggx_model` or :func:`anisotropic_model`; ``grazing`` False
+    fixes the specular weight s at 1 (formats whose Fresnel always rises to 1
+    at grazing: USD Preview Surface).  Returns ``{"rho_d": (T, 3), "f0": (T, 3)
+    (= s·F0c, the normal-incidence Fresnel), "specular": (T, 1) s,
+    "specular_color": (T, 3) F0c, "alpha": (T, 1)`` (or ``alpha_t``,
+    ``alpha_b``, ``phi``), ``"error": (T,)`` the held-out relative error of the
+    fit itself, ``"flagged": (T,)`` error above ``flag_error``, ``"valid": (T,)``
+    bool}``: which texels had finite source parameters (others: defaults, error 1).
+
+    >>> import numpy as np
+    >>> from sbrdf_lib.convert import ggx_model, to_ggx
+    >>> ct = ggx_model()
+    >>> p = {"rho_d": np.full((2, 3), 0.1), "f0": np.full((2, 3), 0.04), "alpha": np.array([[0.1], [0.5]])}
+    >>> r = to_ggx(ct, p, ct)
+    >>> r["alpha"].shape, r["error"].shape, bool(r["error"].max() < 1e-9)
+    ((2, 1), (2,), True)
     """
     from sbrdf_lib.lm import fit_model
 
+    target = SpecularGGX(ggx)
     wi, wo = direction_pairs()
     hi_wi, hi_wo = direction_pairs(held_out=True)
     T = np.asarray(params[model.parameters[0].name]).shape[0]
-    out = {**{p.name: np.zeros((T, p.channels)) for p in ggx.parameters}, "error": np.ones(T),
-           "valid": np.zeros(T, bool)}
+    out = {**{p.name: np.zeros((T, p.channels)) for p in target.parameters}, "f0": np.zeros((T, 3)),
+           "error": np.ones(T), "valid": np.zeros(T, bool)}
     for s in range(0, T, BATCH):
         sl = slice(s, min(s + BATCH, T))
         sub = {p.name: np.asarray(params[p.name], np.float64)[sl] for p in model.parameters}
-        res = _to_ggx_batch(model, sub, ggx, wi, wo, hi_wi, hi_wo, starts, iterations, fit_model)
+        res = _to_ggx_batch(model, sub, target, wi, wo, hi_wi, hi_wo, starts, iterations, grazing, fit_model)
         for k, v in res.items():
             out[k][sl] = v
+    out["flagged"] = out["error"] > flag_error
     return out
 
 
-def _to_ggx_batch(model, params, ggx, wi, wo, hi_wi, hi_wo, starts, iterations, fit_model):
+def _to_ggx_batch(model, params, target, wi, wo, hi_wi, hi_wo, starts, iterations, grazing, fit_model):
     f_src, ok = _prepare(model, params, wi, wo)
     T, S = f_src.shape[:2]
-    if _same_model(model, ggx):  # already GGX: the parameters are the fit (clipped to the declared bounds)
-        fitted = {p.name: np.clip(params[p.name], *p.bounds) for p in ggx.parameters}
+    if _same_model(model, target.lobe):  # already the lobe: its parameters are the fit (clipped to the bounds)
+        fitted = target.from_lobe(params)
     else:
         valid = np.broadcast_to(ok[:, None], (T, S)).copy()
         bwi, bwo = np.broadcast_to(wi, (T, S, 3)), np.broadcast_to(wo, (T, S, 3))
-        initial = ggx.fit_form().from_model(_initial_guess(ggx, f_src, valid, bwi, bwo, params))
-        fitted, _, _ = fit_model(ggx, f_src, valid, bwi, bwo, initial=initial, starts=starts, iterations=iterations)
-    defaults = ggx.defaults(T)
+        fitted = start = _initial_guess(target, f_src, valid, bwi, bwo, params, grazing)
+        if iterations > 0:  # 0: the linear start alone (variable projection on the α grid)
+            form = target.fit_form()
+            sw = CosineWeighted.weight(bwi, bwo)[..., None]
+            fitted, _, _ = fit_model(CosineWeighted(form), f_src * sw, valid, bwi, bwo, initial=form.from_model(start),
+                                     starts=starts, iterations=iterations, fixed=() if grazing else ("specular",))
+        if not grazing:
+            fitted = {**fitted, "specular": np.ones((T, 1))}
+    defaults = target.defaults(T)
     black = ok & (np.abs(f_src).max(axis=(1, 2)) == 0.0)  # a black texel converts to exactly black
     res = {k: np.where(ok[:, None], np.nan_to_num(np.asarray(fitted[k], np.float64)), defaults[k])
-           for k in (p.name for p in ggx.parameters)}
+           for k in (p.name for p in target.parameters)}
+    res = {k: np.clip(v, *p.bounds) for (k, v), p in zip(res.items(), target.parameters)}
     res["rho_d"] = np.where(black[:, None], 0.0, res["rho_d"])
-    res["f0"] = np.where(black[:, None], 0.0, res["f0"])
+    res["specular"] = np.where(black[:, None], 0.0 if grazing else 1.0, res["specular"])
+    res["specular_color"] = np.where(black[:, None], 0.0, res["specular_color"])
     hi_src, hi_ok = _prepare(model, params, hi_wi, hi_wo)
-    err = relative_error(_eval(ggx, res, hi_wi, hi_wo), hi_src, hi_wi, hi_wo)
+    err = relative_error(_eval(target, res, hi_wi, hi_wo), hi_src, hi_wi, hi_wo)
     ok &= hi_ok
+    res["f0"] = res["specular"] * res["specular_color"]
     res["error"] = np.where(ok, err, 1.0)
     res["valid"] = ok
     return res
@@ -258,32 +477,167 @@ def _to_ggx_batch(model, params, ggx, wi, wo, hi_wi, hi_wo, starts, iterations, 
 START_ALPHAS = (0.03, 0.08, 0.2, 0.45, 1.0)
 
 
-def _shapes(ggx, T: int, source: dict):
-    """The starting shapes: :data:`START_ALPHAS` (× aspect ratios and directions for the anisotropic target)."""
-    if "alpha" in {p.name for p in ggx.parameters}:
-        for a in START_ALPHAS:
-            yield {"alpha": np.full((T, 1), a)}
+def _shapes(target: SpecularGGX, T: int, source: dict):
+    """The starting shapes: :data:`START_ALPHAS` and the source's :func:`mapped_alpha` (× aspect ratios and
+    directions for the anisotropic target)."""
+    mapped = mapped_alpha(source)
+    alphas = [np.full((T, 1), a) for a in START_ALPHAS] + ([mapped] if mapped is not None else [])
+    if "alpha" in {p.name for p in target.shape}:
+        for a in alphas:
+            yield {"alpha": a}
         return
     phis = [np.zeros((T, 1)), np.full((T, 1), np.pi / 4), np.full((T, 1), -np.pi / 4)]
     if "beta" in source:  # Lafortune's anisotropy angle: its axes, either sign convention
         beta = np.nan_to_num(np.asarray(source["beta"], np.float64)[:, :1])
         phis += [beta, -beta]
-    for a in START_ALPHAS:
-        yield {"alpha_t": np.full((T, 1), a), "alpha_b": np.full((T, 1), a), "phi": phis[0]}
+    for a in alphas:
+        yield {"alpha_t": a, "alpha_b": a, "phi": phis[0]}
         for ratio in (3.0, 1.0 / 3.0):
             for phi in phis:
-                yield {"alpha_t": np.full((T, 1), min(a * np.sqrt(ratio), 1.0)),
-                       "alpha_b": np.full((T, 1), min(a / np.sqrt(ratio), 1.0)), "phi": phi}
+                yield {"alpha_t": np.minimum(a * np.sqrt(ratio), MAX_ALPHA),
+                       "alpha_b": np.minimum(a / np.sqrt(ratio), MAX_ALPHA), "phi": phi}
 
 
-def _initial_guess(ggx, f_src, valid, wi, wo, source=None) -> dict[str, np.ndarray]:
-    """Per texel, the best of the starting shapes (:func:`_shapes`) with ρ_d and F0 solved linearly for each."""
+def _solve_magnitudes(target: SpecularGGX, shape: dict, f_src, valid, wi, wo, grazing: bool) -> dict:
+    """ρ_d, F0c and s for a fixed lobe shape: the cosine-weighted linear least squares in (ρ_d, s·F0c, s).
+
+    f is affine in a = s·F0c (per channel) and s given the shape: f = ρ_d + (a (1 − S) + s S) D V.  Two
+    candidates, each projected onto the target's box and scored exactly: the free solution (s raised to
+    max a where it fell below: F0c ≤ 1), and the flat-Fresnel one (F = a, s = max a), which is where the
+    box's edge lies for a source that does not brighten toward grazing.  With ``grazing`` False, s = 1.
+    """
+    T = f_src.shape[0]
+    dv = target.lobe.eval(target._lobe(shape, T), wi, wo)[..., 0]
+    S = _schlick(wi, wo)
+    up = above_horizon(wi, wo).astype(float)
+    w = CosineWeighted.weight(wi, wo) ** 2 * valid
+    rho_bounds = target.parameters[0].bounds
+
+    def solve(basis, rhs):
+        n = basis.shape[-1]
+        A = np.einsum("ts,tsci,tscj->tij", w, basis, basis)
+        A += (1e-9 * np.trace(A, axis1=1, axis2=2)[:, None, None] + 1e-30) * np.eye(n)
+        b = np.einsum("ts,tsci,tsc->ti", w, basis, rhs)
+        with np.errstate(all="ignore"):
+            return np.nan_to_num(np.linalg.solve(A, b[..., None])[..., 0])
+
+    eye = np.eye(3)
+    base = np.concatenate([up[..., None, None] * eye, ((1.0 - S) * dv)[..., None, None] * eye], axis=-1)  # (T,S,3,6)
+    if not grazing:
+        x = solve(base, f_src - (S * dv)[..., None])
+        return {"rho_d": np.clip(x[:, :3], *rho_bounds), "specular_color": np.clip(x[:, 3:6], 0.0, 1.0),
+                "specular": np.ones((T, 1)), **shape}
+    full = np.concatenate([base, np.broadcast_to((S * dv)[..., None, None], base.shape[:3] + (1,))], axis=-1)
+    x = solve(full, f_src)
+    a = np.clip(x[:, 3:6], 0.0, 1.0)
+    cands = [np.concatenate([np.clip(x[:, :3], *rho_bounds), a,
+                             np.clip(np.maximum(x[:, 6:7], a.max(axis=1, keepdims=True)), 0.0, 1.0)], axis=1)]
+    flat = np.concatenate([up[..., None, None] * eye, dv[..., None, None] * eye], axis=-1)
+    y = solve(flat, f_src)
+    ya = np.clip(y[:, 3:6], 0.0, 1.0)
+    cands.append(np.concatenate([np.clip(y[:, :3], *rho_bounds), ya, ya.max(axis=1, keepdims=True)], axis=1))
+    costs = []
+    for c in cands:
+        model_f = np.einsum("tsci,ti->tsc", full, c)
+        costs.append(np.sum(w[..., None] * (model_f - f_src) ** 2, axis=(1, 2)))
+    x = np.where((costs[1] < costs[0])[:, None], cands[1], cands[0])
+    s = x[:, 6:7]
+    with np.errstate(all="ignore"):
+        color = np.where(s > 0, np.clip(x[:, 3:6] / s, 0.0, 1.0), 0.0)
+    return {"rho_d": x[:, :3], "specular_color": color, "specular": s, **shape}
+
+
+#: The roughness grid of the isotropic start: α from 0.01 to 1 in 40 geometric steps (3.6 % apart in √α).
+GRID_ALPHAS = tuple(np.geomspace(0.01, MAX_ALPHA, 40))
+
+
+def _grid_start(target: SpecularGGX, f_src, ok, wi, wo, grazing: bool) -> tuple[dict, np.ndarray]:
+    """Variable projection over :data:`GRID_ALPHAS`: for each α the magnitudes' linear least squares, per texel.
+
+    The pairs are shared by every texel, so for a given α the design matrix (and its normal matrix A) is one
+    for all of them: each texel costs a matrix product, not a fit.  The solution is projected onto the box
+    (ρ_d ≥ 0, 0 ≤ s·F0c ≤ s ≤ 1) and scored exactly, ``‖f‖² − 2 xᵀb + xᵀAx``; the best α is refined by a
+    parabola in log α through its neighbours.  Returns ``(start, cost)`` for ``(T, S)`` ``f_src`` and the
+    ``(S, 3)`` pairs.
+    """
+    T = f_src.shape[0]
+    n = 7 if grazing else 6
+    S = _schlick(wi, wo)
+    up = above_horizon(wi[None], wo[None])[0].astype(float)
+    w = CosineWeighted.weight(wi, wo) ** 2
+    f = f_src * ok[:, None, None]
+    costs, solutions = [], []
+    for a in GRID_ALPHAS:
+        dv = target.lobe.eval(target._lobe({p.name: np.full((1, 1), a) for p in target.shape}, 1),
+                              wi[None], wo[None])[0, :, 0]
+        cols = np.zeros((wi.shape[0], 3, n))
+        for c in range(3):
+            cols[:, c, c], cols[:, c, 3 + c] = up, (1.0 - S) * dv
+            if grazing:
+                cols[:, c, 6] = S * dv
+        target_f = f if grazing else f - (S * dv)[None, :, None]
+        wc = cols * w[:, None, None]
+        A = np.einsum("sci,scj->ij", wc, cols)
+        A += (1e-9 * np.trace(A) + 1e-30) * np.eye(n)
+        b = target_f.reshape(T, -1) @ wc.reshape(-1, n)  # (T, n)
+        ff = np.einsum("tsc,s->t", target_f**2, w)
+
+        def score(x):
+            return ff - 2 * np.einsum("ti,ti->t", x, b) + np.einsum("ti,ij,tj->t", x, A, x)
+
+        x = np.linalg.solve(A, b.T).T
+        x[:, :3] = np.clip(x[:, :3], *target.parameters[0].bounds)
+        x[:, 3:6] = np.clip(x[:, 3:6], 0.0, 1.0)
+        if grazing:
+            # where the free solution wants a grazing weight below its F0 (a source that does not brighten toward
+            # grazing), the box's edge s = max F0 is better reached from the flat-Fresnel solution F = F0c s
+            x[:, 6] = np.clip(np.maximum(x[:, 6], x[:, 3:6].max(axis=1)), 0.0, 1.0)
+            flat = cols[..., :6].copy()
+            flat[:, np.arange(3), 3 + np.arange(3)] = dv[:, None]
+            wf = flat * w[:, None, None]
+            Af = np.einsum("sci,scj->ij", wf, flat)
+            Af += (1e-9 * np.trace(Af) + 1e-30) * np.eye(6)
+            y = np.linalg.solve(Af, (f.reshape(T, -1) @ wf.reshape(-1, 6)).T).T
+            y = np.concatenate([np.clip(y[:, :3], *target.parameters[0].bounds), np.clip(y[:, 3:6], 0.0, 1.0)], 1)
+            y = np.concatenate([y, y[:, 3:6].max(axis=1, keepdims=True)], axis=1)
+            cx, cy = score(x), score(y)
+            x = np.where((cy < cx)[:, None], y, x)
+        costs.append(score(x))
+        solutions.append(x)
+    cost = np.stack(costs, axis=1)  # (T, K)
+    k = np.argmin(cost, axis=1)
+    logs = np.log(np.asarray(GRID_ALPHAS))
+    km, kp = np.clip(k - 1, 0, len(logs) - 1), np.clip(k + 1, 0, len(logs) - 1)
+    c0, cm, cp = (np.take_along_axis(cost, i[:, None], 1)[:, 0] for i in (k, km, kp))
+    curv = cm + cp - 2 * c0
+    step = logs[1] - logs[0]
+    with np.errstate(all="ignore"):
+        shift = np.where((km != k) & (kp != k) & (curv > 0), 0.5 * step * (cm - cp) / curv, 0.0)
+    alpha = np.exp(logs[k] + np.clip(np.nan_to_num(shift), -step, step))[:, None]
+    x = np.stack(solutions, axis=1)[np.arange(T), k]
+    s = x[:, 6:7] if grazing else np.ones((T, 1))
+    with np.errstate(all="ignore"):
+        color = np.where(s > 0, np.clip(x[:, 3:6] / s, 0.0, 1.0), 0.0)
+    return {"rho_d": x[:, :3], "specular_color": color, "specular": s, "alpha": alpha}, c0
+
+
+def _initial_guess(target, f_src, valid, wi, wo, source=None, grazing=True) -> dict[str, np.ndarray]:
+    """Per texel, the best of the starting shapes (:func:`_shapes`) with the magnitudes solved linearly for each
+    (the isotropic target: :func:`_grid_start`'s α, and the source's :func:`mapped_alpha`)."""
     T = f_src.shape[0]
     best, best_cost = None, np.full(T, np.inf)
-    for shape in _shapes(ggx, T, source or {}):
-        guess = ggx.refine_linear({**ggx.defaults(T), **shape}, f_src, valid, wi, wo)
+    w = CosineWeighted.weight(wi, wo)[..., None] ** 2 * valid[..., None]
+    isotropic = "alpha" in {p.name for p in target.shape}
+    if isotropic:
+        grid, _ = _grid_start(target, f_src, valid.any(axis=1), wi[0], wo[0], grazing)
+        mapped = mapped_alpha(source or {})
+        shapes = [{"alpha": grid["alpha"]}] + ([{"alpha": mapped}] if mapped is not None else [])
+    else:
+        shapes = _shapes(target, T, source or {})
+    for shape in shapes:
+        guess = _solve_magnitudes(target, shape, f_src, valid, wi, wo, grazing)
         with np.errstate(all="ignore"):
-            cost = np.sum(valid[..., None] * (ggx.eval(guess, wi, wo) - f_src) ** 2, axis=(1, 2))
+            cost = np.sum(w * (target.eval(guess, wi, wo) - f_src) ** 2, axis=(1, 2))
         cost = np.where(np.isfinite(cost), cost, np.inf)
         if best is None:
             best, best_cost = guess, cost
@@ -295,7 +649,7 @@ def _initial_guess(ggx, f_src, valid, wi, wo, source=None) -> dict[str, np.ndarr
 
 
 def _same_model(model, ggx) -> bool:
-    return (model.name == ggx.name and getattr(model, "distribution", None) == getattr(ggx, "distribution", "")
+    return (model.name == ggx.name and getattr(model, "distribution", None) == getattr(ggx, "distribution", None)
             and [p.name for p in model.parameters] == [p.name for p in ggx.parameters])
 
 
@@ -336,21 +690,23 @@ def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray, anisotropic=None)
     return np.where(up, (1.0 - m) * dielectric + m * metal, 0.0)
 
 
-def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 50, anisotropic=None):
+def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 8, anisotropic=None,
+                flag_error: float = FLAG_ERROR):
     """Refit to GGX and read the fit as glTF metallic-roughness (+ KHR_materials_specular) per texel.
 
     ``params``: ``{name: (T, C)}`` of ``model``; ``ggx``: :func:`ggx_model`;
     ``anisotropic``: :func:`anisotropic_model` to also try ``KHR_materials_anisotropy``
     (only for a model that may be anisotropic: its ``anisotropic`` is not False).
     Returns ``(gltf, error)``: ``gltf`` holds the :data:`GLTF_MAPS` as ``(T, C)``
-    linear values (``specular_color`` = F0/0.04, may exceed 1: the writer folds
+    linear values (``specular_color`` = F0c/0.04, may exceed 1: the writer folds
     it into ``specularColorFactor`` × texture; ``anisotropy`` = direction x, y and
     strength), ``error`` ``(T,)`` the held-out
     cosine-weighted relative RMS of glTF's BRDF against the source (1 for invalid texels).
     """
-    fits = [(to_ggx(model, params, ggx, starts=starts, iterations=iterations), None)]
+    fits = [(to_ggx(model, params, ggx, starts=starts, iterations=iterations, flag_error=flag_error), None)]
     if anisotropic is not None and getattr(model, "anisotropic", True):
-        fits.append((to_ggx(model, params, anisotropic, starts=starts, iterations=iterations), anisotropic))
+        fits.append((to_ggx(model, params, anisotropic, starts=starts, iterations=iterations, flag_error=flag_error),
+                     anisotropic))
     T = fits[0][0]["error"].shape[0]
     gltf = {k: np.zeros((T, c)) for k, c in GLTF_MAPS.items()}
     error = np.ones(T)
@@ -368,9 +724,9 @@ def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 
 
 
 def _readings(ggx, fit, anisotropic, f_src, wi, wo) -> tuple[dict, np.ndarray]:
-    """The better of a GGX fit's two glTF readings per texel, dielectric or metal, and its error on ``wi, wo``."""
-    T = fit["f0"].shape[0]
-    f0 = fit["f0"]
+    """The better of a fit's two glTF readings per texel, dielectric or metal, and its error on ``wi, wo``."""
+    T = fit["specular"].shape[0]
+    s, color = fit["specular"], fit["specular_color"]
     if anisotropic is None:
         rough, aniso = np.clip(np.sqrt(np.maximum(fit["alpha"], 0.0)), 0.0, 1.0), np.broadcast_to(ISOTROPIC, (T, 3))
     else:  # KHR_materials_anisotropy: α_b = roughness², α_t = mix(α_b, 1, strength²), direction (cos φ, sin φ)
@@ -380,19 +736,19 @@ def _readings(ggx, fit, anisotropic, f_src, wi, wo) -> tuple[dict, np.ndarray]:
         with np.errstate(all="ignore"):
             strength = np.sqrt(np.clip(np.nan_to_num((at - ab) / (1.0 - ab)), 0.0, 1.0))
         aniso = np.concatenate([np.cos(c["phi"]), np.sin(c["phi"]), strength], axis=1)
-    ones, zeros = np.ones((T, 1)), np.zeros((T, 1))
-    # dielectric reading: F0 in specularColor, base colour solved linearly (f is affine in it)
-    spec_col = np.clip(f0 / DIELECTRIC_F0, 0.0, 1.0 / DIELECTRIC_F0)
-    diel = {"base_color": np.zeros((T, 3)), "metallic": zeros, "roughness": rough, "specular": ones,
-            "specular_color": spec_col, "anisotropy": aniso}
+    ones = np.ones((T, 1))
+    # dielectric reading: s is specularFactor, F0c = 0.04 specularColor; base colour solved linearly (f is affine in it)
+    diel = {"base_color": np.zeros((T, 3)), "metallic": np.zeros((T, 1)), "roughness": rough, "specular": s,
+            "specular_color": np.clip(color / DIELECTRIC_F0, 0.0, 1.0 / DIELECTRIC_F0), "anisotropy": aniso}
     offset = gltf_brdf(ggx, diel, wi, wo, anisotropic)
     basis = gltf_brdf(ggx, {**diel, "base_color": np.ones((T, 3))}, wi, wo, anisotropic) - offset
     w = _cos_weight(wi, wo)[None, :, None]
     with np.errstate(all="ignore"):
         bc = np.sum(w * basis * (f_src - offset), axis=1) / np.sum(w * basis * basis, axis=1)
     diel["base_color"] = np.clip(np.nan_to_num(bc), 0.0, 1.0)
-    metal = {"base_color": np.clip(f0, 0.0, 1.0), "metallic": ones, "roughness": rough, "specular": ones,
-             "specular_color": np.ones((T, 3)), "anisotropy": aniso}
+    # metal reading: F runs from the base colour to 1 (glTF's metal has no specular weight)
+    metal = {"base_color": np.clip(s * color, 0.0, 1.0), "metallic": ones, "roughness": rough, "specular": ones,
+             "specular_color": ones.repeat(3, axis=1), "anisotropy": aniso}
     e_diel = relative_error(gltf_brdf(ggx, diel, wi, wo, anisotropic), f_src, wi, wo)
     e_metal = relative_error(gltf_brdf(ggx, metal, wi, wo, anisotropic), f_src, wi, wo)
     # the metal reading is what core glTF (no extension) shows right: preferred unless it costs more than 1 %
@@ -402,7 +758,7 @@ def _readings(ggx, fit, anisotropic, f_src, wi, wo) -> tuple[dict, np.ndarray]:
 
 
 def _gltf_batch(model, params, ggx, fits, wi, wo, hi_wi, hi_wo):
-    T = fits[0][0]["f0"].shape[0]
+    T = fits[0][0]["specular"].shape[0]
     f_src, ok = _prepare(model, params, wi, wo)
     anisotropic = None
     gltf, err = None, None
@@ -454,13 +810,13 @@ def _blocks(fn, names_out: dict[str, int], model, params: dict, **kw) -> dict:
 
 
 def to_ggx_blocks(model, params: dict, ggx, **kw) -> dict:
-    """Lazy :func:`to_ggx` over ``(V, U, C)`` dask maps: ``{"rho_d", "f0", "alpha", "error" (V, U, 1)}``, float32."""
+    """Lazy :func:`to_ggx` over ``(V, U, C)`` dask maps: the :data:`GGX_MAPS` (``error`` ``(V, U, 1)``), float32."""
 
     def fn(model, flat, **kw):
         r = to_ggx(model, flat, ggx, **kw)
         return {**r, "error": r["error"][:, None]}
 
-    return _blocks(fn, {"rho_d": 3, "f0": 3, "alpha": 1, "error": 1}, model, params, **kw)
+    return _blocks(fn, GGX_MAPS, model, params, **kw)
 
 
 def to_gltf_pbr_blocks(model, params: dict, ggx, **kw) -> dict:

@@ -1,16 +1,18 @@
 """mitsuba: a Mitsuba 3 scene of the material: EXR bitmaps, a BSDF Mitsuba has, and ``scene.xml``.
 
-The material is refitted per texel to the GGX cook-torrance model
-(:func:`sbrdf_lib.convert.to_ggx`: ρ_d, F0, α) and written as the sum
-f = ρ_d + F D G / (4 cos θ_i cos θ_o), which Mitsuba expresses as
+The material is refitted per texel to a GGX lobe with a specular weight
+(:func:`sbrdf_lib.convert.to_ggx`: ρ_d, specular colour F0c, weight s, α ≤ 1)
+and written as the sum f = ρ_d + s F D G / (4 cos θ_i cos θ_o), which Mitsuba
+expresses as
 
     blendbsdf(weight 0.5,  diffuse(reflectance = 2 π ρ_d),
-                           roughconductor(ggx, alpha = α, eta = η(F0), k = 0, specular_reflectance = 2))
+                           roughconductor(ggx, alpha = α, eta = η(F0c), k = 0, specular_reflectance = 2 s))
 
-(a blend of weight ½ with both halves doubled is the sum).  η(F0) =
-(1 + √F0)/(1 − √F0) per channel, so the rough conductor's exact Fresnel has
-F(0°) = F0 and rises toward grazing the way the Schlick term of the project's
-model does.  What differs from the project's cook-torrance: Mitsuba's Smith G
+(a blend of weight ½ with both halves doubled is the sum).  η(F0c) =
+(1 + √F0c)/(1 − √F0c) per channel, so the rough conductor's exact Fresnel has
+F(0°) = F0c and rises toward 1 at grazing the way the Schlick term of the
+project's model does; ``specular_reflectance`` scales the whole lobe by s.
+``alpha`` is Mitsuba's GGX α (not a "roughness" to be squared), ≤ 1.  What differs from the project's cook-torrance: Mitsuba's Smith G
 is separable (G1 G1) where ours is height-correlated, and the dielectric
 Fresnel is exact where ours is Schlick's approximation; both small except
 near grazing.  Textures are bilinear or nearest like the scene's ``filter``.
@@ -39,7 +41,7 @@ from sbrdf_core.io import write_exr
 from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json
-from .ggx import ITERATIONS, STARTS, GGXConverting
+from .ggx import FLAG_ERROR, ITERATIONS, STARTS, GGXConverting, write_error_files
 
 FORMAT = "sbrdf-mitsuba/1"
 #: F0 above this is written as this (η stays finite).
@@ -83,13 +85,14 @@ class MitsubaExporter(GGXConverting):
               item="int", bounds=(1, 16384)),
         STARTS,
         ITERATIONS,
+        FLAG_ERROR,
     )
 
-    def __init__(self, *, scene: str | None = None, resolution: list | tuple = (256, 192), starts: int = 2,
-                 iterations: int = 50):
+    def __init__(self, *, scene: str | None = None, resolution: list | tuple = (256, 192), starts: int = 1,
+                 iterations: int = 8, flag_error: float = 0.25):
         self.scene = scene
         self.resolution = tuple(int(x) for x in resolution)
-        self.starts, self.iterations = starts, iterations
+        self.starts, self.iterations, self.flag_error = starts, iterations, flag_error
 
     def convert(self, material):
         return self.ggx_maps(material)
@@ -99,14 +102,17 @@ class MitsubaExporter(GGXConverting):
     def write(self, directory, maps, material):
         d = directory
         rho_d = np.asarray(maps["rho_d"], np.float64)
-        f0 = np.asarray(maps["f0"], np.float64)
+        color = np.asarray(maps["specular_color"], np.float64)
+        weight = np.asarray(maps["specular"], np.float64)
         alpha = np.asarray(maps["alpha"], np.float64)
-        textures = {"blend_diffuse.exr": 2.0 * np.pi * rho_d, "eta.exr": eta_from_f0(f0),
-                    "alpha.exr": np.repeat(alpha, 3, axis=-1), "f0.exr": f0, "diffuse_albedo.exr": np.pi * rho_d}
+        textures = {"blend_diffuse.exr": 2.0 * np.pi * rho_d, "eta.exr": eta_from_f0(color),
+                    "alpha.exr": np.repeat(alpha, 3, axis=-1), "specular.exr": np.repeat(2.0 * weight, 3, axis=-1),
+                    "f0.exr": weight * color, "diffuse_albedo.exr": np.pi * rho_d}
         for name, a in textures.items():
             write_exr(os.path.join(d, name), a)
         scene_path = self.scene
-        files = list(textures)
+        error_files, flag_attrs = write_error_files(d, maps, self.flag_error)
+        files = list(textures) + error_files
         if scene_path is None:
             U, V = material.texels
             scene_path = os.path.join(d, "scene.yaml")
@@ -121,13 +127,16 @@ class MitsubaExporter(GGXConverting):
         desc = {"format": FORMAT, "model": material.model.name, "model_config": model_config(material),
                 **texel_grid(material), "scene": os.path.abspath(scene_path), "variant": "scalar_rgb",
                 "bsdf": "blendbsdf(0.5, diffuse(blend_diffuse.exr = 2 pi rho_d), roughconductor(ggx, alpha.exr, "
-                        "eta.exr, k=0, specular_reflectance=2))",
-                "textures": {"blend_diffuse.exr": "2 pi rho_d (the blend halves it)", "eta.exr": "(1+sqrt F0)/(1-sqrt F0)",
-                             "alpha.exr": "GGX alpha (all three channels)", "f0.exr": "F0 (reference)",
+                        "eta.exr, k=0, specular_reflectance=specular.exr))",
+                "textures": {"blend_diffuse.exr": "2 pi rho_d (the blend halves it)",
+                             "eta.exr": "(1+sqrt F0c)/(1-sqrt F0c), F0c the specular colour",
+                             "alpha.exr": "GGX alpha (all three channels)",
+                             "specular.exr": "2 s, s the specular weight (the blend halves it)",
+                             "f0.exr": "s F0c, the normal-incidence Fresnel (reference)",
                              "diffuse_albedo.exr": "pi rho_d (reference)"},
-                "notes": notes}
+                "conversion": flag_attrs, "notes": notes}
         files.append(write_json(d, "mitsuba.json", desc))
-        return {"files": files, "format": FORMAT, "scene": os.path.abspath(scene_path)}
+        return {"files": files, "format": FORMAT, "scene": os.path.abspath(scene_path), **flag_attrs}
 
     # -- the scene -------------------------------------------------------------------------------------------
 
@@ -237,7 +246,7 @@ class MitsubaExporter(GGXConverting):
         self._bitmap(spec, "alpha", "alpha.exr", uv_repeat, flip, filter_type)
         self._bitmap(spec, "eta", "eta.exr", uv_repeat, flip, filter_type)
         _el(spec, "float", name="k", value=0.0)
-        _el(spec, "float", name="specular_reflectance", value=2.0)
+        self._bitmap(spec, "specular_reflectance", "specular.exr", uv_repeat, flip, filter_type)
 
     @staticmethod
     def _uniform_bsdf(shape, g: dict) -> None:
@@ -248,9 +257,9 @@ class MitsubaExporter(GGXConverting):
         spec = _el(blend, "bsdf", type="roughconductor")
         _el(spec, "string", name="distribution", value="ggx")
         _el(spec, "float", name="alpha", value=f"{float(g['alpha'][0]):.9g}")
-        _el(spec, "rgb", name="eta", value=_v(eta_from_f0(g["f0"])))
+        _el(spec, "rgb", name="eta", value=_v(eta_from_f0(g["specular_color"])))
         _el(spec, "float", name="k", value=0.0)
-        _el(spec, "float", name="specular_reflectance", value=2.0)
+        _el(spec, "float", name="specular_reflectance", value=f"{2.0 * float(g['specular'][0]):.9g}")
 
 
 def render(scene_xml: str, spp: int | None = None) -> np.ndarray:

@@ -1,8 +1,12 @@
 """usd: a USD stage with a UsdShade material (UsdPreviewSurface) bound to a plane of the sample's size.
 
 The material is refitted per texel to the GGX cook-torrance model
-(:func:`sbrdf_lib.convert.to_ggx`: ρ_d, F0, α) and written in
-UsdPreviewSurface's *specular workflow*, which carries exactly those three:
+(:func:`sbrdf_lib.convert.to_ggx` with ``grazing=False``: ρ_d, F0, α) and
+written in UsdPreviewSurface's *specular workflow*, which carries exactly
+those three.  Its Fresnel always rises to white at grazing (F90 is 1; there
+is no specular weight), so a measured lobe that does not brighten toward
+grazing converts with a larger error than in glTF, MaterialX or Mitsuba
+(``flagged.png``, ``attrs["flagged"]``):
 ``diffuseColor`` = π ρ_d (the Lambert albedo), ``specularColor`` = F0 (the
 Fresnel reflectance at normal incidence, Schlick), ``roughness`` = √α (the
 preview surface squares it into the GGX α), ``useSpecularWorkflow`` 1.
@@ -10,6 +14,9 @@ Each is a ``UsdUVTexture`` reading a PNG (colours 8-bit sRGB, roughness
 16-bit raw) through a ``UsdPrimvarReader_float2`` of ``st``; USD puts st
 (0, 0) at an image's lower-left corner, so rows are written bottom-up.
 Values beyond [0, 1] are clipped (``attrs["clipped"]`` counts them).
+The primvar reader's ``varname`` and the material's ``frame:stPrimvarName``
+are ``string`` inputs, as UsdPreviewSurface's shader definitions declare
+(``usdchecker`` / ``UsdValidation`` report a ``token`` there).
 
 The stage (``material.usda``, Z up, millimetres) holds ``/Sample``, a
 quad of the sample's size with ``st`` spanning [0, 1]², and
@@ -26,7 +33,7 @@ import numpy as np
 from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json, write_png
-from .ggx import ITERATIONS, STARTS, GGXConverting
+from .ggx import FLAG_ERROR, ITERATIONS, STARTS, GGXConverting, write_error_files
 
 #: UsdPreviewSurface input <- (texture file, type, colour space, channels).
 TEXTURES = {"diffuseColor": ("diffuse_color.png", "color3f", "sRGB", "rgb"),
@@ -37,18 +44,22 @@ TEXTURES = {"diffuseColor": ("diffuse_color.png", "color3f", "sRGB", "rgb"),
 class USDExporter(GGXConverting):
     """``material.usda`` with PNG textures of the GGX fit in UsdPreviewSurface's specular workflow."""
 
+    #: Optional modules ``write`` imports: ``sbrdf validate`` reports a missing one with its extra.
+    requires = ("pxr",)
+
     params = (
         Param("name", "str", "Material", "the material prim's name"),
         STARTS,
         ITERATIONS,
+        FLAG_ERROR,
     )
 
-    def __init__(self, *, name: str = "Material", starts: int = 2, iterations: int = 50):
+    def __init__(self, *, name: str = "Material", starts: int = 1, iterations: int = 8, flag_error: float = 0.25):
         self.name = name
-        self.starts, self.iterations = starts, iterations
+        self.starts, self.iterations, self.flag_error = starts, iterations, flag_error
 
     def convert(self, material):
-        return self.ggx_maps(material)
+        return self.ggx_maps(material, grazing=False)
 
     def textures(self, maps) -> dict[str, np.ndarray]:
         rho_d = np.asarray(maps["rho_d"], np.float64)
@@ -62,7 +73,8 @@ class USDExporter(GGXConverting):
         from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
         d = directory
-        files, clipped = [], {}
+        files, flag_attrs = write_error_files(d, maps, self.flag_error, rows_bottom_up=True)
+        clipped = {}
         for inp, a in self.textures(maps).items():
             file, _, space, _ = TEXTURES[inp]
             clipped[inp] = int(np.count_nonzero((a < 0) | (a > 1)))
@@ -96,9 +108,9 @@ class USDExporter(GGXConverting):
         mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
         reader = UsdShade.Shader.Define(stage, f"{mpath}/stReader")
         reader.CreateIdAttr("UsdPrimvarReader_float2")
-        varname = mat.CreateInput("frame:stPrimvarName", Sdf.ValueTypeNames.Token)
+        varname = mat.CreateInput("frame:stPrimvarName", Sdf.ValueTypeNames.String)
         varname.Set("st")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).ConnectToSource(varname)
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).ConnectToSource(varname)
         reader_out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
         for inp, (file, typ, space, channels) in TEXTURES.items():
             tex = UsdShade.Shader.Define(stage, f"{mpath}/{inp}Texture")
@@ -119,5 +131,6 @@ class USDExporter(GGXConverting):
             **texel_grid(material), "stage": "material.usda", "material": mpath, "mesh": "/Sample/Plane",
             "workflow": "specular", "inputs": {k: v[0] for k, v in TEXTURES.items()},
             "values": {"diffuseColor": "pi rho_d", "specularColor": "F0", "roughness": "sqrt(alpha)"},
-            "rows": "bottom-up (USD st (0, 0) is the image's lower left)", "clipped": clipped}))
-        return {"files": files, "material_path": mpath, "clipped": clipped}
+            "rows": "bottom-up (USD st (0, 0) is the image's lower left)", "clipped": clipped,
+            "conversion": flag_attrs}))
+        return {"files": files, "material_path": mpath, "clipped": clipped, **flag_attrs}

@@ -2,9 +2,13 @@
 
 Conversion (lazy, per texel tile, :func:`sbrdf_lib.convert.to_gltf_pbr_blocks`):
 each texel's BRDF is refitted to GGX (the ``cook-torrance`` model, GGX
-facets) on a fixed set of direction pairs and read as glTF's metallic-roughness
-BRDF (Appendix B) with ``KHR_materials_specular``; ``error`` is the relative
-RMS of glTF's BRDF against the source on held-out pairs (docs/interchange.md).
+facets) with a specular weight, cosine-weighted, on a fixed set of direction
+pairs, and read as glTF's metallic-roughness BRDF (Appendix B) with
+``KHR_materials_specular``; ``error`` is the relative RMS of glTF's BRDF
+against the source on held-out pairs (docs/interchange.md).  Texels whose
+error is above ``flag_error`` are flagged: ``<name>_flagged.png`` (255 where
+flagged) and ``<name>_conversion_error.exr`` are written beside the glTF
+(not referenced by it), and the material's ``extras.sbrdf`` counts them.
 
 Files (``format: gltf``): ``<name>.gltf``, ``<name>.bin`` (geometry) and the
 PNG textures; ``format: glb``: one ``<name>.glb`` with everything embedded.
@@ -14,9 +18,10 @@ PNG textures; ``format: glb``: one ``<name>.glb`` with everything embedded.
 - ``metallicRoughnessTexture``: ``<name>_metallic_roughness.png``, 8-bit
   linear, roughness in G, metallic in B (R = 255, unused: no occlusion).
 - ``KHR_materials_specular`` (only when some texel's F0 is not the default
-  dielectric 0.04, or it is black): ``<name>_specular.png``, RGB = specular
-  colour (sRGB) / ``specularColorFactor`` (the material's largest F0/0.04,
-  grey, may exceed 1 as the extension allows), A = specularFactor (linear).
+  dielectric 0.04, or its specular weight is not 1): ``<name>_specular.png``,
+  RGB = specular colour (sRGB, as the extension says) / ``specularColorFactor``
+  (the material's largest F0c/0.04, grey, up to 25: the extension clamps
+  0.04 · specularColor at 1, not the factor), A = specularFactor (linear).
 - ``KHR_materials_anisotropy`` (only when the source model may be anisotropic
   and some texel reads better with it, :mod:`sbrdf_lib.convert` step 5):
   ``<name>_anisotropy.png``, 8-bit linear, RG = the direction (cos φ, sin φ)
@@ -68,20 +73,27 @@ class GLTFExporter:
               choices=("gltf", "glb")),
         Param("name", "str", "material", "base name of the files written"),
         Param("tile", "int", 64, "texels per side of a conversion tile (one dask block)", bounds=(1, None)),
-        Param("starts", "int", 2, "LM starts per texel of the GGX conversion fit", bounds=(1, None)),
+        Param("starts", "int", 1, "LM starts per texel of the GGX conversion fit (the start is already the best of a "
+              "40-value roughness grid)", bounds=(1, None)),
+        Param("iterations", "int", 8, "LM iterations refining the GGX conversion fit (0: the grid start alone)",
+              bounds=(0, None)),
         Param("anisotropy", "bool", True, "also fit KHR_materials_anisotropy's lobe to a source that may be anisotropic "
               "(written only where some texel gains from it)"),
+        Param("flag_error", "float", 0.25, "texels whose conversion error (cosine-weighted relative RMS on held-out "
+              "directions) is above this are flagged (<name>_flagged.png, extras.sbrdf.flagged)", bounds=(0.0, None)),
     )
 
-    def __init__(self, *, format: str = "gltf", name: str = "material", tile: int = 64, starts: int = 2,
-                 anisotropy: bool = True):
+    def __init__(self, *, format: str = "gltf", name: str = "material", tile: int = 64, starts: int = 1,
+                 iterations: int = 8, anisotropy: bool = True, flag_error: float = 0.25):
         if format not in ("gltf", "glb"):
             raise ValueError(f"gltf: format must be 'gltf' or 'glb', got {format!r}")
         self.format = format
         self.name = name
         self.tile = tile
         self.starts = starts
+        self.iterations = iterations
         self.anisotropy = anisotropy
+        self.flag_error = flag_error
         self._registry = None
 
     def bind(self, registry) -> None:
@@ -96,26 +108,39 @@ class GLTFExporter:
         params = {p.name: da.asarray(material.params[p.name]).rechunk((self.tile, self.tile, -1))
                   for p in material.model.parameters}
         aniso = anisotropic_model(self._registry) if self.anisotropy else None
-        return to_gltf_pbr_blocks(material.model, params, self._ggx(), starts=self.starts, anisotropic=aniso)
+        maps = to_gltf_pbr_blocks(material.model, params, self._ggx(), starts=self.starts, iterations=self.iterations,
+                                  anisotropic=aniso,
+                                  flag_error=self.flag_error)
+        return {**maps, "conversion_error": maps["error"], "flagged": (maps["error"] > self.flag_error).astype(np.float32)}
 
     def write(self, directory, maps, material):
         d = directory
         alpha = None
         if getattr(material, "alpha", None) is not None:
             alpha = np.asarray(material.alpha, np.float64)
-        error = maps.get("error")
-        summary = {}
+        error = maps.get("conversion_error", maps.get("error"))
+        summary: dict = {}
         if error is not None:
             e = np.asarray(error, np.float64)
+            flagged = e[..., 0] > self.flag_error
             e = e[np.isfinite(e)]
             if e.size:
                 summary = {"error_mean": float(e.mean()), "error_median": float(np.median(e)),
-                           "error_p95": float(np.percentile(e, 95)), "error_max": float(e.max())}
+                           "error_p95": float(np.percentile(e, 95)), "error_max": float(e.max()),
+                           "flag_error": float(self.flag_error), "flagged": int(flagged.sum())}
         extras = {"model": material.model.name, "source": material.source, "texels": [int(x) for x in material.texels],
                   "size_mm": [float(x) for x in material.size_mm], **summary}
         files, info = write_gltf(d, self.name, {k: np.asarray(maps[k]) for k in GLTF_MAPS if k in maps}, material.size_mm,
                                  binary=self.format == "glb", alpha=alpha, extras=extras)
-        return {"files": files, "format": "glb" if self.format == "glb" else "gltf", **info}
+        if error is not None:  # beside the glTF, not in it: the per-texel error a viewer cannot show
+            from sbrdf_core.io import write_exr, write_png
+
+            e = np.asarray(error, np.float32)
+            write_exr(os.path.join(d, f"{self.name}_conversion_error.exr"), np.repeat(e, 3, axis=-1))
+            write_png(os.path.join(d, f"{self.name}_flagged.png"), ((e[..., 0] > self.flag_error) * 255).astype(np.uint8))
+            files += [f"{self.name}_conversion_error.exr", f"{self.name}_flagged.png"]
+        return {"files": files, "format": "glb" if self.format == "glb" else "gltf", **info,
+                **{k: summary[k] for k in ("flag_error", "flagged") if k in summary}}
 
 
 def _srgb8(x: np.ndarray) -> np.ndarray:
@@ -163,9 +188,14 @@ def textures(maps: dict, alpha: np.ndarray | None = None) -> tuple[dict[str, np.
     off = (np.abs(spec_col - 1.0).max(axis=-1) > SPECULAR_TOLERANCE) | (np.abs(spec[..., 0] - 1.0) > SPECULAR_TOLERANCE)
     if (off & dielectric).any():
         scale = float(max(1.0, np.nanmax(np.where(dielectric[..., None], spec_col, 0.0))))
-        images["specular"] = np.concatenate([_srgb8(spec_col / scale), _linear8(spec)], axis=-1)
+        # specularFactor carries the largest weight, the texture the ratio: a weak specular (s ~ 0.002) keeps
+        # its 8-bit steps instead of rounding to 0 or 1/255
+        weight = float(np.nanmax(np.where(dielectric, spec[..., 0], 0.0)))
+        weight = round(weight, 6) if weight > 0 else 1.0
+        ratio = np.where(dielectric[..., None], spec / weight, 1.0)
+        images["specular"] = np.concatenate([_srgb8(spec_col / scale), _linear8(ratio)], axis=-1)
         material["extensions"] = {"KHR_materials_specular": {
-            "specularFactor": 1.0, "specularColorFactor": [scale, scale, scale],
+            "specularFactor": weight, "specularColorFactor": [scale, scale, scale],
             "specularTexture": "specular", "specularColorTexture": "specular"}}
     aniso = maps.get("anisotropy")
     if aniso is not None and (np.asarray(aniso)[..., 2] > ANISOTROPY_TOLERANCE).any():
@@ -305,6 +335,7 @@ def write_gltf(directory: str, name: str, maps: dict, size_mm, *, binary: bool =
     spec = doc["materials"][0].get("extensions", {}).get("KHR_materials_specular")
     if spec:
         info["specular_color_factor"] = spec["specularColorFactor"][0]
+        info["specular_factor"] = spec["specularFactor"]
     return files, info
 
 

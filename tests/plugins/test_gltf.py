@@ -112,14 +112,16 @@ def test_files_quad_and_extension(exported):
     mat, p, maps, out = exported
     d, attrs = out["gltf"]
     assert attrs["files"] == ["material.gltf", "material.bin", "material_base_color.png",
-                              "material_metallic_roughness.png", "material_specular.png"]
+                              "material_metallic_roughness.png", "material_specular.png",
+                              "material_conversion_error.exr", "material_flagged.png"]
+    assert attrs["flagged"] == 0 and attrs["flag_error"] == 0.25
     assert attrs["extensions"] == ["KHR_materials_specular"] and attrs["specular_color_factor"] == pytest.approx(2.0, abs=0.01)
     doc = json.loads((d / "material.gltf").read_text())
     assert doc["asset"]["version"] == "2.0" and doc["extensionsUsed"] == ["KHR_materials_specular"]
     pos = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
     np.testing.assert_allclose(pos["max"], [0.02, 0.0, 0.015], rtol=1e-6)  # 40 x 30 mm, facing +Y
     assert doc["materials"][0]["extras"]["sbrdf"]["model"] == "cook-torrance"
-    assert out["glb"][1]["files"] == ["material.glb"]
+    assert out["glb"][1]["files"] == ["material.glb", "material_conversion_error.exr", "material_flagged.png"]
 
 
 @pytest.mark.parametrize("fmt", ["gltf", "glb"])
@@ -176,9 +178,13 @@ def test_export_node_in_a_graph(reg, tmp_path):
         """)
     run_graph(g, progress=False, registry=reg)
     art = open_artifact(f"{tmp_path / 's'}/gltf")
-    assert art.attrs["exporter"] == "gltf" and art.attrs["files"] == ["material.glb"]
+    assert art.attrs["exporter"] == "gltf"
+    assert art.attrs["files"] == ["material.glb", "material_conversion_error.exr", "material_flagged.png"]
     assert 0 <= art.attrs["error_mean"] < 1 and np.isfinite(art.attrs["error_max"])
     assert art.read("maps/roughness").shape == (4, 6, 1) and art.read("error").shape == (4, 6, 1)
+    flagged = art.read("maps/flagged")[..., 0] > 0.5  # stored per texel beside the error it is read from
+    np.testing.assert_array_equal(flagged, art.read("error")[..., 0] > 0.25)
+    assert art.attrs["flagged"] == int(flagged.sum())
     assert (tmp_path / "s" / "gltf" / "material.glb").read_bytes()[:4] == b"glTF"
 
 
