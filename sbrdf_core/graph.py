@@ -444,8 +444,6 @@ class _Validator:
         if not isinstance(raw, str) or not raw:
             self.problem("graph needs a 'store': a local path or fsspec URL where artifacts are written", ("store",))
             return ""
-        import fsspec
-
         protocol = raw.split("://", 1)[0] if "://" in raw else "file"
         if protocol == "file":
             local = Path(raw.split("://", 1)[-1])
@@ -467,6 +465,8 @@ class _Validator:
             self.problem(f"store {raw!r} cannot be written: {protocol}:// is a read-only file system; a store is a "
                          f"local path or a writable URL (s3://, gs://, az://, memory://, ...)", ("store",))
             return raw
+        import fsspec  # a URL only: a local store is checked without it
+
         try:
             fs_cls = fsspec.get_filesystem_class(protocol)
         except (ValueError, ImportError) as e:

@@ -95,15 +95,45 @@ def test_spec_validates_its_own_declaration():
         PluginSpec("ok", "no-colon")
 
 
-def test_listing_plugins_imports_no_heavy_module():
+#: What listing plugins or validating a graph must not import: the storage and compute engines, the compiler,
+#: SciPy, OpenCV, GL and plotting come in only when a run (or a command that draws) needs them.  (pyserial is
+#: still imported by the rig's drivers when ``sbrdf plugins`` reads their parameters.)
+HEAVY = ("zarr", "fsspec", "numba", "scipy", "dask", "cv2", "moderngl", "OpenEXR", "distributed", "matplotlib")
+
+
+def _heavy_after(command: list[str]) -> list[str]:
+    code = (
+        "import contextlib, io, sys; from sbrdf_core.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        f"    rc = main({command!r})\n"
+        f"print(rc, [m for m in {HEAVY!r} if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stdout + out.stderr
+    rc, heavy = out.stdout.strip().splitlines()[-1].split(" ", 1)
+    assert rc == "0", out.stdout + out.stderr
+    return ast.literal_eval(heavy)
+
+
+def test_registry_names_import_no_heavy_module():
     code = (
         "import sys; from sbrdf_core.registry import Registry; r = Registry(); "
         "[r.names(c) for c in r.specs]; "
-        "heavy = [m for m in ('cv2', 'moderngl', 'OpenEXR', 'scipy.optimize', 'distributed', 'serial', 'matplotlib') if m in sys.modules]; "
+        f"heavy = [m for m in {HEAVY + ('serial',)!r} if m in sys.modules]; "
         "print(heavy); sys.exit(1 if heavy else 0)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_listing_plugins_imports_no_heavy_module():
+    """``sbrdf plugins`` imports every implementation to read its parameters: none may import heavy code at
+    module level."""
+    assert _heavy_after(["plugins"]) == []
+
+
+def test_validating_a_graph_imports_no_heavy_module():
+    assert _heavy_after(["validate", "graphs/virtual-scan.yaml"]) == []
 
 
 def test_core_never_imports_plugins():
