@@ -519,6 +519,7 @@ class _Validator:
         else:
             spec = self.reg.get(kind.plugin_category, plugin)
             declared += list(spec.params or ())  # filled in by Registry.get
+            self._requirements(spec, name, path + ("plugin",))
         owner = f"{kind.name} plugin {plugin!r}" if spec else f"{kind.name} node"
         raw_params = decl.get("params", {}) or {}
         if not isinstance(raw_params, dict):
@@ -538,6 +539,32 @@ class _Validator:
             self.problem(f"node {name!r}: 'in' must map input ports to node names", path + ("in",))
             inputs = {}
         return Node(name, kind, plugin, {str(k): v for k, v in inputs.items()}, params, self.loc.line(path))
+
+    def _requirements(self, spec, node: str, path: tuple) -> None:
+        """Optional modules the plugin's implementation lists in ``requires`` and this environment lacks.
+
+        Plugins import heavy dependencies only when they run, so without this a
+        graph validates and then fails at that node, after the nodes before it
+        have run; the message names the extra that installs the module.
+        """
+        import importlib.util
+
+        from .extras import EXTRAS
+
+        try:
+            impl = self.reg.load(spec)
+        except Exception:  # the registry reports broken plugins itself
+            return
+        for module in getattr(impl, "requires", ()) or ():
+            top = module.partition(".")[0]
+            try:
+                found = importlib.util.find_spec(top) is not None
+            except (ImportError, ValueError):
+                found = False
+            if not found:
+                extra = EXTRAS.get(top, (top, top))[0]
+                self.problem(f"node {node!r}: {spec.category} plugin {spec.name!r} needs the optional dependency "
+                             f"{module!r}, which is not installed: pip install 'sbrdf[{extra}]'", path)
 
     def _check_combination(self, spec, params: dict, owner: str, path: tuple) -> None:
         """Constraints between parameters that single declarations cannot express.

@@ -132,6 +132,60 @@ def test_usd_stage_opens_binds_the_material_and_its_inputs_read_back(store):
     assert art.attrs["error_max"] < 1e-3  # cook-torrance GGX to GGX is exact
 
 
+def usd_validation_errors(stage) -> list[str]:
+    """Every registered UsdValidation validator run on ``stage``: ``["name: message", ...]``."""
+    from pxr import UsdValidation
+
+    registry = UsdValidation.ValidationRegistry()
+    errors = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators()).Validate(stage)
+    return [f"{e.GetName()}: {e.GetMessage()}" for e in errors]
+
+
+@pytest.mark.skipif(not has("pxr"), reason="usd-core is not installed (pip install usd-core)")
+def test_usd_stage_passes_usds_own_validators(store, tmp_path):
+    from pxr import Sdf, Usd, UsdShade
+
+    assert usd_validation_errors(Usd.Stage.Open(str(store / "usd" / "material.usda"))) == []
+    # the validators are live: the token-typed varname USD exports used to write is reported
+    stage = Usd.Stage.CreateNew(str(tmp_path / "token.usda"))
+    reader = UsdShade.Shader.Define(stage, "/M/stReader")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
+    assert any("varname" in e for e in usd_validation_errors(stage))
+
+
+@pytest.mark.skipif(not has("MaterialX"), reason="MaterialX is not installed (pip install materialx)")
+def test_materialx_inputs_stay_in_standard_surface_ranges(store):
+    from sbrdf_core.io import read_exr
+
+    d = store / "mtlx"
+    tint, ior = read_exr(str(d / "specular_tint.exr")), read_exr(str(d / "specular_ior.exr"))
+    assert tint.min() >= 0 and tint.max() <= 1 + 1e-6  # specular_color is a tint in [0, 1], not glTF's up-to-25
+    assert ior.min() >= 1.0 and np.isfinite(ior).all()
+    art = open_artifact(str(d))
+    # normal incidence: specular x tint x F(IOR) is glTF's min(0.04 specularColor, 1) x specularFactor
+    f0_ior = ((ior[..., :1] - 1) / (ior[..., :1] + 1)) ** 2
+    want = np.minimum(0.04 * art.read("maps/specular_color"), 1.0)
+    np.testing.assert_allclose((tint * f0_ior)[::-1], want, atol=2e-3)
+
+
+def test_validate_reports_a_missing_extra_before_anything_runs(monkeypatch):
+    """`sbrdf validate graphs/export-interchange.yaml` without MaterialX: the node, the line and the install command."""
+    from pathlib import Path
+
+    from sbrdf_core.errors import GraphError
+
+    graph = Path(__file__).resolve().parents[2] / "graphs" / "export-interchange.yaml"
+    if has("MaterialX") and has("pxr"):
+        load_graph(graph, Registry(extra=PLUGINS))  # valid where the extra is installed
+    monkeypatch.setitem(__import__("sys").modules, "MaterialX", None)  # Python's own "not importable" marker
+    with pytest.raises(GraphError) as e:
+        load_graph(graph, Registry(extra=PLUGINS))
+    message = str(e.value)
+    assert "export-interchange.yaml:21: node 'materialx'" in message
+    assert "pip install 'sbrdf[interchange]'" in message and "'usd'" not in message
+
+
 @pytest.mark.skipif(not has("mitsuba"), reason="mitsuba is not installed (pip install mitsuba); CI installs it")
 def test_mitsuba_renders_the_exported_scene_like_the_cpu_renderer(store):
     from sbrdf_export.mitsuba import render
