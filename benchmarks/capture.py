@@ -16,6 +16,17 @@ fsynced, as a real capture would), then finishes the manifest.  Two runs:
 ``no effects``
     none: linear float32 radiance with uniform irradiance -> OpenEXR (ZIP) images.
 
+Then the whole rig: the ``gonio`` capture source drives the three pty motor
+simulators (``port: sim``) through a plan of ``rig_poses`` explicit poses with
+a two-exposure bracket, into a capture folder, twice: with the virtual
+camera, and with the ``pylon`` driver on Basler's emulator (``PYLON_CAMEMU``)
+serving the virtual run's photographs as 16-bit RGB frames (skipped when
+``pypylon`` is not installed).  The gonio source's own clock splits each
+run into motion (move commands until every motor reports its position),
+settle (``settle_s``, 0 here), exposure (the frame camera's integration
+time), transfer (trigger to frame in memory, less the exposure; for the
+virtual camera: rendering) and write (encoding, fsync, journal).
+
 The timing (``time.perf_counter``) covers rendering, the sensor model, image
 encoding and writing; the one-time ray precomputation and model binding are
 done before the clock starts (a warm-up photograph).  Peak memory is the
@@ -30,7 +41,11 @@ How to run
 Full size is 500 poses each way; ``--quick`` is 60 poses each way (about a minute
 on 2 cores).  Progress goes to stderr; the last line of stdout is::
 
-    capture: poses=<int> all_effects_poses_per_s=<float> no_effects_poses_per_s=<float> peak_rss_mb=<float>
+    capture: poses=<int> all_effects_poses_per_s=<float> no_effects_poses_per_s=<float> rig_poses=<int>
+    rig_virtual_poses_per_s=<float> rig_pylon_poses_per_s=<float> pylon_motion_s=<float> pylon_settle_s=<float>
+    pylon_exposure_s=<float> pylon_transfer_s=<float> pylon_write_s=<float> peak_rss_mb=<float>
+
+(one line; the ``pylon_*_s`` figures are seconds per pose).
 """
 
 from __future__ import annotations
@@ -44,6 +59,11 @@ import time
 from pathlib import Path
 
 FULL, QUICK = 500, 60
+RIG_FULL, RIG_QUICK = 48, 12
+#: Explicit [pan, tilt, roll, light] poses inside the simulated PTU-46 and indexer ranges, light above the sample.
+RIG_ANGLES = [[p, t, r, lt] for p in (-20.0, 0.0, 20.0) for t in (-20.0, 10.0) for r in (0.0, 60.0, -60.0, 120.0)
+              for lt in (30.0, 60.0)]
+RIG_TIMES = [0.0025, 0.01]
 ALL_EFFECTS = ["falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response"]
 
 
@@ -70,6 +90,53 @@ def run(folder: Path, poses: int, effects: list[str]) -> float:
     return poses / dt
 
 
+def rig(folder: Path, poses: int, camera: dict, **params) -> tuple[float, dict]:
+    """One gonio capture of ``poses`` poses; ``(poses/s, seconds per pose by phase)``."""
+    from sbrdf_core.registry import default_registry
+
+    registry = default_registry()
+    motors = {"pan": {"device": "ptu", "params": {"port": "sim"}, "axes": {"pan": "pan_deg"}},
+              "tilt_roll": {"device": "ptu", "params": {"port": "sim"}, "axes": {"tilt": "tilt_deg", "roll": "pan_deg"}},
+              "arm": {"device": "indexer", "params": {"port": "sim"}, "axes": {"light": "angle_deg"}}}
+    src = registry.create("capture", "gonio", {"path": str(folder), "motors": motors, "camera": camera,
+                                               "plan": {"angles_deg": RIG_ANGLES[:poses]},
+                                               "exposures": {"times_s": RIG_TIMES}, "durable": True, **params})
+    src.bind(registry)
+    src.describe()
+    t0 = time.perf_counter()
+    src.read_pose(poses - 1)
+    dt = time.perf_counter() - t0
+    src.close()
+    split = {k: v / poses for k, v in src.timings.items()}
+    log(f"  rig, {camera['device']}: {poses} poses in {dt:.1f} s ({poses / dt:.2f} poses/s); per pose "
+        + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in split.items()))
+    return poses / dt, split
+
+
+def rigs(tmp: Path, poses: int) -> dict:
+    import json
+
+    virtual = {"device": "virtual-camera",
+               "params": {"width": 320, "height": 240, "focal_px": 1200.0, "texels": [64, 64], "intensity": 4e6,
+                          "sensitivity": 100.0, "effects": ["falloff", "saturation", "response", "noise"],
+                          "response_curve": "gamma", "response_gamma": 1.0, "bit_depth": 16}}
+    out = {"rig_virtual_poses_per_s": rig(tmp / "rig-virtual", poses, virtual)[0]}
+    try:
+        import pypylon.pylon  # noqa: F401
+    except ImportError:
+        log("  rig, pylon: skipped (pip install 'sbrdf[pylon]')")
+        return out
+    m = json.loads((tmp / "rig-virtual" / "capture.json").read_text())
+    frames = str(tmp / "rig-virtual" / "images" / "p{pose:05d}_e{exposure}.png")
+    camera = {"device": "pylon", "params": {"pixel_format": "RGB16Packed", "width": 320, "height": 240,
+                                            "emulation_frames": frames}}
+    rate, split = rig(tmp / "rig-pylon", poses, camera, sample=m["sample"], light=m["light"],
+                      intrinsics={"K": m["camera"]["K"], "dist": m["camera"]["dist"]})
+    out["rig_pylon_poses_per_s"] = rate
+    out.update({f"pylon_{k}_s": v for k, v in split.items()})
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help=f"{QUICK} poses each way instead of {FULL}")
@@ -77,13 +144,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tmpdir", default=None, help="where the temporary capture folders go")
     args = ap.parse_args(argv)
     poses = args.poses or (QUICK if args.quick else FULL)
+    rig_poses = RIG_QUICK if args.quick else RIG_FULL
+    os.environ.setdefault("PYLON_CAMEMU", "1")  # one emulated Basler camera, before pypylon first looks
     log(f"capture: {poses} poses at 1024x768, {os.cpu_count()} CPUs")
     with tempfile.TemporaryDirectory(prefix="sbrdf-capture-", dir=args.tmpdir) as tmp:
         all_rate = run(Path(tmp) / "all", poses, ALL_EFFECTS)
         none_rate = run(Path(tmp) / "none", poses, [])
+        rig_figures = rigs(Path(tmp), rig_poses)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rig_text = " ".join(f"{k}={v:.4f}" if k.endswith("_s") and not k.endswith("per_s") else f"{k}={v:.2f}"
+                        for k, v in rig_figures.items())
     print(f"capture: poses={poses} all_effects_poses_per_s={all_rate:.2f} no_effects_poses_per_s={none_rate:.2f} "
-          f"peak_rss_mb={peak_mb:.0f}", flush=True)
+          f"rig_poses={rig_poses} {rig_text} peak_rss_mb={peak_mb:.0f}", flush=True)
     return 0
 
 
