@@ -377,10 +377,30 @@ def describe_config(cfg: dict) -> str:
     return "".join(f" {k}={json.dumps(v) if isinstance(v, bool) else v}" for k, v in short.items())
 
 
-def cmd_bench(args) -> int:
-    from .bench import main as bench
+#: The name ``benchmarks/bench.py`` is loaded under (once per process).
+BENCH_MODULE = "sbrdf_benchmarks_bench"
 
-    return bench(args.stages, args.full, not args.no_images, args.log)
+
+def bench_module():
+    """``benchmarks/bench.py`` of the source checkout this package runs from: benchmark tooling is not part of
+    the installed core, so ``sbrdf bench`` needs the checkout."""
+    import importlib.util
+
+    if BENCH_MODULE in sys.modules:
+        return sys.modules[BENCH_MODULE]
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "bench.py"
+    if not path.is_file():
+        raise SbrdfError(f"sbrdf bench needs the source checkout (benchmarks/ next to sbrdf_core/); {path} not found")
+    spec = importlib.util.spec_from_file_location(BENCH_MODULE, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[BENCH_MODULE] = module  # before running it: its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def cmd_bench(args) -> int:
+    return bench_module().main(args.stages, args.full, not args.no_images, args.log)
 
 
 def _wait_options(p, help: str) -> None:

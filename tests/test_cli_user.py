@@ -103,8 +103,9 @@ old section
 @pytest.fixture
 def bench_root(tmp_path, monkeypatch):
     """A checkout in miniature: benchmarks/ with report.py and two stub stages, docs/ with a chart and a report."""
-    from sbrdf_core import bench
+    from sbrdf_core.cli import bench_module
 
+    bench = bench_module()
     root = tmp_path / "root"
     (root / "benchmarks").mkdir(parents=True)
     (root / "docs" / "img").mkdir(parents=True)
@@ -219,8 +220,8 @@ def test_info_on_a_missing_path_is_an_error_not_a_traceback(tmp_path):
 
 def test_bench_stages_are_declared_in_benchmarks():
     """The core names no stage: benchmarks/stages.toml declares them, each with a script that exists."""
-    from sbrdf_core import bench
+    from sbrdf_core.cli import bench_module
 
-    plan = bench.load_plan(ROOT)
+    plan = bench_module().load_plan(ROOT)
     assert plan.stages and all((ROOT / "benchmarks" / s.script).is_file() for s in plan.stages.values())
     assert all((ROOT / "graphs" / g).is_file() for g, _, _ in plan.images)

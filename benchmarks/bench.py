@@ -1,5 +1,9 @@
 """``sbrdf bench``: run the benchmark scripts and regenerate ``docs/accuracy-vs-time.md``.
 
+Tooling of the source checkout, not of the installed package: the ``sbrdf bench``
+command loads this file from ``benchmarks/`` beside ``sbrdf_core/``
+(:func:`sbrdf_core.cli.bench_module`) and says so when there is none.
+
 The stages and the docs' illustrating renders are declared in
 ``benchmarks/stages.toml`` (so the core names no benchmark, graph or plugin).
 Each script in ``benchmarks/`` owns one section of the report (``--docs``
@@ -34,7 +38,7 @@ from dataclasses import dataclass
 from datetime import date
 from pathlib import Path
 
-from .errors import SbrdfError
+from sbrdf_core.errors import SbrdfError
 
 #: The declaration of the stages and docs images, under the checkout's ``benchmarks/``.
 STAGES_FILE = "stages.toml"
@@ -114,9 +118,9 @@ def render_images(root: Path, store: Path, log, images: tuple[tuple[str, str, st
     """Run the illustrating graphs into ``store`` and copy their PNGs into docs/img."""
     import shutil
 
-    from .graph import load_graph
-    from .registry import default_registry
-    from .runner import Runner
+    from sbrdf_core.graph import load_graph
+    from sbrdf_core.registry import default_registry
+    from sbrdf_core.runner import Runner
 
     t0 = time.perf_counter()
     reg = default_registry()
