@@ -6,9 +6,10 @@
     sbrdf validate GRAPH
     sbrdf plugins [--category fitter]
     sbrdf info STORE_OR_ARTIFACT
-    sbrdf plot SAMPLED_REFLECTANCE [--params PARAM_MAPS] [--out DIR] [--texel U V] [--wi θ φ] [--wo θ φ]
     sbrdf bench [STAGE ...] [--quick | --full] [--no-images] [--log FILE]
 
+Plugins add commands (``sbrdf_commands``): the viewer plugin's ``sbrdf view``
+and ``sbrdf plot``, for instance; ``sbrdf --help`` lists those installed.
 ``-p MODULE`` registers an extra plugin module (pytest's ``-p``), and
 ``-p no:NAME`` disables an installed plugin by entry-point name; ``-v`` / ``-vv``
 log what runs (INFO / DEBUG of sbrdf's loggers).
@@ -322,17 +323,6 @@ def _describe_other_zarr(url: str, why: str | None, artifacts) -> None:
             print(f"  @{k}: {json.dumps(v, default=str)[:200]}")
 
 
-def cmd_plot(args) -> int:
-    from .plot import plot_views
-
-    paths = plot_views(args.samples, args.out, params_url=args.params, texel=tuple(args.texel) if args.texel else None,
-                       wi=tuple(args.wi) if args.wi else None, wo=tuple(args.wo) if args.wo else None, tol_deg=args.tol,
-                       registry=_registry(args))
-    for p in paths:
-        print(p)
-    return 0
-
-
 def fit_table(fits) -> str:
     """Seed 000 Table 3.4's fitting columns (time, average and maximum RMS) for ParamMaps artifacts, and the
     mean RMS at held-out samples (``held_out``: error where the fit was not trained).
@@ -508,19 +498,6 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("info", help="describe an artifact or every artifact in a store")
     p.add_argument("store")
     p.set_defaults(func=cmd_info)
-
-    p = sub.add_parser("plot", help="the SBRDF viewer: spatial image, exitant hemisphere, incidence-plane plot (PNG)")
-    p.add_argument("samples", help="a SampledReflectance artifact (e.g. runs/x/reflectance)")
-    p.add_argument("--params", default=None, help="a ParamMaps artifact whose fitted model is drawn over the samples")
-    p.add_argument("--out", default="plots", help="folder for spatial.png, hemisphere.png, incidence-plane.png")
-    p.add_argument("--texel", type=int, nargs=2, metavar=("U", "V"), help="texel of views (b) and (c); default the centre")
-    p.add_argument("--wi", type=float, nargs=2, default=None, metavar=("THETA", "PHI"),
-                   help="incident direction, deg; default: the texel's most populated one")
-    p.add_argument("--wo", type=float, nargs=2, default=None, metavar=("THETA", "PHI"),
-                   help="exitant direction of the spatial image, deg; default: that of the pose nearest ω_i")
-    p.add_argument("--tol", type=float, default=None,
-                   help="angular tolerance of views (b) and (c), deg; default 15, widened (up to 45) where too few samples")
-    p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("bench", help="run the benchmarks (quick sizes) and regenerate docs/accuracy-vs-time.md; "
                        "says what it will cost before it starts")

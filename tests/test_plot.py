@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.plot import (
+from sbrdf_core.runner import run_graph
+from sbrdf_viewer.plot import (
     MIN_SAMPLES,
     Viewer,
     choose_views,
@@ -19,7 +20,6 @@ from sbrdf_core.plot import (
     plot_views,
     spatial_figure,
 )
-from sbrdf_core.runner import run_graph
 
 from .conftest import graph_yaml
 

@@ -1,6 +1,7 @@
-"""``sbrdf view RUN/NODE``: write the viewer page of a fitted or quantized SBRDF and serve it on localhost.
+"""The viewer's commands: ``sbrdf view RUN/NODE`` writes the viewer page of a fitted or quantized SBRDF and
+serves it on localhost; ``sbrdf plot RUN/NODE`` draws McAllister's three SBRDF views as PNG files.
 
-The module imports nothing heavy: every ``sbrdf`` invocation loads it to declare the subcommand's arguments."""
+The module imports nothing heavy: every ``sbrdf`` invocation loads it to declare the subcommands' arguments."""
 
 from __future__ import annotations
 
@@ -58,4 +59,41 @@ class ViewCommand:
                 server.serve_forever()
             except KeyboardInterrupt:
                 pass
+        return 0
+
+
+class PlotCommand:
+    """The ``plot`` subcommand (category ``command``): :func:`sbrdf_viewer.plot.plot_views` as PNG files."""
+
+    params: tuple[Param, ...] = ()
+
+    def __init__(self):
+        self.registry = None
+
+    def bind(self, registry) -> None:
+        self.registry = registry
+
+    @staticmethod
+    def add_arguments(parser) -> None:
+        parser.add_argument("samples", help="a SampledReflectance artifact (e.g. runs/x/reflectance)")
+        parser.add_argument("--params", default=None, help="a ParamMaps artifact whose fitted model is drawn over the samples")
+        parser.add_argument("--out", default="plots", help="folder for spatial.png, hemisphere.png, incidence-plane.png")
+        parser.add_argument("--texel", type=int, nargs=2, metavar=("U", "V"),
+                            help="texel of views (b) and (c); default the centre")
+        parser.add_argument("--wi", type=float, nargs=2, default=None, metavar=("THETA", "PHI"),
+                            help="incident direction, deg; default: the texel's most populated one")
+        parser.add_argument("--wo", type=float, nargs=2, default=None, metavar=("THETA", "PHI"),
+                            help="exitant direction of the spatial image, deg; default: that of the pose nearest ω_i")
+        parser.add_argument("--tol", type=float, default=None,
+                            help="angular tolerance of views (b) and (c), deg; default 15, widened (up to 45) where "
+                                 "too few samples")
+
+    def run(self, args) -> int:
+        from .plot import plot_views  # matplotlib, zarr and the data only when the command runs
+
+        paths = plot_views(args.samples, args.out, params_url=args.params,
+                           texel=tuple(args.texel) if args.texel else None, wi=tuple(args.wi) if args.wi else None,
+                           wo=tuple(args.wo) if args.wo else None, tol_deg=args.tol, registry=self.registry)
+        for p in paths:
+            print(p)
         return 0

@@ -40,7 +40,7 @@ from sbrdf_lib.gl import parameter_exprs
 
 __all__ = ["DEFAULT_VIEW", "LUMA", "collect", "fragment_source", "page_html", "scene_for", "write_page"]
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])  # linear Rec. 709 luminance, as sbrdf_core.plot
+LUMA = np.array([0.2126, 0.7152, 0.0722])  # linear Rec. 709 luminance, as sbrdf_viewer.plot
 
 #: The page's starting view (plane units: the plane is 2 wide).  Also what ``scene_for`` writes by default.
 DEFAULT_VIEW = {"eye": [0.0, -2.4, 1.7], "light": [0.8, 0.6, 2.0], "intensity": 6.0, "exposure": 1.0,

@@ -1,5 +1,7 @@
 """``sbrdf plot``: McAllister's SBRDF viewer (seed 000 §3.7) as three matplotlib figures.
 
+A command of the viewer plugin (:class:`sbrdf_viewer.command.PlotCommand`), like ``sbrdf view``.
+
 Sampled reflectance is scattered over a 4D domain per texel, so the thesis
 looks at it through three linked views, reproduced here as PNG files:
 
@@ -36,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SbrdfError
-from .geometry import directions_to, polar_direction, texel_centres
+from sbrdf_core.errors import SbrdfError
+from sbrdf_core.geometry import directions_to, polar_direction, texel_centres
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # linear sRGB / Rec. 709 luminance weights
 
@@ -54,7 +56,7 @@ class Viewer:
     """Reads one SampledReflectance (and optionally a ParamMaps) and draws the three views."""
 
     def __init__(self, samples_url: str, params_url: str | None = None, registry=None):
-        from .store import open_artifact
+        from sbrdf_core.store import open_artifact
 
         self.art = open_artifact(samples_url, kind="SampledReflectance")
         self.texels = tuple(int(x) for x in self.art.attrs["texels"])  # (U, V)
@@ -66,7 +68,7 @@ class Viewer:
         self.model = self.maps = None
         if params_url:
             pm = open_artifact(params_url, kind="ParamMaps")
-            from .registry import default_registry
+            from sbrdf_core.registry import default_registry
 
             reg = registry or default_registry()
             self.model = reg.create("brdf-model", pm.attrs["model"], dict(pm.attrs.get("model_config", {})))
@@ -367,7 +369,7 @@ def plot_views(samples_url: str, out_dir: str | Path, params_url: str | None = N
     Directions and tolerance left out are chosen from the data (:func:`choose_views`).
     With ``params_url``, ``fit-error.png`` (:func:`error_maps`) is written too.
     """
-    from .extras import require
+    from sbrdf_core.extras import require
 
     # Before any data is read: a plain install (no ``[plot]`` extra) hears the install command, not a traceback.
     matplotlib = require("matplotlib", feature="sbrdf plot")
