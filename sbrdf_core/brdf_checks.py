@@ -22,7 +22,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .brdf import BRDFModel
+from .brdf import BRDFModel, evaluate
 from .contracts import optional
 from .geometry import polar_direction
 
@@ -117,7 +117,7 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     for start in range(0, len(dirs), step):
         wo = np.broadcast_to(dirs[start:start + step], (T,) + dirs[start:start + step].shape)
         wi_s = np.broadcast_to(wi[:, None, :], wo.shape)
-        out += np.einsum("tsc,s->tc", model.eval(params, wi_s, wo), weights[start:start + step])
+        out += np.einsum("tsc,s->tc", evaluate(model, params, wi_s, wo), weights[start:start + step])
     return out
 
 

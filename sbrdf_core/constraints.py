@@ -33,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 
 from ._compiled import worth_compiling
+from .brdf import evaluate
 from .brdf_checks import energy_azimuths, energy_report, uncleared
 from .channels import all_finite, channel_max
 from .geometry import polar_direction
@@ -140,7 +141,7 @@ def mirror_peak(model, params, max_theta, n: int = 24, cosine: bool = False) -> 
     th = np.linspace(0.0, max_theta, n)
     d = np.concatenate([polar_direction(th, phi) for phi in (0.0, np.pi / 2)])
     with np.errstate(all="ignore"):
-        f = model.eval(params, np.broadcast_to(d, (T,) + d.shape), np.broadcast_to(d * [-1, -1, 1], (T,) + d.shape))
+        f = evaluate(model, params, np.broadcast_to(d, (T,) + d.shape), np.broadcast_to(d * [-1, -1, 1], (T,) + d.shape))
     if cosine:
         f = f * (d[:, 2] ** 2)[None, :, None]
     return np.where(np.isfinite(f), f, np.inf).max(axis=(1, 2))

@@ -148,23 +148,20 @@ class Fitter(Protocol):
     model_name: str
     model_config: dict
 
-    def fit(self, model: BRDFModel, f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray,
-            **kw: Any) -> Any:
+    def fit(self, model: BRDFModel, f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray, *,
+            limits: Limits | None = None, rms: bool = True, usable: bool = False) -> Any:
         """A ``FitResult`` for T texels with S samples each.
 
         ``f_r (T, S, 3)`` sr^-1, ``valid (T, S)`` (held-out samples already
-        removed), directions ``(T, S, 3)`` in the sample frame.  Keyword
-        ``limits`` (:class:`~sbrdf_core.constraints.Limits`) are the texels'
-        physical bounds: fit inside them (``model.fit_form().constrain``);
-        the node projects whatever comes back onto them anyway.  Keyword
-        ``rms``, where ``fit`` declares it: the Fit node passes ``False``, as
-        it scores the fit itself; ``FitResult.rms`` may then be ``None`` (a
-        fitter whose training RMS costs a further pass skips it).  Keyword
-        ``usable``, where ``fit`` declares it: the Fit node passes ``True``,
-        its samples being :func:`~sbrdf_core.nodes.fit.usable`'s (float64,
-        finite, 0 where not ``valid``; ``valid`` false wherever a sample was
-        not finite), so a fitter that tests them itself may skip that.  Each
-        keyword is passed only to a ``fit`` whose signature names it.
+        removed), directions ``(T, S, 3)`` in the sample frame.  ``limits``
+        (:class:`~sbrdf_core.constraints.Limits`) are the texels' physical
+        bounds: fit inside them where the fitter can (the node projects
+        whatever comes back onto them anyway).  ``rms`` False (the Fit node's:
+        it scores the fit itself): ``FitResult.rms`` may be ``None``.
+        ``usable`` True (the Fit node's): the samples are
+        :func:`~sbrdf_core.nodes.fit.usable`'s already (float64, finite, 0
+        where not ``valid``), so a fitter that tests them may skip that.  Every
+        fitter accepts all three keywords, using what applies to it.
         Vectorised over texels; runs inside dask tasks, one tile at a time.
         """
 
@@ -321,6 +318,17 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                             "microfacet lobe's peak bound on f_r cos θ_i cos θ_o, "
                                             "`constraints.widen_to_peak`); False: the Fit node does not compute "
                                             "that support.", True),
+        "fit_kernel": OptionalMember("`fit_kernel(x, cfg, wi, wo, f, J)` (a module-level function, on the fit form): "
+                                     "f_r (nc,) and ∂f_r/∂x (nc, K) at one direction pair, in plain Python on "
+                                     "scalars and `math`; the fitting engine (`sbrdf_core.engine`) compiles it into "
+                                     "its Levenberg–Marquardt loop. Without it: the NumPy path (`eval`, `jacobian`), "
+                                     "far slower.", None),
+        "kernel_config": OptionalMember("`kernel_config() -> (n,) float64`: the options `fit_kernel` reads (flags, "
+                                        "choices as numbers).", None),
+        "nested": OptionalMember("`nested() -> (smaller model, embed) or None` (on the fit form): a model this one "
+                                 "contains (Lafortune with a lobe fewer) and `embed(x_small) -> x`, its packed "
+                                 "fit-form rows as this form's; `lm` fits the smaller model first and keeps, per "
+                                 "texel, the lower cost, so more freedom never fits the training data worse.", None),
         "fit_trapped": OptionalMember("`fit_trapped(x) -> (T,) bool` (on the fit form): packed fit-form rows where LM is "
                                       "known to stall (a lobe with no magnitude gets no gradient in its shape); `lm` "
                                       "and `lm-gl` fit them again (from the form's variable-projection fit where it "

@@ -81,6 +81,15 @@ MAX_DAMPING = 1e10
 EXACT = 1e-24
 
 
+def least_squares(form, f_r, weight, wi, wo):
+    """The problem :func:`levenberg_marquardt` solves for ``form``: the engine's compiled one where the form has a
+    fit kernel (:mod:`sbrdf_core.engine`), else the form's own (:meth:`~sbrdf_core.brdf.BRDFModel.least_squares`)."""
+    from sbrdf_core.engine import compiled_problem
+
+    problem = compiled_problem(form, f_r, weight, wi, wo)
+    return form.least_squares(f_r, weight, wi, wo) if problem is None else problem
+
+
 def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray], *, iterations: int = 50,
                         tolerance: float = 1e-4, damping: float = 1e-3, free: np.ndarray | None = None, project=None,
                         max_step: np.ndarray | None = None):
@@ -107,19 +116,34 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
                        limits=None if project is None else project.limits, exact=EXACT, max_damping=MAX_DAMPING,
                        max_step=max_step)
         if out is not None:
-            return out
+            if project is None or getattr(problem, "projects", True):
+                return out
+            # The engine held the box; project onto the rest of the limits and refine, inside them, what moved.
+            x, cost, converged = out
+            xp = project(x, np.arange(T))
+            moved = np.flatnonzero(np.abs(xp - x).max(axis=1) > 1e-9 * (1.0 + np.abs(x).max(axis=1)))
+            if moved.size:
+                x[moved], cost[moved], converged[moved] = _lm_loop(
+                    problem, xp[moved], moved, bounds, iterations, tolerance, damping, free, project, max_step)
+            return x, cost, converged
+    return _lm_loop(problem, x0, np.arange(T), bounds, iterations, tolerance, damping, free, project, max_step)
+
+
+def _lm_loop(problem, x0, rows, bounds, iterations, tolerance, damping, free, project, max_step):
+    """The NumPy iteration of :func:`levenberg_marquardt` for the problem's texels ``rows`` (``x0`` their starts)."""
+    T, K = x0.shape
+    lo, hi = bounds
     outer_free = np.outer(free, free)
-    everyone = np.arange(T)
     x = np.clip(x0, lo, hi)
     if project is not None:
-        x = project(x, everyone)
-    A, g, cost = problem.normal_equations(x, everyone)
+        x = project(x, rows)
+    A, g, cost = problem.normal_equations(x, rows)
     A, g = A * outer_free, g * free
     lam = np.full(T, damping)
-    active = (problem.weight.reshape(T, -1) > 0).any(axis=1) & (cost > 0) & np.isfinite(cost)
+    active = (problem.weight.reshape(problem.weight.shape[0], -1)[rows] > 0).any(axis=1) & (cost > 0) & np.isfinite(cost)
     # A fit this close to the data is exact to round-off (noiseless data): further
     # steps keep halving the cost without changing the parameters.
-    exact = EXACT * problem.data_energy()
+    exact = EXACT * problem.data_energy()[rows]
     eye = np.eye(K)
     for _ in range(iterations):
         idx = np.flatnonzero(active)
@@ -132,10 +156,11 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
         step = limit_step(np.where(np.isfinite(step), step, 0.0), max_step)
         x_new = np.clip(xa + step, lo, hi)
         if project is not None:
-            x_new = project(x_new, idx)
-            x_new = _active_set_step(Aa, ga, diag, lam[idx], free, xa, step, x_new, lo, hi, project, idx, max_step)
+            x_new = project(x_new, rows[idx])
+            x_new = _active_set_step(Aa, ga, diag, lam[idx], free, xa, step, x_new, lo, hi, project, rows[idx],
+                                     max_step)
             step = x_new - xa
-        A_new, g_new, cost_new = problem.normal_equations(x_new, idx)
+        A_new, g_new, cost_new = problem.normal_equations(x_new, rows[idx])
         better = np.isfinite(cost_new) & (cost_new < cost[idx])
         gain = np.where(better, (cost[idx] - cost_new) / np.maximum(cost[idx], 1e-300), 0.0)
         x[idx] = np.where(better[:, None], x_new, xa)
@@ -426,7 +451,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
                 xp = project(x, everyone)
                 moved = np.flatnonzero(np.abs(xp - x).max(axis=1) > 1e-9 * (1.0 + np.abs(x).max(axis=1)))
                 if moved.size:
-                    part = form.least_squares(f_r[moved], valid[moved].astype(np.float64), wi[moved], wo[moved])
+                    part = least_squares(form, f_r[moved], valid[moved].astype(np.float64), wi[moved], wo[moved])
                     sub = projector(form, limits.take(moved))
                     x[moved], cost[moved], converged[moved] = levenberg_marquardt(
                         part, xp[moved], (lo, hi), iterations=iterations, tolerance=tolerance, damping=damping,
@@ -437,7 +462,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     if start == "separable" and initial is None and free.all():
         initial = separable_start(form, f_r, valid, wi, wo, limits, iterations, tolerance, damping)
     base = sample_weights(f_r, valid, WEIGHTINGS[weighting])  # absolute: valid as weights, the plain problem
-    objective = form.least_squares(f_r, base, wi, wo)
+    objective = least_squares(form, f_r, base, wi, wo)
     x_starts = starting_points(form, objective, f_r, valid, wi, wo, starts, seed, initial, free, project)
     logger.debug("LM fit of %s: %d texels, %d start(s), loss %s, %s weighting", form.name, T, len(x_starts), loss,
                  weighting)
@@ -446,11 +471,11 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     def descend(x, rows=None):
         """LM (with the robust loss's reweighting) from ``x`` for texels ``rows`` (all by default)."""
         fr, vd, a, b, w0 = (v if rows is None else v[rows] for v in (f_r, valid, wi, wo, base))
-        obj = objective if rows is None else form.least_squares(fr, w0, a, b)
+        obj = objective if rows is None else least_squares(form, fr, w0, a, b)
         proj = project if rows is None or limits is None else projector(form, limits.take(rows))
         weight = w0
         for _ in range(1 if loss == "linear" else IRLS_ROUNDS):
-            problem = obj if loss == "linear" else form.least_squares(fr, weight, a, b)
+            problem = obj if loss == "linear" else least_squares(form, fr, weight, a, b)
             x, cost, converged = levenberg_marquardt(problem, x, (lo, hi), project=proj, **opts)
             if loss != "linear":
                 weight = robust_weights(form, x, fr, vd, a, b, loss, loss_scale) * w0
@@ -464,11 +489,27 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     assert best is not None
     best = rescue(form, best, f_r, valid, wi, wo, base, seed, free, limits, descend, 1e-9,
                   (iterations, tolerance, damping))
+    nested = optional(form, "nested", "brdf-model")
+    inner = nested() if nested is not None and initial is None and free.all() else None
+    if inner is not None:
+        # More freedom never fits worse: the smaller model's solution, embedded (the extra lobe dead), competes as
+        # it is and as the start of one more LM run (the dead lobe's magnitude has a gradient, so it can wake).
+        smaller, embed = inner
+        small, small_converged, _ = fit_model(smaller, f_r, valid, wi, wo, iterations=iterations, tolerance=tolerance,
+                                damping=damping, starts=starts if starts != model.suggested_starts else 0,
+                                seed=seed, limits=limits, loss=loss, loss_scale=loss_scale, weighting=weighting,
+                                start=start, want_cost=False, checked=True)
+        sform = smaller.fit_form()
+        x_in = np.clip(embed(sform.pack(sform.from_model(small))), lo, hi)
+        if project is not None:
+            x_in = project(x_in, everyone)
+        keep_better(best, x_in, total_cost(objective, x_in), small_converged.copy(), 0.0)
+        keep_better(best, *descend(x_in), 0.0)
     x, cost, converged, restarted = best
     if not want_cost:
         cost = None
     elif weighting != "absolute":  # unweighted, whatever was minimised (a robust loss's cost already is)
-        cost = total_cost(form.least_squares(f_r, valid.astype(np.float64), wi, wo), x)
+        cost = total_cost(least_squares(form, f_r, valid.astype(np.float64), wi, wo), x)
     if stats is not None:
         stats["restarted"] = restarted
     return form.to_model(form.unpack(x)), converged, cost
@@ -551,7 +592,7 @@ def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, 
             x0 = sub_project(x0, np.arange(rows.size))
         keep_better(sub, *descend(x0, rows), margin)
     else:
-        objective = form.least_squares(f_r[rows], weight[rows], wi[rows], wo[rows])
+        objective = least_squares(form, f_r[rows], weight[rows], wi[rows], wo[rows])
         starts = starting_points(form, objective, f_r[rows], valid[rows], wi[rows], wo[rows], RESCUE_STARTS, seed,
                                  form.unpack(best[0][rows]), free, sub_project, keep_first=False)
         # All starts in one LM run (each texel repeated per start): its cost is per iteration, not per texel.

@@ -32,7 +32,8 @@ logger = logging.getLogger(__name__)
 
 MODEL = Param("model", "str", "lambert", "BRDF model to fit", extra={"plugin_category": "brdf-model"})
 MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"})
-ITERATIONS = Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000))
+ITERATIONS = Param("iterations", "int", 200, "Levenberg-Marquardt iterations at most, per texel (a texel stops when "
+                   "it converges: most need under 20; sharp lobes on grazing data take more)", bounds=(1, 10000))
 TOLERANCE = Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
                   bounds=(0.0, 1.0))
 
@@ -64,7 +65,7 @@ class LevenbergMarquardtFitter:
               "unseen directions (benchmarks/fidelity.py), hence off by default"),
     )
 
-    def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
+    def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 200,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
                  seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, variable_projection: bool = False,
                  weighting: str = "shot-noise", start: str = "guess"):
@@ -80,7 +81,7 @@ class LevenbergMarquardtFitter:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
 
-    def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True, usable=False) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
         """``rms`` False: no training RMS (``FitResult.rms`` None), for a caller that scores the fit itself
         (the Fit node): with a weighted objective it is a further pass over the samples.  ``usable`` True: the
         samples are :func:`~sbrdf_core.nodes.fit.usable`'s already (the Fit node's), not tested again."""

@@ -23,7 +23,8 @@ import numpy as np
 
 from sbrdf_core.brdf import above_horizon, luminance_weights
 from sbrdf_core.errors import ParameterError
-from sbrdf_core.nodes.fit import NONFINITE_INPUT, NONFINITE_RESULT, NOT_CONVERGED, FitResult, rms_error, usable
+from sbrdf_core.nodes.fit import NONFINITE_INPUT, NONFINITE_RESULT, NOT_CONVERGED, FitResult, rms_error
+from sbrdf_core.nodes.fit import usable as usable_samples
 from sbrdf_core.params import Param
 from sbrdf_lib.lm import diffuse_percentile, fit_model
 
@@ -85,7 +86,7 @@ class McAllisterFitter:
 
     def __init__(self, *, model: str = "lafortune", model_params: dict = {}, diffuse: str = "percentile",  # noqa: B006
                  percentile: float = 10.0, colour_space: str = "mcallister", rho_s_guard: float = 0.05,
-                 lobe_fit: str = "lm", lobe_2_start: str = "text", iterations: int = 50, tolerance: float = 1e-4,
+                 lobe_fit: str = "lm", lobe_2_start: str = "text", iterations: int = 200, tolerance: float = 1e-4,
                  starts: int = 1, objective: str = "root", root_floor: float = 0.01):
         # model_params' default equals the declaration (the registry checks) and is only read, never changed.
         self.model_config = dict(model_params)
@@ -124,9 +125,9 @@ class McAllisterFitter:
         model = self._registry.create("brdf-model", "lafortune", {"lobes": lobes, "anisotropic": anisotropic, "beta": beta})
         return model.single_channel()
 
-    def fit(self, model, f_r, valid, wi, wo) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
         T = f_r.shape[0]
-        f_r, valid = usable(f_r, valid)
+        f_r, valid = usable_samples(f_r, valid)
         # A sample whose direction is not finite cannot be used: left in, its NaN reaches every product the line
         # search and Eq 4.10 sum over (0 · NaN is NaN), and the whole texel comes out non-finite.
         wi, wo = np.asarray(wi, float), np.asarray(wo, float)

@@ -35,7 +35,8 @@ import numpy as np
 from sbrdf_core.constraints_glsl import pack_limits, scalars
 from sbrdf_core.contracts import optional
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable
+from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult
+from sbrdf_core.nodes.fit import usable as usable_samples
 from sbrdf_core.params import Param
 from sbrdf_lib.lm import (
     IRLS_ROUNDS,
@@ -45,6 +46,7 @@ from sbrdf_lib.lm import (
     WEIGHTINGS,
     fit_model,
     keep_better,
+    least_squares,
     projector,
     rescue,
     robust_weights,
@@ -119,14 +121,14 @@ class GLLevenbergMarquardtFitter:
         """Refuse a model without a GLSL fit gradient when the graph is built, not at the first tile."""
         gradient_glsl(registry.create("brdf-model", self.model_name, dict(self.model_config)))
 
-    def fit(self, model, f_r, valid, wi, wo, limits=None) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
         if self.loss not in LOSSES:
             raise ValueError(f"lm-gl: loss {self.loss!r} is not one of {', '.join(LOSSES)}")
         if self.weighting not in WEIGHTINGS:
             raise ValueError(f"lm-gl: weighting {self.weighting!r} is not one of {', '.join(WEIGHTINGS)}")
         glsl = gradient_glsl(model)
         t0 = time.perf_counter()
-        f_r, valid = usable(f_r, valid)
+        f_r, valid = usable_samples(f_r, valid)
         form = model.fit_form()
         T, K = f_r.shape[0], form.size
         lo, hi = form.bounds()
@@ -149,7 +151,7 @@ class GLLevenbergMarquardtFitter:
         initial = None
         if self.start == "separable" and free.all():
             initial = separable_start(form, f_r, valid, wi, wo, limits, self.iterations, self.tolerance, self.damping)
-        x_starts = starting_points(form, form.least_squares(f_r, base, wi, wo), f_r, valid, wi,
+        x_starts = starting_points(form, least_squares(form, f_r, base, wi, wo), f_r, valid, wi,
                                    wo, self.starts or model.suggested_starts, self.seed, initial, free, project)
         n = valid.sum(axis=1)
         energy = np.einsum("tsc,tsc->t", f_r, f_r)
@@ -190,7 +192,7 @@ class GLLevenbergMarquardtFitter:
                 b = np.flatnonzero(broken)
                 x[b], converged[b] = x0[b], False
                 t = idx[b]
-                cost[b] = np.nan_to_num(total_cost(form.least_squares(f_r[t], base[t], wi[t], wo[t]), x0[b]),
+                cost[b] = np.nan_to_num(total_cost(least_squares(form, f_r[t], base[t], wi[t], wo[t]), x0[b]),
                                         nan=np.inf)
             return x, cost, converged
 
@@ -234,7 +236,7 @@ class GLLevenbergMarquardtFitter:
         if project is not None:  # float32 round-off can leave a bound by an ulp: project once more in float64
             x = project(x, everyone)
         if self.weighting != "absolute":  # the unweighted cost, whatever was minimised (a robust loss's already is)
-            cost = total_cost(form.least_squares(f_r, plain_weight, wi, wo), x)
+            cost = total_cost(least_squares(form, f_r, plain_weight, wi, wo), x)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         rms = np.sqrt(np.maximum(cost, 0.0) / np.maximum(f_r.shape[-1] * n, 1))
         return FitResult(form.to_model(form.unpack(x)), rms, n, flags, restarted=restarted)

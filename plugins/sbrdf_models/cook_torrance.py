@@ -32,7 +32,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
@@ -47,7 +46,6 @@ SQRT_PI = float(np.sqrt(np.pi))
 DISTRIBUTIONS = ("beckmann", "ggx")
 
 
-@njit(cache=True, nogil=True)
 def fit_kernel(x, cfg, wi, wo, f, J):
     """f_r and ∂f_r/∂x in the fit form x = (ρ_d, F0, log α) at one direction pair; zeros below the horizon.
     ``cfg`` = (index in :data:`DISTRIBUTIONS`,).  The floors and clips are :meth:`CookTorranceModel._terms`'."""

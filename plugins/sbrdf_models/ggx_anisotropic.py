@@ -33,7 +33,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import clip_shape, widen_to_peak
@@ -45,7 +44,6 @@ COS_FLOOR = 1e-6
 ALPHA_BOUNDS = (1e-3, 1.0)
 
 
-@njit(cache=True, nogil=True)
 def fit_kernel(x, cfg, wi, wo, f, J):
     """f_r and ∂f_r/∂x in the fit form x = (ρ_d, F0, log α_t, log α_b, φ) at one direction pair; zeros below the
     horizon.  The floors and the derivatives of log D and of the Smith roots are :meth:`GGXAnisotropicModel._terms`'."""

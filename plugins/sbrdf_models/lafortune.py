@@ -29,11 +29,12 @@ YAML::
 from __future__ import annotations
 
 import copy
+import math
 import sys
 
 import numpy as np
 
-from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon, positive_power
+from sbrdf_core.brdf import LOG_CAP, BRDFModel, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -578,6 +579,60 @@ def neutralise(model, out, j: int, dead: np.ndarray) -> None:
         out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"])
 
 
+def fit_kernel(x, cfg, wi, wo, f, J):
+    """f_r and ∂f_r/∂x of the fit form (C_z = 1, log n) at one direction pair: the fitting engine's kernel.
+
+    ``cfg`` = (lobes, anisotropic, beta); ``x`` in :meth:`LafortuneFitForm.pack` order: ρ_d, then per lobe
+    ρ_s, C_xy (or C_x, C_y), log n, then β.  The numbers of ``eval`` and ``jacobian`` (their test oracle),
+    caps of :func:`~sbrdf_core.brdf.positive_power` included.
+    """
+    nc, K = f.size, x.size
+    lobes, aniso, has_beta = int(cfg[0]), cfg[1] != 0.0, cfg[2] != 0.0
+    for c in range(nc):
+        f[c] = 0.0
+        for k in range(K):
+            J[c, k] = 0.0
+    if wi[2] <= 0.0 or wo[2] <= 0.0:
+        return
+    ix, iy, ox, oy = wi[0], wi[1], wo[0], wo[1]
+    if has_beta:
+        cb, sb = math.cos(x[K - 1]), math.sin(x[K - 1])
+        ix, iy = cb * wi[0] + sb * wi[1], -sb * wi[0] + cb * wi[1]
+        ox, oy = cb * wo[0] + sb * wo[1], -sb * wo[0] + cb * wo[1]
+    pxx, pyy, pzz = ix * ox, iy * oy, wi[2] * wo[2]
+    for c in range(nc):
+        f[c] = x[c]
+        J[c, c] = 1.0
+    k = nc
+    for _ in range(lobes):
+        rs = k
+        kc = k + nc
+        cx = x[kc]
+        cy = x[kc + 1] if aniso else cx
+        kn = kc + (2 if aniso else 1)
+        k = kn + 1
+        n = math.exp(x[kn])
+        d = cx * pxx + cy * pyy + pzz
+        s = dsdx = dsdn = 0.0
+        if d > 0.0:
+            logd = math.log(d)
+            s = math.exp(min(max(n * logd, -745.0), LOG_CAP))
+            dsdx = n * math.exp(min(max((n - 1.0) * logd, -745.0), LOG_CAP))
+            dsdn = s * logd * n
+        for c in range(nc):
+            rho = x[rs + c]
+            f[c] += rho * s
+            J[c, rs + c] = s
+            if aniso:
+                J[c, kc] = rho * dsdx * pxx
+                J[c, kc + 1] = rho * dsdx * pyy
+            else:
+                J[c, kc] = rho * dsdx * (pxx + pyy)
+            J[c, kn] = rho * dsdn
+            if has_beta:
+                J[c, K - 1] += rho * dsdx * (cx - cy) * (iy * ox + ix * oy)
+
+
 class LafortuneFitForm(LafortuneModel):
     """The same lobes with C_z = 1 fixed and log n: what fitters iterate on."""
 
@@ -590,6 +645,11 @@ class LafortuneFitForm(LafortuneModel):
         self.parameters = self._declare(fit_form=True)
         self.fit_outlier_ratio = OUTLIER_RATIO if self.lobes >= 2 else None
         self._layout: tuple | None = None  # constrain_packed's bounds and offsets, made on first use
+
+    fit_kernel = staticmethod(fit_kernel)
+
+    def kernel_config(self) -> np.ndarray:
+        return np.array([self.lobes, self.anisotropic, self.has_beta], np.float64)
 
     def lobe_list(self, params):
         out = []
@@ -625,6 +685,26 @@ class LafortuneFitForm(LafortuneModel):
 
     def fit_form(self):
         return self
+
+    def nested(self):
+        """Lafortune with one lobe fewer, and its packed fit-form rows embedded here with the last lobe dead
+        (ρ_s = 0 at its default shape): what ``lm`` compares a fit with, so a lobe more never fits worse."""
+        if self.lobes < 2:
+            return None
+        smaller = copy.copy(self.model)
+        smaller.lobes = self.lobes - 1
+        smaller.parameters = smaller._declare(fit_form=False)
+        sform = smaller.fit_form()
+
+        def embed(x_small):
+            params = sform.unpack(x_small)
+            out = self.defaults(x_small.shape[0])
+            out.update(params)
+            j = self.lobes
+            out[f"rho_s_{j}"] = np.zeros_like(out[f"rho_s_{j}"])
+            return self.pack(out)
+
+        return smaller, embed
 
     @property
     def max_step(self) -> np.ndarray:

@@ -13,14 +13,12 @@ YAML::
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
 from sbrdf_core.constraints_glsl import clip_lines
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
 
-@njit(cache=True, nogil=True)
 def fit_kernel(x, cfg, wi, wo, f, J):
     """f_r = ρ_d and its Jacobian, the identity, at one direction pair (the fit form is the model: x = ρ_d);
     zeros below the horizon, as :meth:`LambertModel.eval`."""

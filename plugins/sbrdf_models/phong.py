@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sbrdf_core.brdf import LOG_CAP, BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints import clip_shape
@@ -37,7 +36,6 @@ from sbrdf_core.plugin import PluginSpec, hookimpl
 EXPONENT_BOUNDS = (0.1, 20000.0)
 
 
-@njit(cache=True, nogil=True)
 def fit_kernel(x, cfg, wi, wo, f, J):
     """f_r and ∂f_r/∂x in the fit form x = (ρ_d, ρ_s, log n) at one direction pair; zeros below the horizon.
 

@@ -33,7 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, rms_error, usable
+from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, rms_error
+from sbrdf_core.nodes.fit import usable as usable_samples
 from sbrdf_core.params import Param
 
 from .kurt import beckmann, lobe, lobe_geometry
@@ -340,8 +341,8 @@ class GridSearchFitter:
                     problems.append((name, f"{key}: give [low, high] with low <= high, got {value!r}"))
         return problems
 
-    def fit(self, model, f_r, valid, wi, wo) -> FitResult:
-        f_r, valid = usable(f_r, valid)
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
+        f_r, valid = usable_samples(f_r, valid)
         T = f_r.shape[0]
         params = model.defaults(T)
         flags = np.zeros(T, np.uint8)

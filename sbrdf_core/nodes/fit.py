@@ -25,17 +25,16 @@ BRDF model to fit (the node constructs it from the registry), and
 from __future__ import annotations
 
 import functools
-import inspect
 import logging
 import sys
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance
+from ..brdf import evaluate
 from ..channels import all_finite
 from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbourhood_max, sample_support
 from ..contracts import optional
@@ -64,7 +63,7 @@ OVERFIT, CONSTRAINED, BORROWED = 32, 64, 128
 EXTRA = ("rms", "rms_holdout", "samples", "flags", "restarted", "bounded_by", "fit_time_s")
 
 
-@dataclass
+@dataclass(frozen=True)
 class FitResult:
     """Per-texel fit output for a batch of T texels."""
 
@@ -85,9 +84,9 @@ FIT_PARAMS = (
           bounds=(1.0, 89.99)),
     Param("albedo_limit", "float", 1.0, "directional albedo bound (energy conservation; 0 = off: warns)",
           bounds=(0.0, None)),
-    Param("grazing_growth", "float", 1.0, "how much a lobe's shape may brighten from normal incidence toward grazing "
-          "(Lafortune: max (C·ω)^n ≤ this; 1 = |C_x|, |C_y| ≤ C_z, which also keeps renderers' bilinearly "
-          "interpolated parameters bounded; 0 = unbounded: warns)", bounds=(0.0, None)),
+    Param("grazing_growth", "float", 0.0, "how much a lobe's shape may brighten from normal incidence toward grazing "
+          "(Lafortune: max (C·ω)^n ≤ this; 1 = |C_x|, |C_y| ≤ C_z).  0 (default) = no such rule: real lobes rise "
+          "toward grazing, and peak_factor still bounds them up to max_theta_deg", bounds=(0.0, None)),
     Param("resolve_sharpness", "bool", True, "bound exponents / roughness to what the angular sampling resolves"),
     Param("microfacet_peak", "str", "cosine", "what the peak bound holds for microfacet lobes (Cook-Torrance, "
           "Ward): 'cosine' = f_r cos θ_i cos θ_o, which keeps their 1/cos² rise toward grazing beyond the "
@@ -185,7 +184,7 @@ def usable_mask(f_r: np.ndarray, valid: np.ndarray) -> np.ndarray:
 def rms_error(model, params, f_r, valid, wi, wo) -> np.ndarray:
     """RMS of ``model − f_r`` over each texel's valid samples and RGB pooled (seed 000 §4.4), sr⁻¹."""
     with np.errstate(all="ignore"):
-        return masked_rms(model.eval(params, wi, wo) - f_r, valid)
+        return masked_rms(evaluate(model, params, wi, wo) - f_r, valid)
 
 
 def masked_rms(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -199,7 +198,7 @@ def residual_squares(model, params, wi, wo, f_r) -> np.ndarray:
     own = optional(model, "squared_residuals", "brdf-model")
     with np.errstate(all="ignore"):
         squares = None if own is None else own(params, wi, wo, f_r)
-        return sample_squares(model.eval(params, wi, wo) - f_r) if squares is None else squares
+        return sample_squares(evaluate(model, params, wi, wo) - f_r) if squares is None else squares
 
 
 def sample_squares(diff: np.ndarray) -> np.ndarray:
@@ -282,15 +281,10 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
         cosines = np.clip(wi[..., 2], 0, 1) * np.clip(wo[..., 2], 0, 1)
         support_cosine = neighbourhood_max(sample_support(f_r, valid, cosines).reshape(grid)).ravel()
     limits = options.limits(support, resolution, support_cosine)
-    accepts = inspect.signature(fitter.fit).parameters
 
     def run(f, w, a, b, lim):
-        kw: dict[str, Any] = {"limits": lim} if "limits" in accepts else {}
-        if "rms" in accepts:
-            kw["rms"] = False  # the node scores the fit itself, below
-        if "usable" in accepts:
-            kw["usable"] = True  # f, w are usable()'s (the pool's too): no second finiteness pass
-        return fitter.fit(model, f, w, a, b, **kw)
+        # rms=False: the node scores the fit itself, below; usable=True: f, w are usable()'s (the pool's too)
+        return fitter.fit(model, f, w, a, b, limits=lim, rms=False, usable=True)
 
     res: FitResult = run(f_r, train, wi, wo, limits)
     params = {k: np.array(v, dtype=np.float64) for k, v in res.params.items()}
@@ -397,7 +391,7 @@ class Fit(NodeKind):
         """The node parameters; relaxing a physical bound is allowed, and said."""
         opts = FitOptions(**{p.name: ctx.params.get(p.name, p.default) for p in FIT_PARAMS})
         relaxed = [f"{name}: {getattr(opts, name)}" for name in BOUNDS
-                   if not getattr(opts, name) or getattr(opts, name) > DEFAULTS[name]]
+                   if DEFAULTS[name] and (not getattr(opts, name) or getattr(opts, name) > DEFAULTS[name])]
         if relaxed:
             warnings.warn(f"node {ctx.node!r}: physical bounds relaxed ({', '.join(relaxed)}): fitted lobes may "
                           "exceed what the samples support where they were not measured", stacklevel=2)

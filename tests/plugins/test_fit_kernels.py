@@ -1,6 +1,6 @@
 """Every model's compiled fit kernel against its NumPy oracle.
 
-A model hands the fitting engine one numba function, ``fit_kernel(x, cfg, wi, wo, f, J)``: f_r and its Jacobian in
+A model hands the fitting engine one plain function (compiled by the engine with numba), ``fit_kernel(x, cfg, wi, wo, f, J)``: f_r and its Jacobian in
 the fit form at one direction pair.  The NumPy ``eval``/``jacobian`` of the fit form stay the reference; here the
 kernel must reproduce them for every configuration of every model that has one, at parameters across the typical
 ranges and at the bounds, and at directions from the normal to 89.9°, at the horizon and below it.
@@ -16,8 +16,12 @@ from sbrdf_core.testing import sph
 
 REGISTRY = Registry()
 
-#: Every configuration of every model with a fit kernel (Lafortune's is tested with its own kernels).
+#: Every configuration of every model with a fit kernel.
 CONFIGS = [
+    ("lafortune", {"lobes": 1}),
+    ("lafortune", {"lobes": 2}),
+    ("lafortune", {"lobes": 3, "anisotropic": True}),
+    ("lafortune", {"lobes": 2, "anisotropic": True, "beta": True}),
     ("lambert", {}),
     ("phong", {}),
     ("ward", {}),
@@ -30,8 +34,8 @@ CONFIGS = [
     ("minnaert", {}),  # the example plugin's model: a third-party kernel through the same door
 ]
 CASES = [pytest.param(name, cfg, id="-".join([name] + [f"{k}={v}" for k, v in cfg.items()])) for name, cfg in CONFIGS]
-#: Models whose kernel lives elsewhere or is not required here.
-WITHOUT = {"lafortune"}
+#: Built-in models without a fit kernel (fitted by the NumPy path).
+WITHOUT: set[str] = set()
 
 
 def create(name: str, cfg: dict):

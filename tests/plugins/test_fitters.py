@@ -341,12 +341,12 @@ def test_fit_tile_flags_reasons_and_never_writes_nan(registry, lafortune):
 
 
 class _NoRmsKeyword:
-    """``lm`` behind a ``fit`` without the ``rms`` keyword: the node cannot ask it to skip its RMS."""
+    """``lm`` behind a ``fit`` that ignores ``rms`` and ``usable``: it always computes its RMS."""
 
     def __init__(self, fitter):
         self.fitter = fitter
 
-    def fit(self, model, f_r, valid, wi, wo, limits=None):
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False):
         return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits)
 
 
@@ -368,7 +368,7 @@ def test_the_node_skipping_lms_rms_changes_no_bit(registry, lafortune, weighting
     asked: list[bool] = []
 
     class Recording:  # lm, recording what the node asks of its rms keyword
-        def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True):
+        def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False):
             asked.append(rms)
             return lm.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms)
 

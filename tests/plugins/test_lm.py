@@ -249,7 +249,7 @@ def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
 
 
 def fit_benchmark_texels(rng, T, S, noise):
-    """benchmarks/fit.py's Lafortune data: ``(model, truth, f, wi, wo)`` for ``T`` texels seen under one plan of
+    """benchmarks/fit_peer.py's Lafortune data: ``(model, truth, f, wi, wo)`` for ``T`` texels seen under one plan of
     ``S`` pairs (a third within 4° of the mirror direction, a third grazing at θ 60-82°, a third uniform over
     θ ≤ 80°), a forward lobe of n 8-300 and a back-scatter lobe per texel, Gaussian noise."""
     def cap(n, lo=0.0, hi=np.radians(80.0)):
@@ -281,7 +281,7 @@ def fit_benchmark_texels(rng, T, S, noise):
 
 
 def test_a_texel_fitting_far_worse_than_its_tile_is_fitted_again(monkeypatch):
-    """A result LM settled on with benchmarks/fit.py's data (texel 116 of 256 here): the sharp forward lobe become
+    """A result LM settled on with benchmarks/fit_peer.py's data (texel 116 of 256 here): the sharp forward lobe become
     a spike at n ≈ 4860 and the back-scatter lobe brightened to carry the specular.  No lobe is dead or faint, so
     ``fit_trapped`` passes it, but its cost is several times its tile's median: ``fit_outlier_ratio`` sends it to
     the rescue (one LM run from the variable-projection fit), which brings it to the noise level.  The other
@@ -438,7 +438,7 @@ def test_a_limited_step_keeps_its_direction_and_the_compiled_limit_is_the_same(s
 
 
 def test_a_step_limit_in_log_n_saves_the_rejected_trials():
-    """benchmarks/fit.py's data, one lobe, limits as the Fit node sets them: an unlimited Gauss–Newton step can
+    """benchmarks/fit_peer.py's data, one lobe, limits as the Fit node sets them: an unlimited Gauss–Newton step can
     multiply a lobe's exponent many times over, cost more than its start and be rejected again and again while λ
     grows.  With the fit form's ``max_step`` LM evaluates the normal equations far fewer times and ends at costs as
     low (measured here: 9.6 → 7.4 evaluations a texel, mean cost 0.542 → 0.524, all converged)."""
@@ -475,7 +475,7 @@ def test_a_step_limit_in_log_n_saves_the_rejected_trials():
 
 def test_more_starts_keep_the_guess_and_never_end_worse_than_one(registry):
     """``starting_points`` runs the initial guess whatever the Sobol points score: ranked with them by its cost
-    before LM, the guess lost its place to points that scored better and ended worse (benchmarks/fit.py's shape
+    before LM, the guess lost its place to points that scored better and ended worse (benchmarks/fit_peer.py's shape
     sweep: one lobe on C_xy = 0.95, n = 3 with ``starts: 4`` ended 478 of 1024 texels above twice the noise, one
     start none).  So every texel's cost with 4 starts is at most its cost with 1."""
     from sbrdf_lib.lm import fit_model, starting_points

@@ -22,14 +22,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
 
 MIN_COS = 1e-3
 
 
-@njit(cache=True, nogil=True)
 def fit_kernel(x, cfg, wi, wo, f, J):
     """f_r = ρ_d (cos θ_i cos θ_o)^(k − 1) and ∂f_r/∂(ρ_d, k) at one direction pair; zeros below the horizon."""
     for ch in range(3):

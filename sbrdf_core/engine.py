@@ -1,0 +1,227 @@
+"""The fitting engine: one compiled Levenberg–Marquardt for every model that has a fit kernel.
+
+A model brings only its mathematics, as one function on its fit form::
+
+    def fit_kernel(x, cfg, wi, wo, f, J):
+        # x (K,) packed fit-form parameters, cfg (n,) from kernel_config(),
+        # wi, wo (3,) directions; writes f_r (nc,) into f and d f_r / d x (nc, K) into J
+
+and declares it as ``fit_kernel`` (with ``kernel_config()`` when it has
+options).  The kernel is plain Python on scalars and ``math`` (so listing the
+model imports no compiler, and the function itself runs, slowly, anywhere); the
+engine compiles it with numba.  The engine does the rest, the same for every model: the normal
+equations, the damped solve, bounds, step limits and convergence
+(:mod:`sbrdf_core.engine_lm`), in parallel over texels without the GIL.  The
+NumPy path (``form.eval`` / ``form.jacobian``) is the oracle a model's kernel
+is tested against, and what a model without a kernel is fitted with.
+
+Compiled once: the loops are copied per kernel into a cache directory
+(``SBRDF_KERNEL_CACHE``, default ``~/.cache/sbrdf/kernels``) under a name that
+hashes the template and the kernel's source, so numba's own on-disk cache is
+reused by every later process and invalidated when either changes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import inspect
+import logging
+import os
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "over_texels", "threads", "solver"]
+
+_TEMPLATE = Path(__file__).with_name("engine_lm.py")
+_MARK = "kernel = None  # KERNEL: the cached copy imports the model's fit kernel on this line"
+_loaded: dict[tuple[str, str], object] = {}
+_lock = threading.Lock()
+
+
+def cache_dir() -> Path:
+    """Where the generated solver modules (and numba's cache of them) live."""
+    env = os.environ.get("SBRDF_KERNEL_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "sbrdf" / "kernels"
+
+
+def solver(kernel):
+    """The :mod:`~sbrdf_core.engine_lm` module compiled around ``kernel`` (a numba dispatcher), loaded once a process."""
+    func = getattr(kernel, "py_func", kernel)
+    module, name = func.__module__, func.__qualname__
+    if "." in name or "<" in name:
+        raise TypeError(f"{module}.{name}: a fit kernel must be a module-level function (the engine imports it by name)")
+    key = (module, name)
+    with _lock:
+        if key in _loaded:
+            return _loaded[key]
+        template = _TEMPLATE.read_text()
+        if _MARK not in template:
+            raise RuntimeError(f"{_TEMPLATE}: the KERNEL line is missing")
+        text = template.replace(_MARK, f"from {module} import {name} as _source  # KERNEL\n"
+                                "kernel = njit(cache=True, nogil=True, inline='always')"
+                                "(getattr(_source, 'py_func', _source))")
+        digest = hashlib.sha256(text.encode() + inspect.getsource(func).encode()).hexdigest()[:16]
+        stem = f"lm_{module.replace('.', '_')}_{name}_{digest}"
+        folder = cache_dir()
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{stem}.py"
+        if not path.exists():
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_text(text)
+            os.replace(tmp, path)  # atomic: a concurrent process sees the whole file or none
+        spec = importlib.util.spec_from_file_location(f"sbrdf_kernels.{stem}", path)
+        assert spec is not None and spec.loader is not None
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = mod
+        spec.loader.exec_module(mod)
+        _loaded[key] = mod
+        return mod
+
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def threads() -> int:
+    """Threads a compiled loop runs on: every core from the main thread, one from any other.
+
+    Why one: a worker thread's caller (dask's threaded scheduler running Fit
+    tiles) is parallel already, and more threads on top of it would only
+    compete for the same cores.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return 1
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+#: Kernel calls below which a loop runs on the calling thread alone: fewer do not pay for handing out slices.
+POOL_MIN_CALLS = 1 << 16
+
+
+def over_texels(T: int, body, calls: int) -> None:
+    """``body(a, b)`` for slices ``[a, b)`` covering ``range(T)``, on :func:`threads` threads (the loops hold no GIL);
+    ``calls``: kernel calls the whole loop makes, about."""
+    global _POOL
+    n = threads()
+    if n == 1 or T < 4 * n or calls < POOL_MIN_CALLS:
+        body(0, T)
+        return
+    if _POOL is None or _POOL._max_workers < n:
+        _POOL = ThreadPoolExecutor(n, thread_name_prefix="sbrdf-engine")
+    edges = np.linspace(0, T, 4 * n + 1).astype(int)  # several slices a thread: texels differ in cost
+    for f in [_POOL.submit(body, a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]:
+        f.result()
+
+
+def _c(a, dtype=np.float64):
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
+class CompiledProblem:
+    """The least-squares problem of a fit form with a ``kernel``, for :func:`sbrdf_lib.lm.levenberg_marquardt`.
+
+    Same interface and numbers as :class:`~sbrdf_core.least_squares.LeastSquaresProblem`
+    (``Σ (w (f − f_r))²`` per texel), plus a compiled ``levenberg_marquardt``.
+    """
+
+    #: The compiled loop holds a box only; :func:`~sbrdf_lib.lm.levenberg_marquardt` projects onto the rest.
+    projects = False
+
+    def __init__(self, form, f_r, weight, wi, wo):
+        self.form = form
+        self.f_r, self.wi, self.wo = _c(f_r), _c(wi), _c(wo)
+        self.weight = _c(np.broadcast_to(weight, f_r.shape[:2]))
+        self.cfg = _c(form.kernel_config())
+        self._mod = solver(form.kernel)
+        self.iterations: np.ndarray | None = None  # per texel, of the last levenberg_marquardt call
+
+    def data_energy(self) -> np.ndarray:
+        wf = self.f_r * self.weight[..., None]
+        return np.einsum("tsc,tsc->t", wf, wf)
+
+    def cost(self, x, idx) -> np.ndarray:
+        idx = np.asarray(idx)
+        out = np.empty(len(idx))
+        sub = (self.f_r, self.weight, self.wi, self.wo)
+        if len(idx) != self.f_r.shape[0] or not np.array_equal(idx, np.arange(len(idx))):
+            sub = tuple(a[idx] for a in sub)
+        x = _c(x)
+        over_texels(len(idx), lambda a, b: self._mod.costs(self.cfg, x[a:b], *(v[a:b] for v in sub), out[a:b]),
+                    self.f_r.shape[1] * len(idx))
+        return out
+
+    def normal_equations(self, x, idx):
+        n, K = x.shape
+        A, g, cost = np.empty((n, K, K)), np.empty((n, K)), np.empty(n)
+        x, rows, free = _c(x), _c(idx, np.int64), np.ones(K, np.uint8)
+        over_texels(n, lambda a, b: self._mod.all_normal_equations(
+            self.cfg, x[a:b], rows[a:b], free, self.f_r, self.weight, self.wi, self.wo, A[a:b], g[a:b], cost[a:b]),
+            n * self.f_r.shape[1])
+        return A, g, cost
+
+    def levenberg_marquardt(self, x0, bounds, *, iterations, tolerance, damping, free, limits, exact, max_damping,
+                            max_step):
+        """Every texel's LM in the compiled loop, inside the box the form's bounds and ``limits`` make.
+
+        Returns ``(x, cost, converged)``, or None where ``limits`` ask for more
+        than a box can hold and the form has no ``limit_box`` to say how
+        (the caller then projects the result and refines what moved).
+        """
+        T, K = x0.shape
+        lo = np.broadcast_to(np.asarray(bounds[0], np.float64), (T, K)).copy()
+        hi = np.broadcast_to(np.asarray(bounds[1], np.float64), (T, K)).copy()
+        if limits is not None:
+            box = getattr(self.form, "limit_box", None)
+            if box is not None:
+                lo, hi = box(limits, lo, hi)
+        step = np.full(K, np.inf) if max_step is None else np.asarray(max_step, np.float64)
+        x, cost, converged = np.empty((T, K)), np.empty(T), np.empty(T, np.bool_)
+        used = np.empty(T, np.int64)
+        x0, lo, hi, free, exact = _c(x0), _c(lo), _c(hi), _c(free, np.uint8), _c(exact * self.data_energy())
+        step = _c(step)
+        over_texels(T, lambda a, b: self._mod.solve(
+            self.cfg, x0[a:b], lo[a:b], hi[a:b], free, step, self.f_r[a:b], self.weight[a:b], exact[a:b],
+            self.wi[a:b], self.wo[a:b], int(iterations), float(tolerance), float(damping), float(max_damping),
+            x[a:b], cost[a:b], converged[a:b], used[a:b]), T * self.f_r.shape[1] * int(iterations))
+        self.iterations = used
+        return x, cost, converged
+
+
+#: Direction pairs (texels × pairs) from which :func:`evaluate` runs compiled: below, NumPy costs less.
+EVALUATE_MIN = 4096
+
+
+def evaluate(model, params, wi, wo) -> np.ndarray | None:
+    """f_r ``(T, S, C)`` of the model-form ``params`` by the model's fit kernel; None where it has none, or the batch
+    is too small to pay for the call (the caller then uses ``model.eval``, the NumPy reference it equals)."""
+    form = model.fit_form()
+    kernel = getattr(form, "kernel", None)
+    if kernel is None:
+        return None
+    x = form.pack(params if form is model else form.from_model(params))
+    wi, wo = np.asarray(wi, np.float64), np.asarray(wo, np.float64)
+    if wi.ndim not in (2, 3) or wo.ndim not in (2, 3) or wi.shape[-1] != 3 or wo.shape[-1] != 3:
+        return None
+    T = x.shape[0]
+    S = np.broadcast_shapes(wi.shape, wo.shape)[-2]
+    if T * S < EVALUATE_MIN:
+        return None
+    wi, wo = _c(np.broadcast_to(wi, (T, S, 3))), _c(np.broadcast_to(wo, (T, S, 3)))
+    out = np.empty((T, S, getattr(form, "channels", 3)))
+    mod, cfg, x = solver(kernel), _c(form.kernel_config()), _c(x)
+    over_texels(T, lambda a, b: mod.evaluate(cfg, x[a:b], wi[a:b], wo[a:b], out[a:b]), T * S)
+    return out
+
+
+def compiled_problem(form, f_r, weight, wi, wo) -> CompiledProblem | None:
+    """The compiled problem of ``form`` where it has a fit kernel, else None (the NumPy problem applies)."""
+    return None if getattr(form, "kernel", None) is None else CompiledProblem(form, f_r, weight, wi, wo)
