@@ -11,12 +11,13 @@ Method (vectorised over texels, in batches of :data:`BATCH`):
 
 1. **Directions.**  A fixed, deterministic set of direction pairs in the
    surface frame (:func:`direction_pairs`): incident directions on a Fibonacci
-   spiral over the hemisphere up to 85° from the normal, cosine-weighted
+   spiral over the directions a viewer meets, up to :data:`VIEW_THETA_DEG`
+   (70°) from the normal by default (the exporters' ``max_theta_deg``), cosine-weighted
    (sin²θ uniform), each paired with (a) outgoing directions mirrored about
    half-vectors on a second Fibonacci spiral concentrated near the normal
    (θ_h up to 60°, density ∝ 1/θ_h: the specular lobe) and (b) outgoing
    directions on a cosine-weighted Fibonacci spiral (the diffuse part).  Pairs
-   below 85° are kept.  The *held-out* set uses different spiral counts and a
+   within the limit are kept.  The *held-out* set uses different spiral counts and a
    rotated azimuth, so no held-out pair is a fitting pair.
 2. **Target.**  The GGX lobe of the installed ``cook-torrance`` model
    (``distribution: ggx``; or ``ggx-anisotropic``), read the way glTF's
@@ -94,6 +95,7 @@ __all__ = [
     "GGX_MAPS",
     "GLTF_MAPS",
     "MAX_THETA_DEG",
+    "VIEW_THETA_DEG",
     "START_ALPHAS",
     "METAL_PREFERENCE",
     "CosineWeighted",
@@ -112,8 +114,12 @@ __all__ = [
 
 #: Texels converted per batch (bounds memory: the LM's Jacobian is T × S × 3 × 8 doubles).
 BATCH = 512
-#: Largest angle from the normal of any fitting or held-out direction.
+#: Largest angle from the normal of any fitting or held-out direction (:func:`direction_pairs`' default).
 MAX_THETA_DEG = 85.0
+#: The conversion's default limit: the directions a viewer meets.  A surface seen or lit beyond 70° from its
+#: normal shows at most cos 70° = 34 % of its face-on area or irradiance, and there GGX's Fresnel and
+#: 1/(cos θ_i cos θ_o) rise would otherwise rule the fit of a measured lobe that does not follow them.
+VIEW_THETA_DEG = 70.0
 #: A texel reads as metal (metallic 1) when that costs at most this much more relative error than the dielectric reading.
 METAL_PREFERENCE = 0.01
 #: F0 of glTF's default dielectric (IOR 1.5).
@@ -146,7 +152,7 @@ def _fibonacci(n: int, max_theta: float, cosine: bool, phase: float) -> np.ndarr
     return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=-1)
 
 
-def direction_pairs(held_out: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def direction_pairs(held_out: bool = False, max_theta_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The fixed ``(wi, wo)`` pairs, ``(S, 3)`` each (module docstring, step 1).
 
     Fitting: 16 incident × (16 mirrored + 8 cosine-weighted) outgoing; held-out:
@@ -154,7 +160,7 @@ def direction_pairs(held_out: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """
     n_i, n_h, n_d = (13, 11, 6) if held_out else (16, 16, 8)
     phase = 1.0 if held_out else 0.0
-    limit = np.radians(MAX_THETA_DEG)
+    limit = np.radians(MAX_THETA_DEG if max_theta_deg is None else max_theta_deg)
     wi = _fibonacci(n_i, limit, True, phase)
     # half-vectors: θ_h = 60° · u², dense near the normal where sharp lobes live
     u = (np.arange(n_h) + 0.5) / n_h
@@ -402,7 +408,7 @@ def mapped_alpha(source: dict) -> np.ndarray | None:
 
 
 def to_ggx(model, params: dict, ggx, *, starts: int = 1, iterations: int = 8, grazing: bool = True,
-           flag_error: float = FLAG_ERROR) -> dict[str, np.ndarray]:
+           flag_error: float = FLAG_ERROR, max_theta_deg: float = VIEW_THETA_DEG) -> dict[str, np.ndarray]:
     """Refit ``model`` with per-texel ``params`` (``{name: (T, C)}``) to ``ggx``'s lobe with a specular weight.
 
     ``ggx``: :func:`ggx_model` or :func:`anisotropic_model`; ``grazing`` False
@@ -425,8 +431,8 @@ def to_ggx(model, params: dict, ggx, *, starts: int = 1, iterations: int = 8, gr
     from sbrdf_lib.lm import fit_model
 
     target = SpecularGGX(ggx)
-    wi, wo = direction_pairs()
-    hi_wi, hi_wo = direction_pairs(held_out=True)
+    wi, wo = direction_pairs(max_theta_deg=max_theta_deg)
+    hi_wi, hi_wo = direction_pairs(held_out=True, max_theta_deg=max_theta_deg)
     T = np.asarray(params[model.parameters[0].name]).shape[0]
     out = {**{p.name: np.zeros((T, p.channels)) for p in target.parameters}, "f0": np.zeros((T, 3)),
            "error": np.ones(T), "valid": np.zeros(T, bool)}
@@ -691,7 +697,7 @@ def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray, anisotropic=None)
 
 
 def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 8, anisotropic=None,
-                flag_error: float = FLAG_ERROR):
+                flag_error: float = FLAG_ERROR, max_theta_deg: float = VIEW_THETA_DEG):
     """Refit to GGX and read the fit as glTF metallic-roughness (+ KHR_materials_specular) per texel.
 
     ``params``: ``{name: (T, C)}`` of ``model``; ``ggx``: :func:`ggx_model`;
@@ -703,15 +709,15 @@ def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 
     strength), ``error`` ``(T,)`` the held-out
     cosine-weighted relative RMS of glTF's BRDF against the source (1 for invalid texels).
     """
-    fits = [(to_ggx(model, params, ggx, starts=starts, iterations=iterations, flag_error=flag_error), None)]
+    kw = dict(starts=starts, iterations=iterations, flag_error=flag_error, max_theta_deg=max_theta_deg)
+    fits = [(to_ggx(model, params, ggx, **kw), None)]
     if anisotropic is not None and getattr(model, "anisotropic", True):
-        fits.append((to_ggx(model, params, anisotropic, starts=starts, iterations=iterations, flag_error=flag_error),
-                     anisotropic))
+        fits.append((to_ggx(model, params, anisotropic, **kw), anisotropic))
     T = fits[0][0]["error"].shape[0]
     gltf = {k: np.zeros((T, c)) for k, c in GLTF_MAPS.items()}
     error = np.ones(T)
-    wi, wo = direction_pairs()
-    hi_wi, hi_wo = direction_pairs(held_out=True)
+    wi, wo = direction_pairs(max_theta_deg=max_theta_deg)
+    hi_wi, hi_wo = direction_pairs(held_out=True, max_theta_deg=max_theta_deg)
     for s in range(0, T, BATCH):
         sl = slice(s, min(s + BATCH, T))
         sub = {p.name: np.asarray(params[p.name], np.float64)[sl] for p in model.parameters}

@@ -21,6 +21,8 @@ STARTS = Param("starts", "int", 1, "LM starts of the per-texel GGX refit (the st
                "40-value roughness grid)", bounds=(1, 8))
 ITERATIONS = Param("iterations", "int", 8, "LM iterations refining the per-texel GGX refit (0: the grid start alone)",
                    bounds=(0, 1000))
+MAX_THETA = Param("max_theta_deg", "float", 70.0, "largest light or view angle from the normal the conversion fits "
+                  "and scores (the directions a viewer meets)", bounds=(10.0, 89.0), unit="deg")
 FLAG_ERROR = Param("flag_error", "float", 0.25, "texels whose conversion error (cosine-weighted relative RMS on "
                    "held-out directions) is above this are flagged (flagged.png, attrs['flagged'])", bounds=(0.0, None))
 
@@ -59,6 +61,7 @@ class GGXConverting:
     starts = 1
     iterations = 8
     flag_error = 0.25
+    max_theta_deg = 70.0
 
     def bind(self, registry) -> None:
         self.registry = registry
@@ -76,7 +79,8 @@ class GGXConverting:
         from sbrdf_lib.convert import to_ggx_blocks
 
         return with_flags(to_ggx_blocks(material.model, material.params, self._ggx(), starts=self.starts,
-                                        iterations=self.iterations, grazing=grazing, flag_error=self.flag_error),
+                                        iterations=self.iterations, grazing=grazing, flag_error=self.flag_error,
+                                        max_theta_deg=self.max_theta_deg),
                           self.flag_error)
 
     def gltf_maps(self, material) -> dict:
@@ -84,7 +88,8 @@ class GGXConverting:
         from sbrdf_lib.convert import to_gltf_pbr_blocks
 
         return with_flags(to_gltf_pbr_blocks(material.model, material.params, self._ggx(), starts=self.starts,
-                                             iterations=self.iterations, flag_error=self.flag_error), self.flag_error)
+                                             iterations=self.iterations, flag_error=self.flag_error,
+                                             max_theta_deg=self.max_theta_deg), self.flag_error)
 
     def ggx_uniform(self, model, params: dict) -> dict:
         """The GGX fit of one uniform material (a scene's ``{model, params}``): ρ_d, F0c, s, α (C,) and its error."""
@@ -92,6 +97,7 @@ class GGXConverting:
 
         flat = {p.name: np.broadcast_to(np.asarray(params.get(p.name, p.default), np.float64).reshape(1, -1), (1, p.channels))
                 for p in model.parameters}
-        r = to_ggx(model, flat, self._ggx(), starts=self.starts, iterations=self.iterations)
+        r = to_ggx(model, flat, self._ggx(), starts=self.starts, iterations=self.iterations,
+                   max_theta_deg=self.max_theta_deg)
         keys = ("rho_d", "f0", "alpha", "specular", "specular_color")
         return {k: np.asarray(r[k][0], np.float64) for k in keys} | {"error": float(r["error"][0])}

@@ -29,7 +29,7 @@ from sbrdf_core.io import write_exr
 from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json
-from .ggx import FLAG_ERROR, ITERATIONS, STARTS, GGXConverting, write_error_files
+from .ggx import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS, GGXConverting, write_error_files
 
 #: Standard Surface input <- (map, MaterialX type).
 INPUTS = {"base_color": ("base_color", "color3"), "metalness": ("metallic", "float"),
@@ -82,11 +82,14 @@ class MaterialXExporter(GGXConverting):
         STARTS,
         ITERATIONS,
         FLAG_ERROR,
+        MAX_THETA,
     )
 
-    def __init__(self, *, name: str = "sbrdf", starts: int = 1, iterations: int = 8, flag_error: float = 0.25):
+    def __init__(self, *, name: str = "sbrdf", starts: int = 1, iterations: int = 8, flag_error: float = 0.25,
+                 max_theta_deg: float = 70.0):
         self.name = name
         self.starts, self.iterations, self.flag_error = starts, iterations, flag_error
+        self.max_theta_deg = max_theta_deg
 
     def convert(self, material):
         return self.gltf_maps(material)

@@ -41,7 +41,7 @@ from sbrdf_core.io import write_exr
 from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json
-from .ggx import FLAG_ERROR, ITERATIONS, STARTS, GGXConverting, write_error_files
+from .ggx import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS, GGXConverting, write_error_files
 
 FORMAT = "sbrdf-mitsuba/1"
 #: F0 above this is written as this (η stays finite).
@@ -86,13 +86,16 @@ class MitsubaExporter(GGXConverting):
         STARTS,
         ITERATIONS,
         FLAG_ERROR,
+        MAX_THETA,
     )
 
     def __init__(self, *, scene: str | None = None, resolution: list | tuple = (256, 192), starts: int = 1,
-                 iterations: int = 8, flag_error: float = 0.25):
+                 iterations: int = 8, flag_error: float = 0.25,
+                 max_theta_deg: float = 70.0):
         self.scene = scene
         self.resolution = tuple(int(x) for x in resolution)
         self.starts, self.iterations, self.flag_error = starts, iterations, flag_error
+        self.max_theta_deg = max_theta_deg
 
     def convert(self, material):
         return self.ggx_maps(material)

@@ -33,7 +33,7 @@ import numpy as np
 from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json, write_png
-from .ggx import FLAG_ERROR, ITERATIONS, STARTS, GGXConverting, write_error_files
+from .ggx import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS, GGXConverting, write_error_files
 
 #: UsdPreviewSurface input <- (texture file, type, colour space, channels).
 TEXTURES = {"diffuseColor": ("diffuse_color.png", "color3f", "sRGB", "rgb"),
@@ -52,11 +52,14 @@ class USDExporter(GGXConverting):
         STARTS,
         ITERATIONS,
         FLAG_ERROR,
+        MAX_THETA,
     )
 
-    def __init__(self, *, name: str = "Material", starts: int = 1, iterations: int = 8, flag_error: float = 0.25):
+    def __init__(self, *, name: str = "Material", starts: int = 1, iterations: int = 8, flag_error: float = 0.25,
+                 max_theta_deg: float = 70.0):
         self.name = name
         self.starts, self.iterations, self.flag_error = starts, iterations, flag_error
+        self.max_theta_deg = max_theta_deg
 
     def convert(self, material):
         return self.ggx_maps(material, grazing=False)

@@ -81,10 +81,13 @@ class GLTFExporter:
               "(written only where some texel gains from it)"),
         Param("flag_error", "float", 0.25, "texels whose conversion error (cosine-weighted relative RMS on held-out "
               "directions) is above this are flagged (<name>_flagged.png, extras.sbrdf.flagged)", bounds=(0.0, None)),
+        Param("max_theta_deg", "float", 70.0, "largest light or view angle from the normal the conversion fits and "
+              "scores (the directions a viewer meets)", bounds=(10.0, 89.0), unit="deg"),
     )
 
     def __init__(self, *, format: str = "gltf", name: str = "material", tile: int = 64, starts: int = 1,
-                 iterations: int = 8, anisotropy: bool = True, flag_error: float = 0.25):
+                 iterations: int = 8, anisotropy: bool = True, flag_error: float = 0.25,
+                 max_theta_deg: float = 70.0):
         if format not in ("gltf", "glb"):
             raise ValueError(f"gltf: format must be 'gltf' or 'glb', got {format!r}")
         self.format = format
@@ -94,6 +97,7 @@ class GLTFExporter:
         self.iterations = iterations
         self.anisotropy = anisotropy
         self.flag_error = flag_error
+        self.max_theta_deg = max_theta_deg
         self._registry = None
 
     def bind(self, registry) -> None:
@@ -109,8 +113,7 @@ class GLTFExporter:
                   for p in material.model.parameters}
         aniso = anisotropic_model(self._registry) if self.anisotropy else None
         maps = to_gltf_pbr_blocks(material.model, params, self._ggx(), starts=self.starts, iterations=self.iterations,
-                                  anisotropic=aniso,
-                                  flag_error=self.flag_error)
+                                  anisotropic=aniso, flag_error=self.flag_error, max_theta_deg=self.max_theta_deg)
         return {**maps, "conversion_error": maps["error"], "flagged": (maps["error"] > self.flag_error).astype(np.float32)}
 
     def write(self, directory, maps, material):
