@@ -5,10 +5,14 @@ Runs the four measurements, each a script of its own that can also be run alone:
 - ``interchange_gltf.py``: any model refitted to glTF's GGX, exported, validated, read back and rendered;
 - ``interchange_export.py``: EXR set, MaterialX, USD and Mitsuba exports; Mitsuba's render against ``cpu``;
 - ``interchange_viewer.py``: the WebGL2 viewer in headless chromium against the ``gl`` renderer;
-- ``interchange_merl.py``: a MERL-format file read, rendered, and fitted by Lafortune lobes.
+- ``interchange_merl.py``: a MERL-format file read, rendered, and fitted by Lafortune lobes;
+- ``interchange_roundtrip.py``: the glTF export rendered by three.js and the Mitsuba export by Mitsuba 3, each
+  against ``cpu``, on the README demo's fit (glossy) and a rough one, and the demo's exported glTF roughness.
 
 Last line: ``interchange: gltf_conversion_rel_err=... mitsuba_vs_cpu_rel_err=... viewer_vs_gl_rel_err=...
-merl_fit_rel_err=...`` plus each script's other figures (prefixed by the script's name).  ``--quick`` passes on.
+merl_fit_rel_err=... glossy_gltf_rel_err=... glossy_mitsuba_rel_err=... rough_gltf_rel_err=...
+rough_mitsuba_rel_err=... gltf_roughness_p50=... gltf_roughness_p99=...`` plus each script's other figures
+(prefixed by the script's name).  ``--quick`` passes on.
 """
 
 from __future__ import annotations
@@ -21,8 +25,10 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 SCRIPTS = {"gltf": "interchange_gltf.py", "export": "interchange_export.py", "viewer": "interchange_viewer.py",
-           "merl": "interchange_merl.py"}
-HEADLINE = ("gltf_conversion_rel_err", "mitsuba_vs_cpu_rel_err", "viewer_vs_gl_rel_err", "merl_fit_rel_err")
+           "merl": "interchange_merl.py", "roundtrip": "interchange_roundtrip.py"}
+HEADLINE = ("gltf_conversion_rel_err", "mitsuba_vs_cpu_rel_err", "viewer_vs_gl_rel_err", "merl_fit_rel_err",
+            "glossy_gltf_rel_err", "glossy_mitsuba_rel_err", "rough_gltf_rel_err", "rough_mitsuba_rel_err",
+            "gltf_roughness_p50", "gltf_roughness_p99")
 
 
 def figures(line: str) -> dict[str, str]:
