@@ -617,9 +617,9 @@ def _plugin_commands(sub, argv: list[str] | None) -> None:
 
 def _run_command(reg, name: str, args) -> int:
     """A plugin subcommand, bound to the invocation's registry so it sees the same plugin set."""
-    from .contracts import optional
+    from .contracts import Command, optional
 
-    command = reg.create("command", name, {})
+    command: Command = reg.create("command", name, {})
     bind = optional(command, "bind", "command")
     if bind is not None:
         bind(reg)

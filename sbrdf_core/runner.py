@@ -610,13 +610,14 @@ class Runner:
                 time.sleep(0.05)
 
     def _bar(self, node: str, total: int, already: int, unit: str = "chunk"):
-        if callable(self.progress):
+        progress = self.progress
+        if callable(progress):
             count = [already]
 
             def cb(n):
                 if n:
                     count[0] += n
-                    self.progress(node, count[0], total)
+                    progress(node, count[0], total)
 
             return cb
         if not self.progress:

@@ -120,6 +120,19 @@ class BuildContext:
     #: ``None`` until the runner has run the prepare step.
     prepared: dict[str, Any] | None = None
 
+    @property
+    def plugin_name(self) -> str:
+        """The registry name of the node's plugin (a node kind with ``plugin_category`` always has one)."""
+        if self.spec is None:
+            raise RuntimeError(f"node {self.node!r} has no plugin")
+        return self.spec.name
+
+    def plugins(self) -> PluginRegistry:
+        """The run's registry (every node the runner builds has one)."""
+        if self.registry is None:
+            raise RuntimeError(f"node {self.node!r} was built without a registry")
+        return self.registry
+
     def key(self, prefix: str) -> str:
         """A dask key name for this node's ``prefix`` tasks: ``<prefix>-<node>-<8 hex digits>``.
 

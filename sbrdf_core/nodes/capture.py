@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..artifacts import CaptureSet
-from ..contracts import optional
+from ..contracts import CaptureSource, optional
 from ..types import CaptureDescription
 from .base import BuildContext, NodeKind, Output, shared
 
@@ -43,7 +43,7 @@ class Capture(NodeKind):
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
 
-        source = ctx.plugin
+        source: CaptureSource = ctx.plugin
         desc: CaptureDescription = source.describe()
         P, H, W = desc.n_poses, desc.height, desc.width
         index = da.arange(P, chunks=1)

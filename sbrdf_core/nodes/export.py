@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..artifacts import Exported, ParamMaps, TextureSet
+from ..contracts import Exporter
 from ..errors import SbrdfError
 from .base import BuildContext, NodeKind, Output, Port
 from .render import load_material
@@ -41,7 +42,8 @@ class Export(NodeKind):
         directory = _local_directory(ctx.url)  # refused before anything computes, not after the conversion
         art = ctx.inputs["material"]
         material = load_material(ctx.registry, art)
-        maps: dict[str, Any] = dict(ctx.plugin.convert(material))
+        exporter: Exporter = ctx.plugin
+        maps: dict[str, Any] = dict(exporter.convert(material))
         error = maps.pop("error", None)
         arrays = {f"maps/{k}": v.astype(np.float32) for k, v in maps.items()}
         if error is not None:
@@ -50,7 +52,7 @@ class Export(NodeKind):
         def finalize(out):
             t0 = time.perf_counter()
             values = {k: out.read(f"maps/{k}") for k in maps}
-            attrs = dict(ctx.plugin.write(directory, values, material) or {})
+            attrs = dict(exporter.write(directory, values, material) or {})
             attrs["write_s"] = time.perf_counter() - t0
             if error is not None:
                 e = out.read("error")
@@ -62,7 +64,7 @@ class Export(NodeKind):
             return attrs
 
         assert ctx.spec is not None  # an Export node always has its plugin
-        return Output(arrays=arrays, attrs={"exporter": ctx.spec.name, "material": material.source,
+        return Output(arrays=arrays, attrs={"exporter": ctx.plugin_name, "material": material.source,
                                             "model": material.model.name, "texels": list(material.texels),
                                             "size_mm": list(material.size_mm)},
                       finalize=finalize)

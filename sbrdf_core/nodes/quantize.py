@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..artifacts import ParamMaps, SampledReflectance, TextureSet
-from ..contracts import optional
+from ..contracts import BRDFModel, Quantizer, optional
 from ..geometry import fibonacci_hemisphere, tile_directions
 from ..types import Encoded
 from .base import BuildContext, NodeKind, Output, Port
@@ -95,9 +95,9 @@ def decode_texture_set(art, registry, model=None) -> dict[str, np.ndarray]:
     return {p.name: np.asarray(out[p.name]) for p in model.parameters}
 
 
-def model_of(ctx: BuildContext, artifact):
+def model_of(ctx: BuildContext, artifact) -> BRDFModel:
     """The BRDF model an artifact was fitted with, from its attributes."""
-    return ctx.registry.create("brdf-model", artifact.attrs["model"], dict(artifact.attrs.get("model_config", {})))
+    return ctx.plugins().create("brdf-model", artifact.attrs["model"], dict(artifact.attrs.get("model_config", {})))
 
 
 class Quantize(NodeKind):
@@ -123,20 +123,21 @@ class Quantize(NodeKind):
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
 
+        quantizer: Quantizer = ctx.plugin
         pm = ctx.inputs["params"]
         model = model_of(ctx, pm)
         params = {p.name: pm.array(f"params/{p.name}") for p in model.parameters}
-        if callable(optional(ctx.plugin, "prepare", "quantizer")):
+        if callable(optional(quantizer, "prepare", "quantizer")):
             prepared = ctx.prepared
             if prepared is None:  # built outside a runner (a test, a notebook): compute it here
                 import dask
 
                 wanted = cls.prepare(ctx)
                 prepared = dict(zip(wanted, dask.compute(*wanted.values())))
-            enc: Encoded = ctx.plugin.encode(params, model, prepared=prepared)
+            enc: Encoded = quantizer.encode(params, model, prepared=prepared)
         else:
-            enc = ctx.plugin.encode(params, model)
-        decoded = ctx.plugin.decode(enc.textures, enc.scale, enc.bias, model)
+            enc = quantizer.encode(params, model)
+        decoded = quantizer.decode(enc.textures, enc.scale, enc.bias, model)
         original = da.concatenate([params[p.name] for p in model.parameters], axis=-1)
         restored = da.concatenate([da.asarray(decoded[p.name]).astype(np.float32) for p in model.parameters], axis=-1)
         restored = restored.rechunk(original.chunks)
@@ -183,7 +184,7 @@ class Quantize(NodeKind):
         return Output(
             arrays=arrays,
             attrs={
-                "quantizer": ctx.spec.name,
+                "quantizer": ctx.plugin_name,
                 "model": pm.attrs["model"],
                 "model_config": pm.attrs.get("model_config", {}),
                 "parameters": pm.attrs.get("parameters", []),

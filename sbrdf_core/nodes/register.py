@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import contracts
 from ..artifacts import CaptureSet, RegisteredStack
 from ..contracts import optional
 from ..store import texel_tile
@@ -72,10 +73,11 @@ class Register(NodeKind):
         import dask.array as da
 
         capture = ctx.inputs["capture"]
-        if optional(ctx.plugin, "prepare", "registration") is not None:
-            reg: Registration = ctx.plugin.register(capture, prepared=ctx.prepared or {})
+        plugin: contracts.Registration = ctx.plugin
+        if optional(plugin, "prepare", "registration") is not None:
+            reg: Registration = plugin.register(capture, prepared=ctx.prepared or {})
         else:
-            reg = ctx.plugin.register(capture)
+            reg = plugin.register(capture)
         U, V = reg.texels
         ids = np.asarray(reg.pose_ids, dtype=np.int64)
         # The plugin, the Registration (per-pose geometry, O(poses)) and the capture's

@@ -18,6 +18,7 @@ renderer gets ``render(material, prepared=...)`` — building never computes.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -125,10 +126,14 @@ class Render(NodeKind):
     def build(cls, ctx: BuildContext) -> Output:
         art = ctx.inputs["material"]
         material = material_from(ctx, art)
-        if contracts.optional(ctx.plugin, "prepare", "renderer") is not None:
-            result: RenderResult = ctx.plugin.render(material, prepared=ctx.prepared)
+        renderer: contracts.Renderer = ctx.plugin
+        # contracts.Renderer.render names a Material; a kind a plugin declares renderable (a shading map) reaches
+        # the same method as an InputArtifact, which the protocol does not say yet.
+        render: Callable[..., RenderResult] = renderer.render
+        if contracts.optional(renderer, "prepare", "renderer") is not None:
+            result = render(material, prepared=ctx.prepared)
         else:
-            result = ctx.plugin.render(material)
+            result = render(material)
 
         def finalize(art):
             t0 = time.perf_counter()
@@ -146,7 +151,7 @@ class Render(NodeKind):
             image = da.from_array(image)
         return Output(
             arrays={"image": image.astype(np.float32)},
-            attrs={"renderer": ctx.spec.name, "material": material.source, "input_kind": art.kind,
+            attrs={"renderer": ctx.plugin_name, "material": material.source, "input_kind": art.kind,
                    "model": getattr(getattr(material, "model", None), "name", None), **result.attrs},
             finalize=finalize,
         )

@@ -100,6 +100,8 @@ class Artifact:
             raise ArtifactError(f"{self.kind} at {self.url} has no array {name!r}; it has {self.names()}") from None
         except Exception as e:  # an unreadable zarr.json
             raise ArtifactError(f"damaged artifact {self.url}: array {name!r} metadata cannot be read: {e}") from None
+        if not isinstance(z, zarr.Array):  # a group where the array should be
+            raise ArtifactError(f"damaged artifact {self.url}: {name!r} is a group, not an array")
         return CheckedArray(z, self.url, name)
 
     def array(self, name: str):
@@ -140,7 +142,9 @@ class CheckedArray:
         return getattr(self.z, attr)
 
     def __len__(self) -> int:
-        return len(self.z)
+        if not self.z.shape:  # as NumPy: a 0-d array has no length
+            raise TypeError("len() of unsized object")
+        return int(self.z.shape[0])
 
     def __dask_tokenize__(self):  # cheap and deterministic (no pickling of the zarr array)
         return ("sbrdf-stored-array", self.url, self.name, tuple(self.z.shape), str(self.z.dtype))
@@ -413,6 +417,7 @@ class ArtifactWriter:
             return False
         if markers_of is not None:
             return tuple(z.shape) == (markers_of.grid or (1,)) and z.dtype == np.uint32
+        assert lay is not None, "an array's own layout, or the one whose markers it holds"
         return (tuple(z.shape), tuple(z.shards or z.chunks), np.dtype(z.dtype)) == (lay.shape, lay.chunks, np.dtype(lay.dtype))
 
     def done(self, name: str) -> set[str]:
