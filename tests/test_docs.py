@@ -90,3 +90,21 @@ def test_first_hour_edits_still_apply(registry, tmp_path):
     (tmp_path / "my-scan.yaml").write_text(own)
     assert [n for n in load_graph(str(tmp_path / "my-scan.yaml"), registry).nodes] == \
         ["capture", "register", "reflectance", "fit", "quantize", "render"]
+
+
+@pytest.mark.slow
+def test_first_hour_demo_table_shows_the_chunks_a_run_writes(tmp_path):
+    """The first report docs/first-hour.md shows is ``sbrdf run graphs/demo.yaml``'s: the same nodes, each
+    with the chunks a run writes (wall times are the machine's, and not compared)."""
+    import shutil
+
+    from sbrdf_core.runner import run_graph
+
+    page = (ROOT / "docs" / "first-hour.md").read_text()
+    table = re.search(r"```\n(node +status +chunks +wall_s +artifact\n.*?)\ngraph 'demo' done", page, re.S).group(1)
+    shown = {row.split()[0]: row.split()[2] for row in table.splitlines()[1:]}
+    shutil.copytree(ROOT / "scenes", tmp_path / "scenes")
+    (tmp_path / "graphs").mkdir()
+    shutil.copy(ROOT / "graphs" / "demo.yaml", tmp_path / "graphs" / "demo.yaml")
+    report = run_graph(str(tmp_path / "graphs" / "demo.yaml"), store=str(tmp_path / "runs" / "demo"))
+    assert shown == {r.node: f"{r.chunks_written}/{r.chunks_total}" for r in report.nodes}
