@@ -108,3 +108,18 @@ def test_first_hour_demo_table_shows_the_chunks_a_run_writes(tmp_path):
     shutil.copy(ROOT / "graphs" / "demo.yaml", tmp_path / "graphs" / "demo.yaml")
     report = run_graph(str(tmp_path / "graphs" / "demo.yaml"), store=str(tmp_path / "runs" / "demo"))
     assert shown == {r.node: f"{r.chunks_written}/{r.chunks_total}" for r in report.nodes}
+
+
+def test_the_viewer_page_starts_with_a_run_of_what_the_viewer_shows(registry):
+    """docs/viewer.md's first commands run a graph and view some of its nodes: the run computes those nodes
+    and what they need, and nothing the viewer does not show (a Mip node, renders)."""
+    from sbrdf_core.runner import Runner
+
+    block = re.search(r"```sh\n(.*?)```", (ROOT / "docs" / "viewer.md").read_text(), re.S).group(1)
+    run = re.search(r"^sbrdf run (\S+)(?: --only ([\w ]+?))?\s*(?:#.*)?$", block, re.M)
+    viewed = set(re.findall(r"^sbrdf view runs/[\w-]+/(\w+)", block, re.M))
+    graph = load_graph(str(ROOT / run.group(1)), registry)
+    ran = Runner._closure(graph, run.group(2).split() if run.group(2) else None)
+    assert viewed <= ran
+    needed = Runner._closure(graph, sorted(viewed))
+    assert ran == needed, f"the run also computes {sorted(ran - needed)}, which the viewer does not show"
