@@ -40,9 +40,12 @@ Method (vectorised over texels, in batches of :data:`BATCH`):
    cosine lobe; a microfacet model's α as it is), with ρ_d, s·F0c and s solved
    by linear least squares for each.  The shared batched LM
    (:func:`sbrdf_lib.lm.fit_model`) then refines it on the cosine-weighted
-   objective Σ cos θ_i cos θ_o |f − f_src|² (:class:`CosineWeighted`): a
-   renderer's pixel sees f · cos θ_i under a light, and a surface seen at
-   θ_o covers cos θ_o of the image it would cover face-on.  An unweighted fit
+   objective ∫∫ |f − f_src|² cos θ_i cos θ_o dω_i dω_o, summed over the pairs
+   with the quadrature weights of :func:`pair_weight` (:class:`CosineWeighted`):
+   a renderer's pixel sees f · cos θ_i under a light, and a surface seen at
+   θ_o covers cos θ_o of the image it would cover face-on.  Without the
+   quadrature weights the many pairs packed at each specular peak rule the
+   sum, and a lobe GGX cannot follow there is traded for a brighter diffuse.  An unweighted fit
    is ruled by the grazing pairs, where GGX's 1/(cos θ_i cos θ_o) peak is
    largest and a viewer rarely looks.  A source that already is cook-torrance
    GGX skips the fit (its parameters, clipped to the target's bounds, s = 1,
@@ -61,7 +64,8 @@ Method (vectorised over texels, in batches of :data:`BATCH`):
    :data:`METAL_PREFERENCE`), since core glTF readers without the extension
    show it right.  roughness = √α.
 5. **Error.**  Per texel, the relative RMS of the converted BRDF against the
-   source on the held-out pairs, weighted by cos θ_i cos θ_o:
+   source on the held-out pairs, each weighted by its :func:`pair_weight`
+   (the cosine-weighted integral over the hemisphere):
    ``sqrt(Σ w |f_conv − f_src|²) / sqrt(Σ w |f_src|²)`` over RGB.  Texels whose
    error is above the exporter's ``flag_error`` (default :data:`FLAG_ERROR`)
    are flagged: the format cannot show them as fitted.  A texel whose source is
@@ -105,6 +109,7 @@ __all__ = [
     "ggx_model",
     "gltf_brdf",
     "mapped_alpha",
+    "pair_weight",
     "relative_error",
     "to_ggx",
     "to_ggx_blocks",
@@ -176,6 +181,37 @@ def direction_pairs(held_out: bool = False, max_theta_deg: float | None = None) 
     keep = wo[:, 2] >= np.cos(limit)
     wo = wo[keep] / np.linalg.norm(wo[keep], axis=1, keepdims=True)
     return np.ascontiguousarray(wi_all[keep]), np.ascontiguousarray(wo)
+
+
+#: Largest half-vector angle of the mirrored pairs (:func:`direction_pairs`), rad.
+_MIRROR_THETA_H = np.radians(60.0)
+#: The share of mirrored pairs among a fitting set's outgoing directions (16 of 24; held-out 11 of 17).
+_MIRROR_SHARE = 2.0 / 3.0
+
+
+def pair_weight(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """Quadrature weight of each ``(wi, wo)`` pair of :func:`direction_pairs` for ∫∫ g cos θ_i cos θ_o dω_i dω_o.
+
+    The pairs are not spread evenly: two thirds are mirrored about half-vectors
+    packed near the normal (density p_m(ω_o | ω_i) = p(h) / (4 ω_o·h) with
+    p(h) = 1 / (4π sin θ_h √(Θ θ_h)), θ_h = Θ u², Θ = 60°), a third are
+    cosine-distributed (p_d = cos θ_o / π); the incident directions are
+    cosine-distributed, which accounts for cos θ_i.  The balance heuristic's
+    weight cos θ_o / (⅔ p_m + ⅓ p_d) turns a sum over the pairs into the
+    cosine-weighted integral a renderer's pixels add up, instead of one ruled
+    by the many pairs at each specular peak.  The scale is arbitrary (only
+    ratios are used); 0 below the horizon.  Shaped like ``wi`` without its last axis.
+    """
+    ci, co = wi[..., 2], wo[..., 2]
+    h = wi + wo
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+    th = np.arccos(np.clip(h[..., 2], -1.0, 1.0))
+    with np.errstate(all="ignore"):
+        p_h = 1.0 / (4.0 * np.pi * np.sin(th) * np.sqrt(_MIRROR_THETA_H * th))
+        p_m = np.where((th > 0) & (th <= _MIRROR_THETA_H), p_h / (4.0 * np.maximum(np.sum(wo * h, axis=-1), 1e-9)), 0.0)
+        p_m = np.where(th > 0, p_m, np.inf)  # the exact mirror pair: a point of the integral, weight 0
+        w = co / (_MIRROR_SHARE * p_m + (1.0 - _MIRROR_SHARE) * co / np.pi)
+    return np.where((ci > 0) & (co > 0) & np.isfinite(w), w, 0.0)
 
 
 def ggx_model(registry=None):
@@ -302,10 +338,11 @@ class SpecularGGX(BRDFModel):
 
 
 class CosineWeighted(BRDFModel):
-    """A fit form whose f_r and Jacobian are scaled by √(cos θ_i cos θ_o).
+    """A fit form whose f_r and Jacobian are scaled by √w, w the pair's :func:`pair_weight`.
 
     An unweighted least squares of this against ``√w f_src`` is the
-    cosine-weighted least squares of ``form`` against ``f_src``: the engine
+    cosine-weighted least squares of ``form`` against ``f_src`` over the
+    hemisphere (the pairs' uneven spread undone by ``w``): the engine
     (:func:`sbrdf_lib.lm.fit_model`) stays unweighted and model-agnostic.  The
     weight is a function of the directions alone, so any subset of texels the
     engine refits sees the same objective.
@@ -319,8 +356,8 @@ class CosineWeighted(BRDFModel):
 
     @staticmethod
     def weight(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-        """√(cos θ_i cos θ_o), 0 below the horizon; shaped like ``wi`` without its last axis."""
-        return np.sqrt(np.maximum(wi[..., 2], 0.0) * np.maximum(wo[..., 2], 0.0))
+        """√ of :func:`pair_weight`; shaped like ``wi`` without its last axis."""
+        return np.sqrt(pair_weight(wi, wo))
 
     def eval(self, params, wi, wo):
         return self.form.eval(params, wi, wo) * self.weight(wi, wo)[..., None]
@@ -351,13 +388,15 @@ def _eval(model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
 
 
 def _cos_weight(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-    return wi[:, 2] * wo[:, 2]
+    return pair_weight(wi, wo)
 
 
 def relative_error(f: np.ndarray, f_src: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """Per-texel cosine-weighted relative RMS ``sqrt(Σ w|f − f_src|²) / sqrt(Σ w|f_src|²)``, ``(T,)``.
 
-    ``f``, ``f_src``: ``(T, S, 3)``; ``wi``, ``wo``: the shared ``(S, 3)`` pairs.
+    ``f``, ``f_src``: ``(T, S, 3)``; ``wi``, ``wo``: the shared ``(S, 3)`` pairs of
+    :func:`direction_pairs`, ``w`` their :func:`pair_weight` (the integral over
+    the hemisphere, cos θ_i cos θ_o weighted).
     Zero source: 0 where ``f`` is zero too, else 1; non-finite values give 1.
     """
     w = _cos_weight(wi, wo)[None, :, None]
