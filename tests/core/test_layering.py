@@ -136,3 +136,25 @@ def test_the_core_has_no_import_cycles():
 
 def test_the_cycle_finder_finds_a_cycle():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_the_architecture_page_draws_the_cores_layers_as_they_are():
+    """docs/architecture.md draws the core in rows; a module there imports only its own row or rows under it."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    block = re.search(r"```text\n( command line.*?)```", text, re.S).group(1)
+    rows: list[list[str]] = []
+    for line in block.splitlines():
+        if line[:17].strip():
+            rows.append([])
+        rows[-1] += [f"{CORE}." + m.strip().rstrip("/").replace("/", ".") for m in line[17:50].split(",") if m.strip()]
+
+    def row(module: str) -> int | None:
+        """The row of the longest drawn name that is the module or a package holding it."""
+        found = [(len(m), i) for i, r in enumerate(rows) for m in r if module == m or module.startswith(m + ".")]
+        return max(found)[1] if found else None
+
+    edges = core_import_graph()
+    upward = [f"{a} -> {b}" for a, bs in edges.items() for b in bs
+              if row(a) is not None and row(b) is not None and row(b) < row(a)]
+    assert not upward, "\n".join(upward)
+    assert row(f"{CORE}.types") is not None and row(f"{CORE}.store._artifact") is not None
