@@ -290,6 +290,7 @@ def test_fill_valued_chunks_are_written_so_a_missing_file_means_a_lost_chunk(tmp
     assert check_artifact(url).chunks == {"rms": {"1"}}
 
 
+@pytest.mark.slow  # a dask.distributed cluster of worker processes
 def test_a_damaged_chunk_read_on_a_cluster_is_named_too(store, cluster):
     _, client = cluster
     s, run = store

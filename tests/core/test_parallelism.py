@@ -52,6 +52,7 @@ def test_a_users_setting_is_kept():
     assert _threads("threads", OPENCV_FOR_THREADS_NUM="3") == 3
 
 
+@pytest.mark.slow  # a dask.distributed cluster of worker processes
 def test_cluster_workers_start_with_opencvs_pool_off():
     """A LocalCluster started under CLUSTER_CONFIG passes WORKER_ENV to its worker processes."""
     import dask

@@ -93,6 +93,7 @@ def test_resume_after_sigkill_gives_identical_result(write_graph, registry, tmp_
     assert_stores_equal(tmp_path / "killed", tmp_path / "clean")
 
 
+@pytest.mark.slow  # a dask.distributed cluster of worker processes
 def test_distributed_run_is_identical_to_local(write_graph, registry, tmp_path, cluster):
     _, client = cluster
     run(write_graph, registry, tmp_path / "local")
@@ -101,6 +102,7 @@ def test_distributed_run_is_identical_to_local(write_graph, registry, tmp_path, 
     assert_stores_equal(tmp_path / "local", tmp_path / "dist")
 
 
+@pytest.mark.slow  # a dask.distributed cluster of worker processes
 @pytest.mark.parametrize("victim_node", ["capture", "register"])  # per-chunk tasks; streamed chunk groups
 def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, cluster, victim_node):
     _, client = cluster
@@ -122,6 +124,7 @@ def test_losing_a_worker_mid_run_loses_nothing(write_graph, registry, tmp_path, 
     assert_stores_equal(tmp_path / "local", tmp_path / "dist")
 
 
+@pytest.mark.slow  # a dask.distributed cluster of worker processes
 def test_a_worker_dying_with_the_only_copy_of_scattered_data_loses_nothing(write_graph, registry, tmp_path, caplog):
     """Register's shared data is scattered to the workers present; one that joins later has
     no copy. Kill the one that does: the scheduler cannot recompute scattered data, so the
@@ -151,6 +154,7 @@ def test_a_worker_dying_with_the_only_copy_of_scattered_data_loses_nothing(write
     assert_stores_equal(tmp_path / "local", tmp_path / "dist")
 
 
+@pytest.mark.slow  # a dask.distributed cluster of worker processes
 def test_no_worker_left_fails_clearly_and_stays_resumable(write_graph, registry, tmp_path):
     from distributed import Client, LocalCluster
 

@@ -22,6 +22,9 @@ pytest.importorskip("s3fs")
 moto_server = pytest.importorskip("moto.server")
 distributed = pytest.importorskip("distributed")
 
+#: A moto S3 server and dask.distributed clusters: run with ``-m slow``.
+pytestmark = pytest.mark.slow
+
 import fsspec  # noqa: E402
 import fsspec.config  # noqa: E402
 

@@ -71,6 +71,7 @@ class MostTasks(SchedulerPlugin):
         self.most = max(self.most, len(self.scheduler.tasks))
 
 
+@pytest.mark.slow  # a dask.distributed cluster of worker processes
 @pytest.mark.parametrize("node", ["register", "reflectance"])
 def test_the_scheduler_holds_a_window_not_the_scan(registry, tmp_path, cluster, node, monkeypatch):
     lc, client = cluster
