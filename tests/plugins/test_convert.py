@@ -203,3 +203,63 @@ def test_canonical_anisotropic_ggx_is_the_same_brdf(aniso, seed):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
 
     check()
+
+
+# -- the weighted target: what keeps a glossy fit glossy -------------------------------------------------------
+
+
+def test_specular_ggx_jacobian_matches_finite_differences(ggx):
+    target = cv.SpecularGGX(ggx)
+    form = target.fit_form()
+    wi, wo = cv.direction_pairs()
+    rng = np.random.default_rng(4)
+    T = 5
+    p = {"rho_d": rng.uniform(0.02, 0.2, (T, 3)), "specular_color": rng.uniform(0.1, 1.0, (T, 3)),
+         "specular": rng.uniform(0.05, 1.0, (T, 1)), "alpha": rng.uniform(0.05, 0.8, (T, 1))}
+    x = form.pack(form.from_model(p))
+    bwi, bwo = np.broadcast_to(wi, (T,) + wi.shape), np.broadcast_to(wo, (T,) + wo.shape)
+    J = form.jacobian(form.unpack(x), bwi, bwo)
+    for k in range(x.shape[1]):
+        h = 1e-6 * np.maximum(np.abs(x[:, k]), 1.0)
+        xp, xm = x.copy(), x.copy()
+        xp[:, k] += h
+        xm[:, k] -= h
+        num = (form.eval(form.unpack(xp), bwi, bwo) - form.eval(form.unpack(xm), bwi, bwo)) / (2 * h)[:, None, None]
+        np.testing.assert_allclose(J[..., k], num, rtol=1e-5, atol=1e-6 * np.abs(num).max())
+    # s = 1 is the lobe model itself
+    one = {**p, "specular": np.ones((T, 1))}
+    lobe = {"rho_d": p["rho_d"], "f0": p["specular_color"], "alpha": p["alpha"]}
+    np.testing.assert_allclose(target.eval(one, bwi, bwo), ggx.eval(lobe, bwi, bwo), rtol=1e-12)
+
+
+def test_pair_weights_make_the_sum_a_cosine_weighted_integral():
+    """Σ w g over the pairs / Σ w = the cosine-weighted mean of g over the hemisphere, for g = cos θ_o and for a
+    lobe about the mirror direction, although two thirds of the pairs sit near the mirror."""
+    wi, wo = cv.direction_pairs(max_theta_deg=89.0)
+    w = cv.pair_weight(wi, wo)
+    assert (w >= 0).all() and w.sum() > 0
+    # E[cos θ_o] under a cos θ_o density on the hemisphere: (2π/3) / π = 2/3
+    assert float(np.sum(w * wo[:, 2]) / w.sum()) == pytest.approx(2 / 3, rel=0.05)
+    # a mirror lobe cos^20 of the angle to the mirror direction: ∫ cos^20 ψ cos θ_o dω_o ≈ 2π/22 cos θ_i
+    mirror = wi * [-1, -1, 1]
+    g = np.clip(np.sum(mirror * wo, axis=1), 0, 1) ** 20
+    plain = float(g.mean() / np.mean(wo[:, 2]))  # the unweighted pair mean: ruled by the mirrored pairs
+    weighted = float(np.sum(w * g) / np.sum(w * wo[:, 2]))
+    want = float(np.mean(2 * np.pi / 22 * wi[:, 2]) / (np.pi * 2 / 3)) * 1.0  # lobe integral over the cos mean
+    assert weighted == pytest.approx(want, rel=0.25) and plain > 3 * want
+
+
+def test_glossy_lafortune_lobe_converts_glossy_and_alpha_stays_within_one(reg, ggx):
+    """The demo's texels (exponent ~60, peak ρ_s ~0.3-0.7) exported at roughness 1; now near √α(n) = 0.42."""
+    laf = reg.create("brdf-model", "lafortune", {"lobes": 1})
+    T = 6
+    p = {"rho_d": np.full((T, 3), 0.1), "rho_s_1": np.linspace(0.1, 0.7, T)[:, None] * [1.0, 0.9, 0.8],
+         "c_xy_1": np.full((T, 1), -1.0), "c_z_1": np.ones((T, 1)), "exponent_1": np.full((T, 1), 60.0)}
+    gltf, err = cv.to_gltf_pbr(laf, p, ggx)
+    assert (gltf["roughness"] < 0.5).all() and (gltf["roughness"] > 0.2).all()
+    assert (gltf["metallic"] == 0).all() and (gltf["specular"] < 1).all()  # the weight dims the grazing Fresnel
+    assert (gltf["specular_color"] <= 1 / cv.DIELECTRIC_F0 + 1e-9).all()
+    assert (err < cv.FLAG_ERROR).all()
+    np.testing.assert_allclose(gltf["base_color"], 0.1 * np.pi, atol=0.05)  # the diffuse is not inflated
+    usd = cv.to_ggx(laf, p, ggx, grazing=False)  # USD: no weight, s = 1, α still within the format's range
+    assert (usd["specular"] == 1).all() and (usd["alpha"] <= 1).all() and usd["flagged"].dtype == bool
