@@ -627,7 +627,7 @@ def _grid_start(target: SpecularGGX, f_src, ok, wi, wo, grazing: bool) -> tuple[
         b = target_f.reshape(T, -1) @ wc.reshape(-1, n)  # (T, n)
         ff = np.einsum("tsc,s->t", target_f**2, w)
 
-        def score(x):
+        def score(x, ff=ff, b=b, A=A):
             return ff - 2 * np.einsum("ti,ti->t", x, b) + np.einsum("ti,ij,tj->t", x, A, x)
 
         x = np.linalg.solve(A, b.T).T
