@@ -56,19 +56,16 @@ Sizes: full = 64×64 texels per data set × 300 training + 100 held-out pairs
 data set (about a minute on 2 cores).  ``--docs`` also runs the
 accuracy-vs-time sweep of ``docs/accuracy-vs-time.md`` and rewrites it.
 
-The ``lm`` figures are its defaults; the ``_vp`` keys are the same fits with
-``variable_projection: true`` (opt-in: faster, but a higher error at unseen
-directions in benchmarks/fidelity.py).  ``lmL_fit_cpu_ms_per_texel`` is the
+The ``lm`` figures are its defaults.  ``lmL_fit_cpu_ms_per_texel`` is the
 part of lmL's time inside the fitter's ``fit`` (the rest is the Fit node's
 own work on the tile: directions, sample support and angular resolution for
 the limits, enforcement, the RMS's evaluation, flags), and
 ``speedup_cpu_lmL_fit`` the peer's time over it: the fit alone against the
 peer's fit, which does none of that work.
 
-Last line: ``fit: texels=... peer_cpu_ms_per_texel=... lm1_cpu_ms_per_texel=...
+Last line: ``fit_peer: texels=... peer_cpu_ms_per_texel=... lm1_cpu_ms_per_texel=...
 lm2_cpu_ms_per_texel=... speedup_cpu_lm1=... speedup_cpu_lm2=...
-rms_ratio_lm2=... failed_lm2=... failed_peer=... speedup_cpu_lm1_vp=...
-speedup_cpu_lm2_vp=... rms_ratio_lm2_vp=... failed_lm2_vp=... lm1_fit_cpu_ms_per_texel=...
+rms_ratio_lm2=... failed_lm2=... failed_peer=... lm1_fit_cpu_ms_per_texel=...
 lm2_fit_cpu_ms_per_texel=... speedup_cpu_lm1_fit=... speedup_cpu_lm2_fit=...
 failed_lm1=... failed_lm1_energy=... failed_lm2_energy=... sweep_texels=...
 sweep_missed_lm1=... sweep_missed_flagged=...``
@@ -305,14 +302,13 @@ def run_peer(data, lobes, region=None):
 
 # -- the project: the Fit node's tile kernel with the lm fitter ---------------------------------------
 
-def lm_setup(lobes, variable_projection=False):
+def lm_setup(lobes):
     """``(model, fitter)`` for :func:`run_lm`, made once (the registry's plugin loading is off the clock anyway)."""
     from sbrdf_core.registry import Registry
 
     reg = Registry()
     return (reg.create("brdf-model", "lafortune", {"lobes": lobes}),
-            reg.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": lobes},
-                                        "variable_projection": variable_projection}))
+            reg.create("fitter", "lm", {"model": "lafortune", "model_params": {"lobes": lobes}}))
 
 
 class TimedFitter:
@@ -322,7 +318,7 @@ class TimedFitter:
     def __init__(self, fitter):
         self.fitter, self.cpu_s = fitter, 0.0
 
-    def fit(self, model, f_r, valid, wi, wo, limits=None, rms=True, usable=False):  # lm's keywords (the node reads them)
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False):
         c0 = time.process_time()
         try:
             return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms, usable=usable)
@@ -330,13 +326,13 @@ class TimedFitter:
             self.cpu_s += time.process_time() - c0
 
 
-def run_lm(data, lobes, tile=32, variable_projection=False, regions=None, setup=None):
+def run_lm(data, lobes, tile=32, regions=None, setup=None):
     """``lm`` through the Fit node's tile kernel, timed (``fit_cpu_s``: the fitter's part): on ``regions``, their
     texels in that order (``texels``; :func:`merge` puts parts together), or by default every tile, in row-major
     texel order."""
     from sbrdf_core.nodes.fit import EXTRA, NONFINITE_RESULT, NOT_CONVERGED, FitOptions, fit_tile
 
-    model, plain = setup or lm_setup(lobes, variable_projection)
+    model, plain = setup or lm_setup(lobes)
     fitter = TimedFitter(plain)
     options = FitOptions(holdout=0.0)
     side = data["side"]
@@ -390,26 +386,26 @@ def reflects_too_much(params, lobes):
 
 
 def compare(data, lobes):
-    """The peer, lm and lm with variable projection on the same texels, interleaved tile by tile.
+    """The peer and lm on the same texels, interleaved tile by tile.
 
     Each tile is fitted by the three one after the other and each one's times are summed over the tiles, so a
     change in the machine's speed during the run (this VM's other tenants) reaches all three alike.  Run one
     after the other, the peer's minutes and lm's seconds fell in different phases of it: in one sitting the
     2-lobe peer took 8.4, 9.4 and 10.6 ms a texel in three runs.
     """
-    setups = {"lm": lm_setup(lobes), "vp": lm_setup(lobes, variable_projection=True)}
-    parts: dict[str, list] = {"peer": [], "lm": [], "vp": []}
+    setups = {"lm": lm_setup(lobes)}
+    parts: dict[str, list] = {"peer": [], "lm": []}
     for region in tiles(data["side"]):
         parts["peer"].append(run_peer(data, lobes, region))
         for who, setup in setups.items():
             parts[who].append(run_lm(data, lobes, regions=[region], setup=setup))
     T = data["side"] ** 2
-    peer, lm, vp = (score(data, merge(parts[who], T), lobes) for who in ("peer", "lm", "vp"))
+    peer, lm = (score(data, merge(parts[who], T), lobes) for who in ("peer", "lm"))
     best = np.minimum(peer["rms"], lm["rms"])
     # Where the peer's fit is the better one but reflects more than it receives, lm's bounded fit cannot match it.
     unphysical_best = (peer["rms"] <= lm["rms"]) & reflects_too_much(peer["params"], lobes)
     row = {"set": data["name"], "lobes": lobes, "texels": T}
-    for who, r in (("peer", peer), ("lm", lm), ("vp", vp)):
+    for who, r in (("peer", peer), ("lm", lm)):
         fail = failed(r, best)
         row[who] = {"cpu_ms": 1e3 * r["cpu_s"] / T, "wall_ms": 1e3 * r["wall_s"] / T, "fit_cpu_ms": 1e3 * r["fit_cpu_s"] / T,
                     "rms": float(np.mean(r["rms"][r["finite"]])), "held": float(np.mean(r["held"][r["finite"]])),
@@ -423,7 +419,6 @@ def warm_up():
     data = make_dataset("peer", 4, 60, 10, seed=99)
     for lobes in (1, 2):
         run_lm(data, lobes)
-        run_lm(data, lobes, variable_projection=True)
 
 def graph_text(texels, poses, fits: dict[str, dict], noise=NOISE, seed=0) -> str:
     sample = {"model": "lafortune", "model_params": TWO_LOBES, "texels": list(texels), "poses": poses,
@@ -581,21 +576,15 @@ def main() -> int:
                   f"lm {m['cpu_ms']:7.3f} ms CPU {m['wall_ms']:7.3f} ms wall, RMS {m['rms']:.5f} "
                   f"held-out {m['held']:.5f}, failed {m['failed']} (unfinished {m['unfinished']}; "
                   f"{m['failed_energy']} where the better fit reflects more than it receives) | "
-                  f"speedup CPU {p['cpu_ms'] / m['cpu_ms']:.1f}x wall {p['wall_ms'] / m['wall_ms']:.1f}x | "
-                  f"variable projection {row['vp']['cpu_ms']:7.3f} ms CPU, RMS {row['vp']['rms']:.5f} held-out "
-                  f"{row['vp']['held']:.5f}, failed {row['vp']['failed']}, speedup CPU "
-                  f"{p['cpu_ms'] / row['vp']['cpu_ms']:.1f}x", flush=True)
+                  f"speedup CPU {p['cpu_ms'] / m['cpu_ms']:.1f}x wall {p['wall_ms'] / m['wall_ms']:.1f}x", flush=True)
     one, two = rows[0], rows[1]
     sweep_texels, sweep_missed, sweep_flagged = shape_sweep(side // 2)
-    line = (f"fit: texels={one['texels']} peer_cpu_ms_per_texel={two['peer']['cpu_ms']:.3f} "
+    line = (f"fit_peer: texels={one['texels']} peer_cpu_ms_per_texel={two['peer']['cpu_ms']:.3f} "
             f"lm1_cpu_ms_per_texel={one['lm']['cpu_ms']:.4f} lm2_cpu_ms_per_texel={two['lm']['cpu_ms']:.4f} "
             f"speedup_cpu_lm1={one['peer']['cpu_ms'] / one['lm']['cpu_ms']:.1f} "
             f"speedup_cpu_lm2={two['peer']['cpu_ms'] / two['lm']['cpu_ms']:.1f} "
             f"rms_ratio_lm2={two['lm']['rms'] / two['peer']['rms']:.4f} "
             f"failed_lm2={two['lm']['failed']} failed_peer={two['peer']['failed']} "
-            f"speedup_cpu_lm1_vp={one['peer']['cpu_ms'] / one['vp']['cpu_ms']:.1f} "
-            f"speedup_cpu_lm2_vp={two['peer']['cpu_ms'] / two['vp']['cpu_ms']:.1f} "
-            f"rms_ratio_lm2_vp={two['vp']['rms'] / two['peer']['rms']:.4f} failed_lm2_vp={two['vp']['failed']} "
             f"lm1_fit_cpu_ms_per_texel={one['lm']['fit_cpu_ms']:.4f} lm2_fit_cpu_ms_per_texel={two['lm']['fit_cpu_ms']:.4f} "
             f"speedup_cpu_lm1_fit={one['peer']['cpu_ms'] / one['lm']['fit_cpu_ms']:.1f} "
             f"speedup_cpu_lm2_fit={two['peer']['cpu_ms'] / two['lm']['fit_cpu_ms']:.1f} "

@@ -100,8 +100,7 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     ``mirror``: the integrand is symmetric under φ_o → −φ_o (an isotropic
     model, ω_i in the xz-plane), so half the φ grid with doubled weights gives
     the same sum (its midpoints pair up across the plane: n_phi even); half the work.
-    A model with ``albedo_quadrature`` (Lafortune: a compiled loop) sums the
-    grid itself; the others are evaluated on it with ``eval``.
+    The grid is evaluated by :func:`~sbrdf_core.brdf.evaluate` (compiled where the model has a fit kernel).
     """
     T = _texels(model, params)
     wi = np.broadcast_to(np.asarray(wi, dtype=np.float64), (T, 3))
@@ -109,9 +108,6 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     if mirror and n_phi % 2 == 0:
         half = (np.arange(n_theta * n_phi) % n_phi) < n_phi // 2  # φ in (0, π): rows are θ, n_phi φ each
         dirs, weights = dirs[half], 2.0 * weights[half]
-    compiled = optional(model, "albedo_quadrature", "brdf-model")
-    if compiled is not None:
-        return np.asarray(compiled(params, np.ascontiguousarray(wi), dirs, weights), np.float64)
     out = np.zeros((T, 3))
     step = max(1, CHUNK // max(T, 1))
     for start in range(0, len(dirs), step):
@@ -198,13 +194,11 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
 
 def _albedo_at(model: BRDFModel, params: Mapping[str, np.ndarray], dirs: np.ndarray, mirror: bool, n_theta: int,
                n_phi: int) -> np.ndarray:
-    """:func:`directional_albedo` at each of ``dirs`` ``(D, 3)``, ``(T, D, 3)``; for a model with a compiled
-    ``albedo_quadrature``, in one call, the texels repeated per direction (the same sums).  Why: that call pays a
-    parallel launch and the grid's set-up each time, most of its time for the few texels the Fit node integrates
-    (five directions a check, two checks a tile: ten launches become two).  A model evaluated with
-    ``eval`` gains nothing (its cost is per evaluation) and keeps a call per direction, whose chunks of the grid,
-    and so its sums' order, do not depend on D."""
-    if optional(model, "albedo_quadrature", "brdf-model") is None:
+    """:func:`directional_albedo` at each of ``dirs`` ``(D, 3)``, ``(T, D, 3)``; for a model with a fit kernel, in
+    one call, the texels repeated per direction (the same sums): the compiled evaluation then gets batches big
+    enough to pay for it.  A model evaluated with ``eval`` gains nothing (its cost is per evaluation) and keeps a
+    call per direction, whose chunks of the grid, and so its sums' order, do not depend on D."""
+    if getattr(model.fit_form(), "kernel", None) is None:
         return np.stack([directional_albedo(model, params, d, n_theta, n_phi, mirror) for d in dirs], axis=1)
     T, D = _texels(model, params), len(dirs)
     rows = {k: np.concatenate([np.broadcast_to(np.asarray(v), (T,) + np.shape(v)[1:])] * D) for k, v in params.items()}

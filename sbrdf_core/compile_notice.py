@@ -6,7 +6,7 @@ the Fit node's bar sits at 0 % and then, after its first chunk, shows an
 estimate of an hour.  numba announces each compilation that is not a cache hit
 (the ``numba:compile`` event), so the bar can say what it waits for::
 
-    fit         :   0%|          | 0/72 [00:20<?, ?chunk/s, numba compiling lafortune_kernels.lm_isotropic: first run on this machine only]
+    fit         :   0%|          | 0/72 [00:20<?, ?chunk/s, numba compiling the fitting engine (solve) for sbrdf_models.lafortune: first run on this machine only]
 
 :func:`watch` routes those events to the bar shown now; a compilation inside
 another (a kernel's callees) is part of the outer one.  Runs on a
@@ -32,10 +32,14 @@ def _note(name: str) -> str:
 
 
 def _kernel_name(dispatcher) -> str:
-    """``lafortune_kernels.lm_isotropic``: the module's last part and the function's name."""
+    """``lafortune_kernels.constrain_packed``: the module's last part and the function's name; for the fitting
+    engine's loops (``sbrdf_core.engine``), which loop and the model whose kernel it is compiled around."""
     func = getattr(dispatcher, "py_func", None)
     if func is None:
         return "a kernel"
+    module = getattr(func, "__module__", "")
+    if module.startswith("sbrdf_kernels."):  # lm_<kernel module with _>_<kernel name>_<digest>
+        return f"the fitting engine ({func.__name__}) for {module.partition('.lm_')[2].rsplit('_', 1)[0]}"
     return f"{getattr(func, '__module__', '').rpartition('.')[2]}.{func.__name__}".lstrip(".")
 
 

@@ -301,14 +301,6 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
     "brdf-model": {
         "anisotropic": OptionalMember("`anisotropic`: the model needs a tangent frame.", True),
         "two_sided": OptionalMember("`two_sided`: the model also shades the back face (transmission).", False),
-        "albedo_quadrature": OptionalMember("`albedo_quadrature(params, wi, dirs, weights) -> (T, C)`: Σ_o w_o f_r(ω_i, "
-                                            "ω_o) over a quadrature's directions for one ω_i per texel, compiled; "
-                                            "the energy bound's integral (`directional_albedo`) without `eval` on "
-                                            "the whole grid.", None),
-        "squared_residuals": OptionalMember("`squared_residuals(params, wi, wo, f_r) -> (T, S) or None`: Σ_c (eval − "
-                                            "f_r)² per sample, what the Fit node scores a fit by, without the "
-                                            "`(T, S, C)` prediction (None: not for these inputs; the node then "
-                                            "uses `eval`).", None),
         "albedo_bound": OptionalMember("`albedo_bound(params)`: a cheap upper bound of directional albedo, so only "
                                  "texels it does not clear are integrated.", None),
         "gl_textures": OptionalMember("`gl_textures() -> {uniform: array}`: textures the model's GLSL samples (a "

@@ -135,28 +135,32 @@ class BRDFModelTests(PluginTests):
                 assert not bad.any(), f"{m.name}: Jacobian columns {np.flatnonzero(bad.any(axis=(0, 1, 2)))} disagree"
                 assert np.all(J[:, :4] == 0.0)
 
-    def test_squared_residuals_are_those_of_eval(self):
-        """A model's optional ``squared_residuals`` (what the Fit node scores fits by) gives Σ_c (eval − f_r)² per
-        sample wherever it does not return None, pairs below the horizon included."""
+    def test_fit_kernel_is_the_fit_forms_eval_and_jacobian(self):
+        """A model's optional ``fit_kernel`` (what the fitting engine compiles) gives the fit form's ``eval`` and
+        ``jacobian`` at every direction pair, pairs below the horizon included (the kernel run as plain Python)."""
         from .brdf_checks import hemisphere_directions
-        from .nodes.fit import sample_squares
 
         for model in self.models():
-            own = getattr(model, "squared_residuals", None)
-            if own is None:
+            form = model.fit_form()
+            kernel = getattr(form, "kernel", None)
+            if kernel is None:
                 continue
+            kernel = getattr(kernel, "py_func", kernel)
             rng = np.random.default_rng(5)
-            T, S = 8, 640  # enough samples for a compiled path that needs them
-            params = model.random_guess(rng, T)
+            T, S = 4, 24
+            params = form.from_model(model.random_guess(rng, T))
+            x = form.pack(params)
             wi, wo = hemisphere_directions(rng, (T, S)), hemisphere_directions(rng, (T, S))
-            wi[:, :4, 2] *= -1
-            f_r = rng.lognormal(-2.0, 1.0, (T, S, 3))
-            got = own(params, wi, wo, f_r)
-            if got is None:
-                continue
-            want = sample_squares(model.eval(params, wi, wo) - f_r)
-            assert np.shape(got) == (T, S)
-            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300, err_msg=model.name)
+            wi[:, :3, 2] *= -1
+            f_ref, J_ref = form.eval(params, wi, wo), form.jacobian(params, wi, wo)
+            cfg = np.asarray(form.kernel_config(), np.float64)
+            f, J = np.empty(f_ref.shape[-1]), np.empty((f_ref.shape[-1], x.shape[1]))
+            for t in range(T):
+                for s_ in range(S):
+                    kernel(x[t], cfg, wi[t, s_], wo[t, s_], f, J)
+                    np.testing.assert_allclose(f, f_ref[t, s_], rtol=1e-9, atol=1e-12, err_msg=model.name)
+                    np.testing.assert_allclose(J, J_ref[t, s_], rtol=1e-7, atol=1e-9 * max(1.0, np.abs(J_ref).max()),
+                                               err_msg=model.name)
 
     def test_finite_at_parameter_bounds_and_zero_below_horizon(self):
         theta = np.array([0.0, 45.0, 85.0, 89.0, 89.99, 90.0, 95.0, 180.0])

@@ -16,19 +16,6 @@ texel's :class:`~sbrdf_core.constraints.Limits` (bounded peak, resolvable
 sharpness), so the fit is the best one *inside* them, not a clipped
 unbounded one.  Parameters named in ``fixed`` keep their initial value.
 
-A fit form with a ``separable_fit`` method (Lafortune with 1–2 isotropic
-lobes, Lambert) can be solved that way instead when nothing asks for the
-general machinery (one start, linear loss, no fixed parameters): variable
-projection, where only the nonlinear shape parameters iterate and the
-magnitudes are solved in closed form at every evaluation; the result is then
-projected onto the limits and, where that moved it, refined by the general
-LM.  It is taken where the form says it is exact (``separable_exact``:
-Lambert's closed form) or the caller asks (``separable=True``, the ``lm``
-fitter's ``variable_projection``): with the general LM compiled per texel
-too it saves no time (benchmarks/fit.py), and it finds fits with a higher
-error at unseen directions (benchmarks/fidelity.py, GGX truth), so it is not
-the default.
-
 Starting points do not depend on luck: the model's own initial guess and a
 Sobol set over the parameters' typical ranges, each with its magnitudes
 solved linearly (:meth:`~sbrdf_core.brdf.BRDFModel.refine_linear`), are
@@ -55,8 +42,6 @@ __all__ = [
     "LOSSES",
     "MAX_DAMPING",
     "Projection",
-    "START",
-    "STARTS_FROM",
     "candidate_starts",
     "cost_outliers",
     "diffuse_percentile",
@@ -67,7 +52,6 @@ __all__ = [
     "rescue",
     "robust_weights",
     "sample_weights",
-    "separable_start",
     "starting_points",
     "total_cost",
     "valid_median",
@@ -317,35 +301,6 @@ WEIGHTING = Param("weighting", "str", "shot-noise", "what the least squares weig
                   choices=tuple(WEIGHTINGS))
 
 
-#: Where LM starts each texel (:func:`fit_model`'s ``start``).
-STARTS_FROM = ("guess", "separable")
-
-
-#: The ``start`` parameter of the fitters that run :func:`fit_model`'s LM (``lm``, ``lm-gl``).
-START = Param("start", "str", "guess", "where LM starts each texel: guess = the model's initial guess (Lafortune: a "
-              "scan over lobe 1's exponent, magnitudes solved); separable = a variable-projection fit first (models "
-              "with separable_fit: 1-2 isotropic Lafortune lobes; on the CPU), the weighted LM from there: fewer "
-              "wrong basins on Lafortune data, a higher error at unseen directions on GGX data (docs/fitting.md)",
-              choices=STARTS_FROM)
-
-
-def separable_start(form, f_r, valid, wi, wo, limits, iterations: int, tolerance: float, damping: float):
-    """The form's variable-projection fit (``separable_fit``) as fit-form parameters to start LM from, or None where
-    the form has none for its configuration.
-
-    Why: the separable iteration moves only the lobe shapes, with the
-    magnitudes solved exactly at every step, so a lobe cannot take over
-    another's role on the way, as the full LM from the guess sometimes lets
-    it.  Its absolute least squares is only the start: the LM that follows
-    minimises the fitter's own objective.  Not the default: measured better on
-    Lafortune-generated data and worse on GGX-generated data (docs/fitting.md).
-    """
-    fast = getattr(form, "separable_fit", None)
-    out = None if fast is None else fast(f_r, valid, wi, wo, initial=None, limits=limits, iterations=iterations,
-                                         tolerance=tolerance, damping=damping)
-    return None if out is None else form.unpack(out[0])
-
-
 def sample_weights(f_r: np.ndarray, valid: np.ndarray, power: float, floor: float = WEIGHT_FLOOR) -> np.ndarray:
     """Per-sample weights ``(T, S)`` 1 / (|f_r| + floor · the texel's median)^power, the largest 1; 0 where invalid.
 
@@ -388,8 +343,8 @@ IRLS_ROUNDS = 4
 
 
 def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, tolerance=1e-4, damping=1e-3,
-              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None, separable=False,
-              weighting="absolute", start="guess", want_cost=True, checked=False):
+              fixed=(), starts=1, seed=0, limits=None, loss="linear", loss_scale=0.0, stats=None,
+              weighting="absolute", want_cost=True, checked=False):
     """LM fit of ``model`` in its fit form; returns ``(params in model form, converged, cost)``.
 
     ``cost`` is each texel's final sum of squared residuals over its valid
@@ -401,17 +356,12 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     more than one scores ``8 · starts`` candidates (:func:`candidate_starts`)
     and runs from each texel's best.  ``limits``: per-texel
     :class:`~sbrdf_core.constraints.Limits` every iterate is projected onto.
-    ``fixed``: fit-form parameter names held constant.  With one start, the
-    linear loss and nothing fixed, a form's ``separable_fit`` (variable
-    projection) replaces the general LM where the form marks it exact or
-    ``separable`` asks for it (module docstring).  ``stats``, a dict, gets
+    ``fixed``: fit-form parameter names held constant.  ``stats``, a dict, gets
     ``restarted`` (``(T,)`` mask of texels whose best result came from a start
     other than their best-scored one).  ``weighting``:
     a key of :data:`WEIGHTINGS`, residuals weighted by :func:`sample_weights`
     (starts are scored and kept on that objective; ``cost`` stays unweighted).
-    ``start``: ``"separable"`` starts LM (without ``initial`` or ``fixed``)
-    from :func:`separable_start` where the form has one, ``"guess"`` from
-    the form's initial guess.  Texels the form flags as trapped
+    Texels the form flags as trapped
     (``fit_trapped``) are fitted again (:func:`rescue`).  ``want_cost``
     False: ``cost`` is ``None`` (a weighted fit's unweighted cost is a
     further pass over the samples, a fifteenth of a 1-lobe Fit tile, which
@@ -422,8 +372,6 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         raise ValueError(f"loss {loss!r} is not one of {', '.join(LOSSES)}")
     if weighting not in WEIGHTINGS:
         raise ValueError(f"weighting {weighting!r} is not one of {', '.join(WEIGHTINGS)}")
-    if start not in STARTS_FROM:
-        raise ValueError(f"start {start!r} is not one of {', '.join(STARTS_FROM)}")
     starts = starts or model.suggested_starts
     form = model.fit_form()
     T = f_r.shape[0]
@@ -438,29 +386,6 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     project = projector(form, limits)
     max_step = optional(form, "max_step", "brdf-model")
     everyone = np.arange(T)
-    fast = getattr(form, "separable_fit", None)
-    exact = getattr(form, "separable_exact", False)  # linear in every parameter (Lambert): no shape to weigh
-    if separable is False and not exact:
-        fast = None
-    if fast is not None and loss == "linear" and (weighting == "absolute" or exact) and free.all() and starts == 1:
-        out = fast(f_r, valid, wi, wo, initial=initial, limits=limits, iterations=iterations,
-                        tolerance=tolerance, damping=damping)
-        if out is not None:
-            x, cost, converged = out
-            if project is not None:  # bounds the shape iteration did not hold: project, then refine there
-                xp = project(x, everyone)
-                moved = np.flatnonzero(np.abs(xp - x).max(axis=1) > 1e-9 * (1.0 + np.abs(x).max(axis=1)))
-                if moved.size:
-                    part = least_squares(form, f_r[moved], valid[moved].astype(np.float64), wi[moved], wo[moved])
-                    sub = projector(form, limits.take(moved))
-                    x[moved], cost[moved], converged[moved] = levenberg_marquardt(
-                        part, xp[moved], (lo, hi), iterations=iterations, tolerance=tolerance, damping=damping,
-                        project=sub, max_step=max_step)
-            if stats is not None:
-                stats["restarted"] = np.zeros(T, bool)
-            return form.to_model(form.unpack(x)), converged, cost if want_cost else None
-    if start == "separable" and initial is None and free.all():
-        initial = separable_start(form, f_r, valid, wi, wo, limits, iterations, tolerance, damping)
     base = sample_weights(f_r, valid, WEIGHTINGS[weighting])  # absolute: valid as weights, the plain problem
     objective = least_squares(form, f_r, base, wi, wo)
     x_starts = starting_points(form, objective, f_r, valid, wi, wo, starts, seed, initial, free, project)
@@ -487,8 +412,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     for x in x_starts:
         best = keep_better(best, *descend(x), 1e-9)
     assert best is not None
-    best = rescue(form, best, f_r, valid, wi, wo, base, seed, free, limits, descend, 1e-9,
-                  (iterations, tolerance, damping))
+    best = rescue(form, best, f_r, valid, wi, wo, base, seed, free, limits, descend, 1e-9)
     nested = optional(form, "nested", "brdf-model")
     inner = nested() if nested is not None and initial is None and free.all() else None
     if inner is not None:
@@ -498,7 +422,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         small, small_converged, _ = fit_model(smaller, f_r, valid, wi, wo, iterations=iterations, tolerance=tolerance,
                                 damping=damping, starts=starts if starts != model.suggested_starts else 0,
                                 seed=seed, limits=limits, loss=loss, loss_scale=loss_scale, weighting=weighting,
-                                start=start, want_cost=False, checked=True)
+                                want_cost=False, checked=True)
         sform = smaller.fit_form()
         x_in = np.clip(embed(sform.pack(sform.from_model(small))), lo, hi)
         if project is not None:
@@ -552,18 +476,14 @@ def starting_points(form, objective, f_r, valid, wi, wo, starts: int, seed: int 
 RESCUE_STARTS = 4
 
 
-def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, margin: float,
-           solver: tuple[int, float, float] = (50, 1e-4, 1e-3)):
+def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, margin: float):
     """Fit again the texels ``form.fit_trapped`` flags in ``best`` (:func:`keep_better`'s list, updated in place),
     and those whose cost is an outlier in the batch where the form sets ``fit_outlier_ratio`` (:func:`cost_outliers`).
 
-    A texel's result competes with an LM run from the form's variable-projection
-    fit (:func:`separable_start`) where it has one and every parameter is free,
-    else with LM runs from the :data:`RESCUE_STARTS` best of ``8 ·`` that many
-    candidates (:func:`starting_points`, scored on the objective ``weight``
-    makes), its current result the first candidate; it takes a lower cost.
-    ``solver``: the fitter's (iterations, tolerance, damping), for the separable
-    fit.  ``descend(x0, rows) -> (x, cost, converged)`` is the fitter's own LM
+    A texel's result competes with LM runs from the :data:`RESCUE_STARTS` best
+    of ``8 ·`` that many candidates (:func:`starting_points`, scored on the
+    objective ``weight`` makes), its current result the first candidate; it
+    takes a lower cost.  ``descend(x0, rows) -> (x, cost, converged)`` is the fitter's own LM
     on those texels, so ``lm`` and ``lm-gl`` rescue alike.
     Why: a few texels of a multi-lobe fit lose a lobe, and a single start
     gives them a training RMS 2-4× the noise; restarting every texel would
@@ -579,29 +499,16 @@ def rescue(form, best, f_r, valid, wi, wo, weight, seed, free, limits, descend, 
         return best
     sub_project = projector(form, None if limits is None else limits.take(rows))
     sub = [v[rows].copy() for v in best]
-    start = None
-    if free.all():
-        # One LM run from the form's variable-projection fit, which moves only the shapes (a lobe cannot take
-        # over another's role on the way) and re-seeds a dead lobe: on benchmarks/fit.py's data it left fewer
-        # texels above the noise than the multi-start below (1 against 3 of 4096) in 15 % less time per texel.
-        start = separable_start(form, f_r[rows], valid[rows], wi[rows], wo[rows],
-                                None if limits is None else limits.take(rows), *solver)
-    if start is not None:
-        x0 = np.clip(form.pack(start), *form.bounds())
-        if sub_project is not None:
-            x0 = sub_project(x0, np.arange(rows.size))
-        keep_better(sub, *descend(x0, rows), margin)
-    else:
-        objective = least_squares(form, f_r[rows], weight[rows], wi[rows], wo[rows])
-        starts = starting_points(form, objective, f_r[rows], valid[rows], wi[rows], wo[rows], RESCUE_STARTS, seed,
-                                 form.unpack(best[0][rows]), free, sub_project, keep_first=False)
-        # All starts in one LM run (each texel repeated per start): its cost is per iteration, not per texel.
-        x, cost, converged = descend(np.concatenate(starts), np.tile(rows, len(starts)))
-        for k in range(len(starts)):
-            part = slice(k * rows.size, (k + 1) * rows.size)
-            keep_better(sub, x[part], cost[part], converged[part], margin)
-    logger.debug("%s: %d trapped texels fitted again (%s), %d improved", form.name, rows.size,
-                 "separable start" if start is not None else "multi-start", int((sub[1] < best[1][rows]).sum()))
+    objective = least_squares(form, f_r[rows], weight[rows], wi[rows], wo[rows])
+    starts = starting_points(form, objective, f_r[rows], valid[rows], wi[rows], wo[rows], RESCUE_STARTS, seed,
+                             form.unpack(best[0][rows]), free, sub_project, keep_first=False)
+    # All starts in one LM run (each texel repeated per start): its cost is per iteration, not per texel.
+    x, cost, converged = descend(np.concatenate(starts), np.tile(rows, len(starts)))
+    for k in range(len(starts)):
+        part = slice(k * rows.size, (k + 1) * rows.size)
+        keep_better(sub, x[part], cost[part], converged[part], margin)
+    logger.debug("%s: %d trapped texels fitted again (multi-start), %d improved", form.name, rows.size,
+                 int((sub[1] < best[1][rows]).sum()))
     for v, part in zip(best, sub):
         v[rows] = part
     return best

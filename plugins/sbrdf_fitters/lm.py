@@ -19,7 +19,6 @@ from sbrdf_lib.lm import (  # noqa: F401  (re-exported for one release)
     IRLS_ROUNDS,
     LOSSES,
     MAX_DAMPING,
-    START,
     WEIGHTING,
     candidate_starts,
     fit_model,
@@ -58,25 +57,18 @@ class LevenbergMarquardtFitter:
         Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns from quadratic to linear; "
               "0 = 1.4826 x the texel's median absolute residual", bounds=(0.0, None)),
         WEIGHTING,
-        START,
-        Param("variable_projection", "bool", False, "fit 1-2 isotropic Lafortune lobes by variable projection "
-              "(magnitudes in closed form inside the LM; with starts 1, linear loss, absolute weighting): "
-              "no faster than the default LM, which is compiled per texel too (benchmarks/fit.py), and a higher error at "
-              "unseen directions (benchmarks/fidelity.py), hence off by default"),
     )
 
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 200,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
-                 seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, variable_projection: bool = False,
-                 weighting: str = "shot-noise", start: str = "guess"):
+                 seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, weighting: str = "shot-noise"):
         # model_params' default equals the declaration (the registry checks); it is only read, never changed.
         self.model_name = model
         self.model_config = dict(model_params)
         self.iterations, self.tolerance, self.damping = iterations, tolerance, damping
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
         self.loss, self.loss_scale = loss, loss_scale
-        self.variable_projection = variable_projection
-        self.weighting, self.start = weighting, start
+        self.weighting = weighting
         if model == "lafortune" and int(model_params.get("lobes", 1)) >= 3 and 0 < starts < 4:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
@@ -92,9 +84,7 @@ class LevenbergMarquardtFitter:
                                             tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
                                             starts=self.starts, seed=self.seed, limits=limits, loss=self.loss,
                                             loss_scale=self.loss_scale, stats=stats,
-                                            separable=self.variable_projection,
-                                            weighting="absolute" if self.variable_projection else self.weighting,
-                                            start=self.start, want_cost=rms, checked=usable)
+                                            weighting=self.weighting, want_cost=rms, checked=usable)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         # The fit's own cost: no second evaluation.
         train_rms = None if cost is None else np.sqrt(cost / np.maximum(f_r.shape[-1] * n, 1))

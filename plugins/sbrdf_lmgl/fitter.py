@@ -41,7 +41,6 @@ from sbrdf_core.params import Param
 from sbrdf_lib.lm import (
     IRLS_ROUNDS,
     LOSSES,
-    START,
     WEIGHTING,
     WEIGHTINGS,
     fit_model,
@@ -51,7 +50,6 @@ from sbrdf_lib.lm import (
     rescue,
     robust_weights,
     sample_weights,
-    separable_start,
     starting_points,
     total_cost,
 )
@@ -91,7 +89,6 @@ class GLLevenbergMarquardtFitter:
         Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1 (iteratively reweighted)",
               choices=["linear", "huber", "soft-l1"]),
         WEIGHTING,
-        START,
         Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns linear; 0 = 1.4826 x the "
               "texel's median absolute residual", bounds=(0.0, None)),
         Param("tile", "int", 4096, "texels per compute dispatch (samples of two tiles are on the GPU at once)",
@@ -105,14 +102,13 @@ class GLLevenbergMarquardtFitter:
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
                  seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, tile: int = 4096,
-                 cpu_finish: bool = True, weighting: str = "shot-noise", start: str = "guess"):
+                 cpu_finish: bool = True, weighting: str = "shot-noise"):
         self.model_name = model
         self.model_config = dict(model_params)
         self.iterations, self.tolerance, self.damping = iterations, tolerance, damping
         self.starts, self.fixed, self.seed = starts, tuple(fixed), seed
         self.loss, self.loss_scale, self.tile, self.cpu_finish = loss, loss_scale, tile, cpu_finish
         self.weighting = weighting
-        self.start = start
         #: Seconds per stage since construction (starts, upload, compute = dispatch and read-back, polish: the CPU
         #: part) and texel counts (texels, cpu_texels: finished or refitted on the CPU).
         self.timings: dict[str, float] = {}
@@ -149,8 +145,6 @@ class GLLevenbergMarquardtFitter:
         plain_weight = valid.astype(np.float64)
         base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model
         initial = None
-        if self.start == "separable" and free.all():
-            initial = separable_start(form, f_r, valid, wi, wo, limits, self.iterations, self.tolerance, self.damping)
         x_starts = starting_points(form, least_squares(form, f_r, base, wi, wo), f_r, valid, wi,
                                    wo, self.starts or model.suggested_starts, self.seed, initial, free, project)
         n = valid.sum(axis=1)
@@ -258,8 +252,7 @@ class GLLevenbergMarquardtFitter:
                 params, conv, cs = fit_model(model, f_r[idx], valid[idx], wi[idx], wo[idx], iterations=self.iterations,
                                              tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
                                              starts=self.starts, seed=self.seed, limits=limits.take(idx),
-                                             loss=self.loss, loss_scale=self.loss_scale, weighting=self.weighting,
-                                             start=self.start)
+                                             loss=self.loss, loss_scale=self.loss_scale, weighting=self.weighting)
                 x[idx], cost[idx], converged[idx] = form.pack(form.from_model(params)), cs, conv
         late = np.flatnonzero(~converged & ~moved) if self.cpu_finish else np.zeros(0, int)
         if late.size:

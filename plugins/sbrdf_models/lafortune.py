@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import copy
 import math
-import sys
 
 import numpy as np
 
@@ -71,8 +70,6 @@ CZ_BOUNDS = (0.05, 10.0)
 #: C_x, C_y in the C_z = 1 gauge, so the fit form converts back inside C_BOUNDS
 #: (a lobe with |C_x| > 10·C_z is clipped to that ratio when converted).
 FIT_C_BOUNDS = C_BOUNDS
-#: Direction values (T·S·3) from which :meth:`LafortuneModel.eval` runs compiled: below, the call costs more.
-COMPILED_EVAL_MIN = 3 * 4096
 
 
 class LafortuneModel(BRDFModel):
@@ -163,90 +160,13 @@ class LafortuneModel(BRDFModel):
     # -- evaluation --------------------------------------------------------------------------
 
     def eval(self, params, wi, wo):
-        fast = self._compiled_eval(params, wi, wo)
-        return fast if fast is not None else self._numpy_eval(params, wi, wo)
-
-    def _numpy_eval(self, params, wi, wo):
-        """:meth:`eval` in NumPy, for any configuration and broadcast (the reference of the compiled one)."""
+        """f_r in NumPy, for any configuration and broadcast: the reference :func:`fit_kernel` is tested against."""
         pxx, pyy, pzz, _ = self.lobe_dots(params, wi, wo)
         f = np.broadcast_to(np.asarray(params["rho_d"])[:, None, :], wi.shape[:2] + (self.channels,)).copy()
         for lobe in self.lobe_list(params):
             x = lobe["c_x"][:, :1] * pxx + lobe["c_y"][:, :1] * pyy + lobe["c_z"][:, :1] * pzz
             f += lobe["rho_s"][:, None, :] * positive_power(x, lobe["exponent"][:, :1])[..., None]
         return np.where(above_horizon(wi, wo)[..., None], f, 0.0)
-
-    def _compiled_eval(self, params, wi, wo):
-        """:meth:`eval` by ``lafortune_kernels.eval_lobes`` where :meth:`_compiled_args` applies; else None."""
-        args = self._compiled_args(params, wi, wo)
-        if args is None:
-            return None
-        from .lafortune_kernels import eval_lobes, run_parallel
-
-        return run_parallel(eval_lobes, *args)
-
-    def squared_residuals(self, params, wi, wo, f_r):
-        """Σ_c (eval − f_r)² per sample, ``(T, S)``, compiled without the ``(T, S, C)`` prediction
-        (``lafortune_kernels.squared_residuals_lobes``: the Fit node's scoring, the same bits); None where
-        :meth:`_compiled_args` does not apply or ``f_r`` is not ``(T, S, C)`` float64."""
-        args = self._compiled_args(params, wi, wo)
-        f_r = np.asarray(f_r)
-        if args is None or f_r.shape != np.shape(wi)[:2] + (self.channels,) or f_r.dtype != np.float64:
-            return None
-        from .lafortune_kernels import run_parallel, squared_residuals_lobes
-
-        return run_parallel(squared_residuals_lobes, *args, np.ascontiguousarray(f_r))
-
-    def _compiled_args(self, params, wi, wo):
-        """The compiled kernels' arguments (no β, a texel's parameters per row of ``(T, S, 3)`` float64 directions,
-        enough samples to pay for the call, numba loaded already), or None."""
-        if self.has_beta or not self.lobes or "numba" not in sys.modules:
-            return None
-        wi, wo = np.asarray(wi), np.asarray(wo)
-        rho_d = np.asarray(params["rho_d"])
-        if (wi.ndim != 3 or wi.shape != wo.shape or wi.shape[2] != 3 or wi.dtype != np.float64
-                or wo.dtype != np.float64 or rho_d.shape != (wi.shape[0], self.channels)
-                or wi.size < COMPILED_EVAL_MIN):
-            return None
-        lobes = self.lobe_list(params)
-        col = lambda key: np.ascontiguousarray(np.concatenate(  # noqa: E731
-            [np.broadcast_to(np.asarray(lb[key], np.float64)[:, :1], (wi.shape[0], 1)) for lb in lobes], axis=1))
-        rho_s = np.ascontiguousarray(np.stack([np.asarray(lb["rho_s"], np.float64) for lb in lobes], axis=1))
-        if rho_s.shape != (wi.shape[0], len(lobes), self.channels):
-            return None
-        return (np.ascontiguousarray(rho_d, np.float64), rho_s, col("c_x"), col("c_y"), col("c_z"), col("exponent"),
-                np.ascontiguousarray(wi), np.ascontiguousarray(wo))
-
-    def albedo_quadrature(self, params, wi, dirs, weights):
-        """``Σ_o w_o f_r(ω_i, ω_o)`` per texel and channel, ``(T, C)``, for one ``wi`` per texel ``(T, 3)``: what the
-        energy bound integrates, compiled.  Seen from a fixed ω_i a lobe is C·(ω_i ⊙ ω_o) = a·ω_o with
-        a = (C ⊙ ω_i) (in the β frame), a cosine lobe about a: its sum over the quadrature is a compiled loop
-        (``lafortune_kernels.lobe_quadrature``), the diffuse term ρ_d Σ w_o."""
-        from .lafortune_kernels import lobe_quadrature, run_parallel
-
-        wi = np.asarray(wi, np.float64)
-        T = wi.shape[0]
-        ix, iy, iz = wi[:, 0], wi[:, 1], wi[:, 2]
-        c = s = None
-        if self.has_beta:
-            b = np.asarray(params["beta"], np.float64)[:, 0]
-            c, s = np.cos(b), np.sin(b)
-            ix, iy = c * wi[:, 0] + s * wi[:, 1], -s * wi[:, 0] + c * wi[:, 1]
-        lobes = self.lobe_list(params)
-        a = np.empty((T, len(lobes), 3))
-        n = np.empty((T, len(lobes)))
-        for j, lobe in enumerate(lobes):
-            ax, ay = np.asarray(lobe["c_x"], np.float64)[:, 0] * ix, np.asarray(lobe["c_y"], np.float64)[:, 0] * iy
-            if self.has_beta:  # back from the β frame: ω'_o = R(β) ω_o, so a·ω'_o = (R(β)ᵀ a)·ω_o
-                ax, ay = c * ax - s * ay, s * ax + c * ay
-            a[:, j] = np.stack([ax, ay, np.asarray(lobe["c_z"], np.float64)[:, 0] * iz], axis=-1)
-            n[:, j] = np.asarray(lobe["exponent"], np.float64)[:, 0]
-        up = np.asarray(dirs)[:, 2] > 0  # eval's horizon: directions below it add nothing
-        dirs, weights = np.asarray(dirs, np.float64)[up], np.asarray(weights, np.float64)[up]
-        sums = run_parallel(lobe_quadrature, a, n, np.ascontiguousarray(dirs), np.ascontiguousarray(weights))
-        out = np.asarray(params["rho_d"], np.float64) * float(np.sum(weights))
-        for j, lobe in enumerate(lobes):
-            out = out + np.asarray(lobe["rho_s"], np.float64) * sums[:, j:j + 1]
-        return np.where((iz > 0)[:, None], out, 0.0)
 
     def jacobian(self, params, wi, wo):
         return self._jacobian(params, wi, wo, fit_form=False)
@@ -743,66 +663,29 @@ class LafortuneFitForm(LafortuneModel):
         return out
 
     def initial_guess(self, f_r, valid, wi, wo):
+        """ρ_d the 10th percentile of the samples (seed 000 §4.3); lobe 1's exponent the best of
+        :data:`START_EXPONENTS` for the texel (the text's n = 10 among them), each scored with the lobes'
+        magnitudes solved: every texel starts near its own sharpness, which saves LM iterations."""
+        from sbrdf_lib.lm import least_squares
+
         T = f_r.shape[0]
         params = self.defaults(T)
         params["rho_d"] = diffuse_percentile(f_r, valid, 10.0)
         if not self.lobes:
             return params
-        # The text starts lobe 1 at n = 10; a coarse scan over n (magnitudes solved
-        # for each, compiled) starts every texel near its own sharpness and saves
-        # LM iterations.
-        from .lafortune_kernels import run_parallel, scan_first_exponent
-
-        x = run_parallel(scan_first_exponent, self.pack(params), np.log(np.asarray(START_EXPONENTS)),
-                                np.ascontiguousarray(wi, dtype=np.float64), np.ascontiguousarray(wo, dtype=np.float64),
-                                np.ascontiguousarray(f_r, dtype=np.float64), valid.astype(np.float64),
-                                self.lobes, int(self.anisotropic), bool(self.has_beta))
-        return self.unpack(x)
-
-    def least_squares(self, f_r, weight, wi, wo):
-        """The compiled problem (``lafortune_kernels``): same numbers as the NumPy default, far faster."""
-        from .lafortune_kernels import CompiledLafortuneProblem
-
-        return CompiledLafortuneProblem(self, f_r, weight, wi, wo)
-
-    def separable_fit(self, f_r, valid, wi, wo, *, initial=None, limits=None, iterations=50, tolerance=1e-4,
-                      damping=1e-3):
-        """LM over the lobe shapes alone, magnitudes solved in closed form (``lafortune_kernels.separable_lm``).
-
-        Returns packed fit-form ``(x, cost, converged)``, or None where it does
-        not apply (anisotropic lobes, β, 3 or more lobes, which want several
-        starts): the caller then runs the general LM.  The shapes stay inside the sharpness and
-        grazing-growth bounds throughout; the caller projects the result onto
-        the rest of ``limits`` (the peak budget).
-        """
-        if self.anisotropic or self.has_beta or not 1 <= self.lobes <= 2:
-            return None
-        from .lafortune_kernels import run_parallel, separable_lm
-
-        T, L = f_r.shape[0], self.lobes
-        start = self.defaults(T) if initial is None else initial
-        theta0 = np.concatenate([np.concatenate([np.asarray(start[f"c_xy_{j}"], np.float64),
-                                                 np.asarray(start[f"log_exponent_{j}"], np.float64)], axis=1)
-                                 for j in range(1, L + 1)], axis=1)
-        n_cap = np.full(T, EXPONENT_BOUNDS[1]) if limits is None else np.broadcast_to(
-            np.minimum(limits.max_cosine_exponent(), EXPONENT_BOUNDS[1]), (T, 1))[:, 0]
-        growth = float(limits.growth) if limits is not None and limits.growth is not None else 0.0
-        max_theta = limits.max_theta if limits is not None else np.pi / 2
-        from sbrdf_lib.lm import EXACT, MAX_DAMPING
-
-        theta, mags, cost, converged, _ = run_parallel(
-            separable_lm, np.ascontiguousarray(wi, np.float64), np.ascontiguousarray(wo, np.float64),
-            np.ascontiguousarray(f_r, np.float64), np.ascontiguousarray(valid, np.float64), theta0,
-            np.log(np.maximum(n_cap, EXPONENT_BOUNDS[0])), *FIT_C_BOUNDS, float(np.log(EXPONENT_BOUNDS[0])), growth,
-            float(np.sin(max_theta) ** 2), float(np.cos(max_theta) ** 2), initial is None, int(iterations),
-            float(tolerance), float(damping), MAX_DAMPING, EXACT)
-        params = {"rho_d": mags[:, 0]}
-        for j in range(1, L + 1):
-            params[f"rho_s_{j}"] = mags[:, j]
-            params[f"c_xy_{j}"] = theta[:, 2 * j - 2:2 * j - 1]
-            params[f"log_exponent_{j}"] = theta[:, 2 * j - 1:2 * j]
+        objective = least_squares(self, f_r, np.asarray(valid, np.float64), wi, wo)
         lo, hi = self.bounds()
-        return np.clip(self.pack(params), lo, hi), cost, converged
+        best = best_cost = None
+        for log_n in np.log(START_EXPONENTS):
+            guess = self.refine_linear({**params, "log_exponent_1": np.full((T, 1), log_n)}, f_r, valid, wi, wo)
+            x = np.clip(self.pack(guess), lo, hi)
+            cost = np.nan_to_num(objective.cost(x, np.arange(T)), nan=np.inf)
+            if best is None:
+                best, best_cost = x, cost
+            else:
+                better = cost < best_cost
+                best[better], best_cost[better] = x[better], cost[better]
+        return self.unpack(best)
 
     def refine_linear(self, params, f_r, valid, wi, wo):
         return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)

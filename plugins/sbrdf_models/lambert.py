@@ -60,23 +60,6 @@ class LambertModel(BRDFModel):
         n = np.maximum(w.sum(axis=1), 1)
         return {"rho_d": np.clip((f_r * w).sum(axis=1) / n, 0, 10)}
 
-    #: :meth:`separable_fit` is the exact least-squares solution, so ``fit_model`` always takes it.
-    separable_exact = True
-
-    def separable_fit(self, f_r, valid, wi, wo, *, initial=None, limits=None, iterations=50, tolerance=1e-4,
-                      damping=1e-3):
-        """The least-squares ρ_d in closed form: each channel's mean over the valid samples above the horizon,
-        clipped to the bounds (exact: one unknown per channel).  ``sbrdf_lib.lm.fit_model`` takes this instead of
-        iterating; it returns packed ``(x, cost, converged)``."""
-        w = (np.asarray(valid, bool) & above_horizon(wi, wo)).astype(np.float64)
-        f = np.asarray(f_r, np.float64)
-        count = w.sum(axis=1)[:, None]
-        total = np.einsum("ts,tsc->tc", w, f)
-        lo, hi = self.bounds()
-        rho = np.clip(total / np.maximum(count, 1.0), lo, hi)
-        r = np.where(np.asarray(valid, bool)[..., None], w[..., None] * rho[:, None, :] - f, 0.0)
-        return rho, np.einsum("tsc,tsc->t", r, r), np.ones(f.shape[0], bool)
-
     def glsl(self):
         return "vec3 brdf_lambert(vec3 wi, vec3 wo, vec3 rho_d) { return (wi.z > 0.0 && wo.z > 0.0) ? rho_d : vec3(0.0); }"
 

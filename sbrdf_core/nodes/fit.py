@@ -193,12 +193,9 @@ def masked_rms(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def residual_squares(model, params, wi, wo, f_r) -> np.ndarray:
-    """:func:`sample_squares` of ``model.eval − f_r``, ``(T, S)``: by the model's ``squared_residuals`` where it has
-    one that applies (compiled, no ``(T, S, C)`` prediction or difference), else from ``eval``."""
-    own = optional(model, "squared_residuals", "brdf-model")
+    """:func:`sample_squares` of ``model.eval − f_r``, ``(T, S)`` (compiled where the model has a fit kernel)."""
     with np.errstate(all="ignore"):
-        squares = None if own is None else own(params, wi, wo, f_r)
-        return sample_squares(evaluate(model, params, wi, wo) - f_r) if squares is None else squares
+        return sample_squares(evaluate(model, params, wi, wo) - f_r)
 
 
 def sample_squares(diff: np.ndarray) -> np.ndarray:

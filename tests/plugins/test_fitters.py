@@ -13,7 +13,7 @@ from sbrdf_core.brdf import luminance_weights
 from sbrdf_core.geometry import fibonacci_hemisphere, tile_directions
 from sbrdf_core.least_squares import LeastSquaresProblem
 from sbrdf_core.nodes.fit import BORROWED, CONSTRAINED, NO_SAMPLES, NONFINITE_INPUT, UNDERDETERMINED, FitOptions, fit_tile
-from sbrdf_lib.lm import fit_model, levenberg_marquardt
+from sbrdf_lib.lm import fit_model, least_squares, levenberg_marquardt
 
 
 def directions(T, S, max_theta=80.0, seed=0):
@@ -219,7 +219,7 @@ def test_three_lobes_warn_and_multistart_never_worsens(registry, lafortune):
     assert (many.rms <= one.rms + 1e-12).all()
 
 
-# -- the compiled kernel equals the NumPy reference --------------------------------------------------------------
+# -- the engine's compiled problem equals the NumPy reference --------------------------------------------------------------
 
 
 @settings(max_examples=25, deadline=None)
@@ -235,38 +235,12 @@ def test_compiled_normal_equations_match_numpy(lafortune, lobes, aniso, seed, ma
     w = (rng.random((4, samples)) > 0.2).astype(float)
     idx = np.arange(4)
     ref = LeastSquaresProblem(form, f, w, wi, wo).normal_equations(x, idx)
-    fast = form.least_squares(f, w, wi, wo).normal_equations(x, idx)
+    fast = least_squares(form, f, w, wi, wo).normal_equations(x, idx)
     for a, b in zip(ref, fast):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))
     # The cost alone is the normal equations' cost, to the bit (the same sums in the same order).
-    assert np.array_equal(form.least_squares(f, w, wi, wo).cost(x, idx), fast[2])
+    assert np.array_equal(least_squares(form, f, w, wi, wo).cost(x, idx), fast[2])
     np.testing.assert_allclose(LeastSquaresProblem(form, f, w, wi, wo).cost(x, idx), ref[2], rtol=1e-12, atol=1e-300)
-
-
-@settings(max_examples=50, deadline=None)
-@given(lo=st.floats(-745.0, 60.0), span=st.floats(0.0, 700.0), seed=st.integers(0, 10_000))
-def test_simd_log_and_exp_agree_with_libm(lo, span, seed):
-    """The normal equations' vectorised log and exp (fdlibm's algorithms) against numpy's, within 2 ulp, over
-    log-uniform arguments from the smallest normal double to e^60 (exp: -745 to 760, where it underflows to 0, the
-    -708 cut, and overflows), with NaN passed through by exp."""
-    from sbrdf_models.lafortune_kernels import simd_exp, simd_log
-
-    rng = np.random.default_rng(seed)
-    n = 64
-    y = np.clip(lo + span * rng.random(n), -745.0, 709.0)
-    y[:4] = (0.0, -708.0, np.nextafter(-708.0, 0.0), np.nan)
-    out, scratch, expo = np.empty(n), np.empty(n), np.empty(n, np.int64)
-    simd_exp(y, out, scratch, expo, n)
-    ref = np.exp(y)
-    kept = y > -708.0
-    np.testing.assert_array_less(np.abs(out[kept] - ref[kept]), 2.5 * np.spacing(ref[kept]))
-    assert (out[y <= -708.0] == 0.0).all() and np.isnan(out[3])
-    x = np.exp(np.clip(y[4:], np.log(np.finfo(float).tiny), 60.0))
-    x = np.concatenate([x, [1.0, np.sqrt(2.0), np.nextafter(np.sqrt(2.0), 2.0), np.finfo(float).tiny]])
-    out = np.empty(len(x))
-    simd_log(x, out, np.empty(len(x)), np.empty(len(x), np.int64), len(x))
-    ref = np.log(x)
-    np.testing.assert_array_less(np.abs(out - ref), 2.5 * np.spacing(np.maximum(np.abs(ref), 1e-300)))
 
 
 # -- hard cases: finite, in bounds, flagged ----------------------------------------------------------------------
@@ -398,86 +372,17 @@ def test_lm_core_leaves_texels_without_weight_alone(lafortune):
 
 
 @settings(max_examples=25, deadline=None)
-@given(lobes=st.integers(1, 3), aniso=st.booleans(), seed=st.integers(0, 10_000), max_theta=st.floats(10, 100),
-       wild=st.booleans())
-def test_compiled_eval_matches_numpy(lafortune, lobes, aniso, seed, max_theta, wild):
-    """The compiled eval (``eval_lobes``) against the NumPy one, model and fit form: within a few ulp where both
-    are above e^-700, over directions below the horizon too and (``wild``) exponents up to 2·10⁴, |C| up to 10
-    and a NaN exponent."""
-    import sbrdf_models.lafortune_kernels  # noqa: F401  (numba loaded: the compiled path is taken)
+@given(lobes=st.integers(1, 3), aniso=st.booleans(), seed=st.integers(0, 10_000), max_theta=st.floats(10, 100))
+def test_compiled_evaluate_matches_numpy(lafortune, lobes, aniso, seed, max_theta):
+    """:func:`sbrdf_core.brdf.evaluate` (the engine's compiled evaluation, what the bounds and the node's scoring
+    call) gives the NumPy ``eval`` on a batch big enough to take it, directions past the horizon included."""
+    from sbrdf_core.brdf import evaluate
+    from sbrdf_core.engine import EVALUATE_MIN
 
-    model = lafortune(lobes=lobes, anisotropic=aniso)
+    model = lafortune(lobes=lobes, anisotropic=aniso, beta=aniso)
     rng = np.random.default_rng(seed)
-    T, S = 8, 700
-    wi, wo = directions(T, S, max_theta, seed)
-    for m in (model, model.fit_form()):
-        p = m.random_guess(rng, T)
-        if wild:
-            for j in range(1, lobes + 1):
-                key = f"exponent_{j}" if f"exponent_{j}" in p else f"log_exponent_{j}"
-                p[key] = rng.uniform(0.1, 2e4, (T, 1)) if key.startswith("exp") else rng.uniform(-2.0, 9.9, (T, 1))
-                for k in [k for k in p if k.startswith("c_") and k.endswith(f"_{j}") and k != f"c_z_{j}"]:
-                    p[k] = rng.uniform(-10, 10, (T, 1))
-            key = "exponent_1" if "exponent_1" in p else "log_exponent_1"
-            p[key][0] = np.nan
-        fast = m._compiled_eval(p, wi, wo)
-        assert fast is not None  # the compiled path applies here
-        with np.errstate(all="ignore"):
-            ref = m._numpy_eval(p, wi, wo)
-        assert fast.shape == ref.shape and fast.dtype == ref.dtype
-        assert np.array_equal(np.isnan(fast), np.isnan(ref))
-        ok = ~np.isnan(ref) & (np.abs(ref) > 1e-300)
-        np.testing.assert_allclose(fast[ok], ref[ok], rtol=1e-13)
-        assert (fast[~ok & ~np.isnan(ref)] < 1e-290).all()
-
-
-@settings(max_examples=25, deadline=None)
-@given(lobes=st.integers(1, 3), aniso=st.booleans(), seed=st.integers(0, 10_000), max_theta=st.floats(10, 100),
-       wild=st.booleans())
-def test_squared_residuals_are_those_of_the_compiled_eval(lafortune, lobes, aniso, seed, max_theta, wild):
-    """``squared_residuals`` (the Fit node's scoring, no ``(T, S, C)`` prediction) gives the bits of
-    ``sample_squares(eval − f_r)``: over directions below the horizon, NaN and huge samples, and (``wild``)
-    exponents up to 2·10⁴, |C| up to 10 and a NaN exponent; None where the compiled path does not apply."""
-    import sbrdf_models.lafortune_kernels  # noqa: F401  (numba loaded: the compiled path is taken)
-    from sbrdf_core.nodes.fit import residual_squares, sample_squares
-
-    model = lafortune(lobes=lobes, anisotropic=aniso)
-    rng = np.random.default_rng(seed)
-    T, S = 8, 700
-    wi, wo = directions(T, S, max_theta, seed)
-    p = model.random_guess(rng, T)
-    if wild:
-        for j in range(1, lobes + 1):
-            p[f"exponent_{j}"] = rng.uniform(0.1, 2e4, (T, 1))
-            for k in [k for k in p if k.startswith("c_") and k.endswith(f"_{j}") and k != f"c_z_{j}"]:
-                p[k] = rng.uniform(-10, 10, (T, 1))
-        p["exponent_1"][0] = np.nan
-    f_r = rng.lognormal(-2.0, 2.0, (T, S, 3))
-    f_r[1, :5] = np.array([np.nan, np.inf, -np.inf, 1e300, 0.0])[:, None]
-    got = model.squared_residuals(p, wi, wo, f_r)
-    assert got is not None and got.shape == (T, S) and got.dtype == np.float64
-    with np.errstate(all="ignore"):
-        want = sample_squares(model.eval(p, wi, wo) - f_r)
-    assert np.array_equal(np.isnan(got), np.isnan(want))
-    assert np.where(np.isnan(got), 0.0, got).tobytes() == np.where(np.isnan(want), 0.0, want).tobytes()
-    assert residual_squares(model, p, wi, wo, f_r).tobytes() == got.tobytes()
-    with np.errstate(over="ignore"):  # 1e300 in float32
-        narrow = f_r.astype(np.float32)
-    assert model.squared_residuals(p, wi, wo, narrow) is None  # not the kernel's inputs
-    assert model.squared_residuals(p, wi[:, :3], wo[:, :3], f_r[:, :3]) is None  # too few samples to pay
-
-
-def test_squared_residuals_leave_models_without_them_to_eval(lafortune):
-    """The node's ``residual_squares``: a model without ``squared_residuals`` (Lambert), or one whose
-    ``squared_residuals`` does not apply (a Lafortune β), is scored through ``eval``."""
-    from sbrdf_core.nodes.fit import residual_squares, sample_squares
-    from sbrdf_core.registry import Registry
-
-    rng = np.random.default_rng(2)
-    wi, wo = directions(4, 30, 80.0, 2)
-    f_r = rng.lognormal(-2.0, 1.0, (4, 30, 3))
-    for model in (Registry().create("brdf-model", "lambert", {}), lafortune(lobes=1, anisotropic=True, beta=True)):
-        p = model.random_guess(rng, 4)
-        assert getattr(model, "squared_residuals", lambda *a: None)(p, wi, wo, f_r) is None
-        np.testing.assert_array_equal(residual_squares(model, p, wi, wo, f_r),
-                                      sample_squares(model.eval(p, wi, wo) - f_r))
+    S = EVALUATE_MIN // 16
+    wi, wo = directions(16, S, max_theta, seed)
+    p = model.canonical(model.random_guess(rng, 16))
+    ref = model.eval(p, wi, wo)
+    np.testing.assert_allclose(evaluate(model, p, wi, wo), ref, rtol=1e-9, atol=1e-12 * max(1.0, np.abs(ref).max()))
