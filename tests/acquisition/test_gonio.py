@@ -424,6 +424,7 @@ def test_gonio_virtual_graph_runs_end_to_end(tmp_path, registry):
     assert brackets <= {1, 2, 3} and max(brackets) >= 2  # the exposure planner bracketed the highlight poses
 
 
+@pytest.mark.slow  # a planned, bracketed virtual scan, then Debevec recovery of the response
 def test_debevec_recovery_reads_a_planned_scan_whose_brackets_differ_per_pose(tmp_path, registry):
     """Issue 23: graphs/gonio-virtual.yaml's exposure planner gives poses different brackets; read without a
     recorded camera.response and response_method: debevec, that folder used to fail ("needs the same exposure

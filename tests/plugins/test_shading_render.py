@@ -113,6 +113,7 @@ def test_a_shading_map_input_needs_a_shading_material(registry):
         mat.resolve(scene, InputArtifact(Art()), registry)
 
 
+@pytest.mark.slow  # a GL render and the CPU reference of the same scene under an environment map
 def test_shading_maps_under_environment_lighting(gl, registry):
     """Eq 3: the environment as directional lights, each through the shading map; cpu and gl agree, and a brighter
     sky gives proportionally more light (the map's lookups are below a_max here)."""
