@@ -1,7 +1,7 @@
 """The plausibility limits in GLSL: what a model's optional ``glsl_fit_constrain`` is built from.
 
 A GPU fitter projects every trial point onto the texel's
-:class:`~sbrdf_core.constraints.Limits` inside its shader, so the constrained
+:class:`~sbrdf_core.types.Limits` inside its shader, so the constrained
 Levenberg–Marquardt needs no round trip to the CPU.  A model's
 ``glsl_fit_constrain()`` defines
 

@@ -161,7 +161,7 @@ def lazy_arrays(name: str, material: Material, filter: str) -> dict:
 
 
 def from_material(name: str, material: Material, filter: str, computed: dict | None = None) -> SceneMaterial:
-    """A (lazy) :class:`~sbrdf_core.nodes.render.Material` as packed in-memory maps.
+    """A (lazy) :class:`~sbrdf_core.types.Material` as packed in-memory maps.
 
     ``computed``: :func:`lazy_arrays` computed (the renderer's ``prepare``, run by the runner); without it
     they are computed here (direct use outside a graph).
