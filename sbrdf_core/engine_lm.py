@@ -122,6 +122,24 @@ def damped_step(A, g, lam, free, pinned, M, step):
 
 
 @njit(cache=True, nogil=True)
+def box_step(x, A, g, lam, free, lo, hi, pinned, M, step):
+    """The damped step from ``x``, solved again without the parameters it would push out of the box from its
+    bound (an active set); False where the system cannot be solved."""
+    for k in range(x.size):
+        pinned[k] = False
+    if not damped_step(A, g, lam, free, pinned, M, step):
+        return False
+    again = False
+    for k in range(x.size):
+        out_low = x[k] + step[k] < lo[k] and x[k] <= lo[k] + 1e-12 * max(abs(lo[k]), 1.0)
+        out_high = x[k] + step[k] > hi[k] and x[k] >= hi[k] - 1e-12 * max(abs(hi[k]), 1.0)
+        if free[k] != 0 and (out_low or out_high):
+            pinned[k] = True
+            again = True
+    return damped_step(A, g, lam, free, pinned, M, step) if again else True
+
+
+@njit(cache=True, nogil=True)
 def trial_point(x, step, lo, hi, max_step, trial):
     """``x + step`` shortened along its direction to ``max_step`` per parameter, then clipped to the box."""
     scale = 1.0
@@ -170,20 +188,7 @@ def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, to
         used = 0
         while not done and used < iterations:
             used += 1
-            for k in range(K):
-                pinned[k] = False
-            ok = damped_step(A, g, lam, free, pinned, M, step)
-            if ok:
-                again = False
-                for k in range(K):
-                    out_low = x[k] + step[k] < lo[t, k] and x[k] <= lo[t, k] + 1e-12 * max(abs(lo[t, k]), 1.0)
-                    out_high = x[k] + step[k] > hi[t, k] and x[k] >= hi[t, k] - 1e-12 * max(abs(hi[t, k]), 1.0)
-                    if free[k] != 0 and (out_low or out_high):
-                        pinned[k] = True
-                        again = True
-                if again:
-                    ok = damped_step(A, g, lam, free, pinned, M, step)
-            if not ok:
+            if not box_step(x, A, g, lam, free, lo[t], hi[t], pinned, M, step):
                 lam *= 4.0
                 if lam > max_damping:
                     done = True

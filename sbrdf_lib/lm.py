@@ -429,6 +429,13 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
             x_in = project(x_in, everyone)
         keep_better(best, x_in, total_cost(objective, x_in), small_converged.copy(), 0.0)
         keep_better(best, *descend(x_in), 0.0)
+        if weighting != "absolute" or loss != "linear":
+            # The objective is weighted, the training error users read is not: where the smaller model's solution
+            # has the lower plain error, it is kept, so the reported error never grows with the model either.
+            plain = least_squares(form, f_r, valid.astype(np.float64), wi, wo)
+            lower = total_cost(plain, x_in) < total_cost(plain, best[0]) * (1 - 1e-12)
+            best[0][lower], best[2][lower] = x_in[lower], small_converged[lower]
+            best[1][lower] = objective.cost(x_in[lower], np.flatnonzero(lower))
     x, cost, converged, restarted = best
     if not want_cost:
         cost = None

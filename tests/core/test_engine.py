@@ -1,0 +1,137 @@
+"""The fitting engine (``sbrdf_core.engine``): its kernel cache, its threads, and what lm builds on it."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+import threading
+
+import numpy as np
+import pytest
+
+from sbrdf_core import engine
+from sbrdf_core.registry import Registry
+
+
+def _lambert_problem(T=64, S=40, seed=0):
+    model = Registry().create("brdf-model", "lambert", {})
+    form = model.fit_form()
+    rng = np.random.default_rng(seed)
+    wi = np.tile([0.0, 0.0, 1.0], (T, S, 1))
+    wo = np.tile([0.0, 0.0, 1.0], (T, S, 1))
+    f = rng.uniform(0.1, 0.3, (T, 1, 3)) + 0.01 * rng.standard_normal((T, S, 3))
+    return form, f, np.ones((T, S)), wi, wo
+
+
+def test_the_solver_module_is_written_once_under_a_name_that_hashes_its_source(tmp_path, monkeypatch):
+    """The loops are copied next to the kernel cache with the kernel's import in place of the stand-in, under a
+    name that changes with the template or the kernel's source, so a stale compiled loop is never reused."""
+    monkeypatch.setenv("SBRDF_KERNEL_CACHE", str(tmp_path))
+    monkeypatch.setattr(engine, "_loaded", {})
+    form = _lambert_problem()[0]
+    mod = engine.solver(form.kernel)
+    files = list(tmp_path.glob("lm_*.py"))
+    assert len(files) == 1 and files[0].name.startswith("lm_sbrdf_models_lambert_fit_kernel_")
+    text = files[0].read_text()
+    assert "from sbrdf_models.lambert import fit_kernel as _source  # KERNEL" in text
+    assert "kernel = None  # KERNEL" not in text
+    assert engine.solver(form.kernel) is mod  # once a process
+    monkeypatch.setattr(engine, "_loaded", {})
+    engine.solver(form.kernel)
+    assert list(tmp_path.glob("lm_*.py")) == files  # the same name for the same sources
+
+
+def test_a_kernel_must_be_importable_by_name():
+    def local(x, cfg, wi, wo, f, J):
+        pass
+
+    with pytest.raises(TypeError, match="module-level function"):
+        engine.solver(local)
+
+
+def test_a_second_process_loads_the_compiled_loop_from_the_cache(tmp_path):
+    """Compile once: a fresh process finds the solver another one compiled (numba's on-disk cache) and compiles
+    nothing."""
+    script = textwrap.dedent("""
+        import numpy as np
+        from sbrdf_core import engine
+        from sbrdf_core.registry import Registry
+        form = Registry().create("brdf-model", "lambert", {}).fit_form()
+        problem = engine.CompiledProblem(form, np.full((2, 3, 3), 0.2), np.ones((2, 3)),
+                                         np.tile([0.0, 0.0, 1.0], (2, 3, 1)), np.tile([0.0, 0.0, 1.0], (2, 3, 1)))
+        print(problem.cost(np.full((2, 3), 0.1), np.arange(2)).tolist())
+        stats = engine.solver(form.kernel).costs.stats
+        print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
+    """)
+    env = {**os.environ, "SBRDF_KERNEL_CACHE": str(tmp_path)}
+    runs = [subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
+            for _ in range(2)]
+    first, second = (r.stdout.split("\n") for r in runs)
+    assert first[0] == second[0]
+    assert first[1] == "0 1" and second[1] == "1 0"
+
+
+def test_worker_threads_get_the_main_threads_numbers():
+    """Slices of texels run on several threads from the main thread and on one from a worker thread (dask's):
+    texels are independent, so the results are the same bits."""
+    from sbrdf_lib.lm import fit_model
+
+    model = Registry().create("brdf-model", "ward", {})
+    rng = np.random.default_rng(4)
+    T, S = 512, 200
+    wi = rng.normal(size=(T, S, 3))
+    wi[..., 2] = np.abs(wi[..., 2])
+    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
+    wo = wi[:, ::-1].copy()
+    f = model.eval(model.random_guess(rng, T), wi, wo) * (1 + 0.02 * rng.standard_normal((T, S, 3)))
+    valid = np.ones((T, S), bool)
+    main = fit_model(model, f, valid, wi, wo)
+    out = {}
+    worker = threading.Thread(target=lambda: out.setdefault("r", fit_model(model, f, valid, wi, wo)))
+    worker.start()
+    worker.join()
+    assert engine.threads() >= 1
+    for k in main[0]:
+        np.testing.assert_array_equal(out["r"][0][k], main[0][k])
+    np.testing.assert_array_equal(out["r"][2], main[2])
+
+
+def test_a_lobe_more_never_fits_worse(registry):
+    """``lm`` with 2 Lafortune lobes is never worse than with 1 on its own training samples, per texel, in the
+    plain RMS users read (the objective is weighted), under the Fit node's limits, on lobes that rise toward
+    grazing as real ones do."""
+    from sbrdf_core.constraints import angular_resolution, sample_support
+    from sbrdf_core.nodes.fit import FitOptions
+    from sbrdf_lib.lm import fit_model
+    from sbrdf_models.lafortune import LafortuneModel
+
+    rng = np.random.default_rng(7)
+    T, S = 96, 120
+    th = np.arccos(rng.uniform(np.cos(np.radians(80)), 1, (2, T, S)))
+    ph = rng.uniform(0, 2 * np.pi, (2, T, S))
+    d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
+    wi, wo = d[0], d[1]
+    truth = LafortuneModel(lobes=2)
+    p = truth.defaults(T)
+    n1 = rng.uniform(10, 150, (T, 1))
+    p.update(rho_d=rng.uniform(0.01, 0.3, (T, 3)), rho_s_1=rng.uniform(0.2, 0.6, (T, 3)) * (n1 + 2) / 6.28,
+             c_xy_1=-rng.uniform(1.0, 1.02, (T, 1)), exponent_1=n1, rho_s_2=rng.uniform(0.05, 0.1, (T, 3)),
+             c_xy_2=np.full((T, 1), -1.1), exponent_2=rng.uniform(3, 6, (T, 1)))
+    f = truth.eval(p, wi, wo)
+    f = f + 0.01 * np.sqrt(np.abs(f)) * rng.standard_normal(f.shape)
+    valid = np.ones((T, S), bool)
+    limits = FitOptions().limits(sample_support(f, valid), angular_resolution(wi, wo, valid))
+    rms = {}
+    for lobes in (1, 2):
+        _, _, cost = fit_model(LafortuneModel(lobes=lobes), f, valid, wi, wo, weighting="shot-noise", limits=limits)
+        rms[lobes] = np.sqrt(cost / (3 * S))
+    assert (rms[2] <= rms[1] * (1 + 1e-9)).all()
+    assert rms[2].mean() < rms[1].mean()
+
+
+def test_small_batches_are_left_to_numpy():
+    form, f, valid, wi, wo = _lambert_problem(T=2, S=3)
+    params = form.unpack(np.full((2, 3), 0.2))
+    assert engine.evaluate(form, params, wi, wo) is None
