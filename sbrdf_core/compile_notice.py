@@ -1,7 +1,7 @@
 """Say on a node's progress bar when numba is compiling a kernel, and for how long it did.
 
 The first run on a machine compiles the fitting kernels (numba's ``cache=True``
-keeps them for later runs): about a minute on 2 cores (docs/fitting.md), while
+keeps them for later runs): tens of seconds a model on 2 cores, while
 the Fit node's bar sits at 0 % and then, after its first chunk, shows an
 estimate of an hour.  numba announces each compilation that is not a cache hit
 (the ``numba:compile`` event), so the bar can say what it waits for::

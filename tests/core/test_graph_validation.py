@@ -28,7 +28,7 @@ def find(err, line, *needles):
 def test_valid_graph_loads_in_dependency_order(write_graph, registry, tmp_path):
     g = load_graph(write_graph(graph_yaml(tmp_path / "s")), registry)
     assert list(g.nodes) == ["capture", "register", "reflectance", "fit", "quantize", "render"]
-    assert g.nodes["fit"].params["iterations"] == 50  # default filled in
+    assert g.nodes["fit"].params["iterations"] == 200  # default filled in
     assert g.nodes["capture"].params["texels"] == [24, 20]
 
 
