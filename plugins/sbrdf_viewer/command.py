@@ -5,8 +5,6 @@ The module imports nothing heavy: every ``sbrdf`` invocation loads it to declare
 
 from __future__ import annotations
 
-import functools
-import http.server
 from pathlib import Path
 
 from sbrdf_core.params import Param
@@ -52,6 +50,9 @@ class ViewCommand:
         print(f"wrote {path} ({info['bytes'] / 1e6:.2f} MB in {info['write_s']:.2f} s)")
         if args.no_serve:
             return 0
+        import functools
+        import http.server  # here: every sbrdf invocation imports this module to declare the arguments
+
         handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(path.parent))
         with http.server.ThreadingHTTPServer(("127.0.0.1", args.port), handler) as server:
             print(f"serving http://127.0.0.1:{server.server_address[1]}/index.html  (Ctrl-C to stop)", flush=True)
