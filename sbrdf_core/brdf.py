@@ -340,6 +340,24 @@ class LogFitForm(BRDFModel):
     def canonical(self, params):
         return self.from_model(self.model.canonical(self.to_model(params)))
 
+    def limit_box(self, limits, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The part of ``limits`` a box holds, in this form: the sharpness the samples resolve, as a floor on the
+        model's ``roughness`` parameters (``limits.min_roughness()``) and a cap on its ``sharpness`` ones
+        (``limits.max_cosine_exponent()``).  The fitting engine iterates inside it (``lo``, ``hi`` are ``(T, K)``,
+        returned tightened); what only ``constrain`` can hold (a peak) is projected afterwards."""
+        if limits.resolution is None:
+            return lo, hi
+        where = self.slices()
+        for name in getattr(self.model, "roughness", ()):
+            k = where[f"log_{name}"] if f"log_{name}" in where else where[name]
+            floor = np.asarray(limits.min_roughness(), np.float64)
+            lo[:, k] = np.maximum(lo[:, k], np.log(floor) if f"log_{name}" in where else floor)
+        for name in getattr(self.model, "sharpness", ()):
+            k = where[f"log_{name}"] if f"log_{name}" in where else where[name]
+            cap = np.asarray(limits.max_cosine_exponent(), np.float64)
+            hi[:, k] = np.minimum(hi[:, k], np.log(cap) if f"log_{name}" in where else cap)
+        return np.minimum(lo, hi), hi
+
     def initial_guess(self, f_r, valid, wi, wo):
         return self.from_model(self.model.initial_guess(f_r, valid, wi, wo))
 

@@ -6,7 +6,7 @@ the Fit node's bar sits at 0 % and then, after its first chunk, shows an
 estimate of an hour.  numba announces each compilation that is not a cache hit
 (the ``numba:compile`` event), so the bar can say what it waits for::
 
-    fit         :   0%|          | 0/72 [00:20<?, ?chunk/s, numba compiling the fitting engine (solve) for sbrdf_models.lafortune: first run on this machine only]
+    fit         :   0%|          | 0/72 [00:20<?, ?chunk/s, numba compiling the fitting engine (solve) for a model: first run on this machine only]
 
 :func:`watch` routes those events to the bar shown now; a compilation inside
 another (a kernel's callees) is part of the outer one.  Runs on a

@@ -78,7 +78,7 @@ class GLLevenbergMarquardtFitter:
         Param("model", "str", "lambert", "BRDF model to fit (it must provide glsl_fit_gradient)",
               extra={"plugin_category": "brdf-model"}),
         Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
-        Param("iterations", "int", 50, "Levenberg-Marquardt iterations at most", bounds=(1, 10000)),
+        Param("iterations", "int", 200, "Levenberg-Marquardt iterations at most, per texel (as lm)", bounds=(1, 10000)),
         Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
               bounds=(0.0, 1.0)),
         Param("damping", "float", 1e-3, "initial Marquardt damping λ", bounds=(0.0, None)),
@@ -99,7 +99,7 @@ class GLLevenbergMarquardtFitter:
               "are flagged not converged"),
     )
 
-    def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 50,  # noqa: B006
+    def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 200,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),
                  seed: int = 0, loss: str = "linear", loss_scale: float = 0.0, tile: int = 4096,
                  cpu_finish: bool = True, weighting: str = "shot-noise"):
@@ -195,8 +195,7 @@ class GLLevenbergMarquardtFitter:
             best = keep_better(best, *descend(x0), 1e-6)  # float32 costs: a coarser margin than lm's
         assert best is not None
         if project is None or in_shader:
-            best = rescue(form, best, f_r, valid, wi, wo, base, self.seed, free, limits, descend, 1e-6,
-                          (self.iterations, self.tolerance, self.damping))
+            best = rescue(form, best, f_r, valid, wi, wo, base, self.seed, free, limits, descend, 1e-6)
         x, cost, converged, restarted = best
         if project is not None and self.loss == "linear" and not in_shader:
             # A model without glsl_fit_constrain: texels whose fit left their limits get lm's constrained fit

@@ -122,6 +122,8 @@ def schlick_lobe_jacobian(params, wi, wo, spec, dspec, schlick):
 
 class CookTorranceModel(BRDFModel):
     name = "cook-torrance"
+    #: What the sampling bounds (``LogFitForm.limit_box``): the sharpness the samples resolve.
+    roughness = ("alpha",)
     anisotropic = False
     fit_kernel = staticmethod(fit_kernel)
     parameters = (

@@ -96,6 +96,8 @@ def fit_kernel(x, cfg, wi, wo, f, J):
 
 class GGXAnisotropicModel(BRDFModel):
     name = "ggx-anisotropic"
+    #: What the sampling bounds (``LogFitForm.limit_box``): the sharpness the samples resolve.
+    roughness = ("alpha_t", "alpha_b")
     anisotropic = True
     fit_kernel = staticmethod(fit_kernel)
     parameters = (

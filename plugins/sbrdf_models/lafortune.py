@@ -606,6 +606,18 @@ class LafortuneFitForm(LafortuneModel):
     def fit_form(self):
         return self
 
+    def limit_box(self, limits, lo, hi):
+        """The box part of ``limits`` for the fitting engine: no lobe sharper than the sampling resolves
+        (log n ≤ log ``limits.max_cosine_exponent()``); the peak is projected afterwards (:meth:`constrain`)."""
+        if limits.resolution is None:
+            return lo, hi
+        cap = np.log(np.clip(np.asarray(limits.max_cosine_exponent(), np.float64), *EXPONENT_BOUNDS))
+        where = self.slices()
+        for j in range(1, self.lobes + 1):
+            k = where[f"log_exponent_{j}"]
+            hi[:, k] = np.minimum(hi[:, k], cap)
+        return np.minimum(lo, hi), hi
+
     def nested(self):
         """Lafortune with one lobe fewer, and its packed fit-form rows embedded here with the last lobe dead
         (ρ_s = 0 at its default shape): what ``lm`` compares a fit with, so a lobe more never fits worse."""

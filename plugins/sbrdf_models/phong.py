@@ -64,6 +64,8 @@ def fit_kernel(x, cfg, wi, wo, f, J):
 
 class PhongModel(BRDFModel):
     name = "phong"
+    #: What the sampling bounds (``LogFitForm.limit_box``): the sharpness the samples resolve.
+    sharpness = ("exponent",)
     anisotropic = False
     reads_peak_cosine = False  # its peak is bounded on f_r itself
     fit_kernel = staticmethod(fit_kernel)
