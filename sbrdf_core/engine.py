@@ -203,18 +203,19 @@ EVALUATE_MIN = 4096
 def evaluate(model, params, wi, wo) -> np.ndarray | None:
     """f_r ``(T, S, C)`` of the model-form ``params`` by the model's fit kernel; None where it has none, or the batch
     is too small to pay for the call (the caller then uses ``model.eval``, the NumPy reference it equals)."""
+    # The cheap tests first: the bounds' bisections call this thousands of times on batches NumPy takes.
+    wi, wo = np.asarray(wi, np.float64), np.asarray(wo, np.float64)
+    if wi.ndim not in (2, 3) or wo.ndim not in (2, 3) or wi.shape[-1] != 3 or wo.shape[-1] != 3 or not params:
+        return None
+    T = np.shape(next(iter(params.values())))[0]
+    S = np.broadcast_shapes(wi.shape, wo.shape)[-2]
+    if T * S < EVALUATE_MIN:
+        return None
     form = model.fit_form()
     kernel = getattr(form, "kernel", None)
     if kernel is None:
         return None
     x = form.pack(params if form is model else form.from_model(params))
-    wi, wo = np.asarray(wi, np.float64), np.asarray(wo, np.float64)
-    if wi.ndim not in (2, 3) or wo.ndim not in (2, 3) or wi.shape[-1] != 3 or wo.shape[-1] != 3:
-        return None
-    T = x.shape[0]
-    S = np.broadcast_shapes(wi.shape, wo.shape)[-2]
-    if T * S < EVALUATE_MIN:
-        return None
     wi, wo = _c(np.broadcast_to(wi, (T, S, 3))), _c(np.broadcast_to(wo, (T, S, 3)))
     out = np.empty((T, S, getattr(form, "channels", 3)))
     mod, cfg, x = solver(kernel), _c(form.kernel_config()), _c(x)
