@@ -10,8 +10,8 @@ from pathlib import Path
 from sbrdf_core.params import Param
 
 
-class ViewCommand:
-    """The ``view`` subcommand (category ``command``)."""
+class _Command:
+    """What a subcommand plugin holds: no parameters of its own, and the registry it is bound to."""
 
     params: tuple[Param, ...] = ()
 
@@ -20,6 +20,10 @@ class ViewCommand:
 
     def bind(self, registry) -> None:
         self.registry = registry
+
+
+class ViewCommand(_Command):
+    """The ``view`` subcommand (category ``command``)."""
 
     @staticmethod
     def add_arguments(parser) -> None:
@@ -63,16 +67,8 @@ class ViewCommand:
         return 0
 
 
-class PlotCommand:
+class PlotCommand(_Command):
     """The ``plot`` subcommand (category ``command``): :func:`sbrdf_viewer.plot.plot_views` as PNG files."""
-
-    params: tuple[Param, ...] = ()
-
-    def __init__(self):
-        self.registry = None
-
-    def bind(self, registry) -> None:
-        self.registry = registry
 
     @staticmethod
     def add_arguments(parser) -> None:
