@@ -142,7 +142,6 @@ class CompiledProblem:
         self.weight = _c(np.broadcast_to(weight, f_r.shape[:2]))
         self.cfg = _c(form.kernel_config())
         self._mod = solver(form.kernel)
-        self.iterations: np.ndarray | None = None  # per texel, of the last levenberg_marquardt call
 
     def data_energy(self) -> np.ndarray:
         wf = self.f_r * self.weight[..., None]
@@ -192,7 +191,6 @@ class CompiledProblem:
             self.cfg, x0[a:b], lo[a:b], hi[a:b], free, step, self.f_r[a:b], self.weight[a:b], exact[a:b],
             self.wi[a:b], self.wo[a:b], int(iterations), float(tolerance), float(damping), float(max_damping),
             x[a:b], cost[a:b], converged[a:b], used[a:b]), T * self.f_r.shape[1] * int(iterations))
-        self.iterations = used
         return x, cost, converged
 
 
