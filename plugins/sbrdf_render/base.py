@@ -6,19 +6,14 @@ import logging
 
 from sbrdf_core import contracts
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.params import Param
 from sbrdf_core.types import RenderResult
 from sbrdf_lib.mesh import load_mesh
 from sbrdf_lib.scene import SceneError, load_scene, scene_fingerprint
 
 from . import materials as mat
+from .declarations import SCENE_RENDERER
 
 logger = logging.getLogger(__name__)
-
-SCENE = Param("scene", "str", doc="scene file (YAML, docs/scenes.md), relative to the graph file",
-              extra={"path": True})
-EXPOSURE = Param("exposure", "float", None, "display exposure for the PNG; default: the scene's, else automatic",
-                 nullable=True, bounds=(0.0, None))
 
 
 def check_scene(params, registry=None) -> list[tuple[str, str]]:
@@ -98,7 +93,7 @@ def effect_problems(scene, registry) -> list[str]:
 class SceneRenderer:
     """Base of Render plugins that draw a scene file; subclasses implement ``render``."""
 
-    params = (SCENE, EXPOSURE)
+    params = SCENE_RENDERER
 
     def __init__(self, *, scene: str, exposure: float | None = None):
         self.scene_path, self.exposure = scene, exposure

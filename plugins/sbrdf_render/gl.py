@@ -36,7 +36,6 @@ import numpy as np
 
 from sbrdf_core import contracts
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.params import Param
 from sbrdf_core.types import RenderResult
 from sbrdf_lib.gl import Drawer, Frame, check_size, clip_planes, context, device_name, parameter_exprs
 from sbrdf_lib.scene import Features, downsample, load_scene
@@ -44,6 +43,7 @@ from sbrdf_lib.surface import tessellate
 
 from . import materials as mat
 from .base import SceneRenderer
+from .declarations import GL
 
 __all__ = ["Drawer", "Frame", "GLRenderer", "GLScene", "SHADOW_LOOKUP", "VERTEX", "clip_planes", "context",
            "device_name", "fragment_source", "parameter_exprs"]
@@ -391,13 +391,7 @@ class GLScene(Drawer):
 class GLRenderer(SceneRenderer):
     """``Render`` plugin ``gl``: the scene file drawn by :class:`GLScene` (or the GeForce 4 emulation)."""
 
-    params = SceneRenderer.params + (
-        Param("pipeline", "str", "float", "float: one float pass per material; geforce4: McAllister's GeForce 4 path "
-              "emulated (8-bit textures, x² and exponent lookup table, x clamped at 1, 2 passes per lobe per light)",
-              choices=("float", "geforce4")),
-        Param("frames", "int", 1, "frames drawn (their GL-query times are recorded; the last is stored)",
-              bounds=(1, 10000)),
-    )
+    params = GL
 
     def __init__(self, *, scene: str, exposure: float | None = None, pipeline: str = "float", frames: int = 1):
         super().__init__(scene=scene, exposure=exposure)

@@ -17,8 +17,9 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import tile_directions
-from sbrdf_core.params import Param
 from sbrdf_core.types import RenderResult
+
+from .declarations import PREVIEW
 
 
 def _shade(stacked, model, texels, size_mm, light, eye, intensity, block_info=None):
@@ -32,16 +33,7 @@ def _shade(stacked, model, texels, size_mm, light, eye, intensity, block_info=No
 class PreviewRenderer:
     """``preview``: the flat sample under one point light, one pixel per texel (lazy: drawn when the image is written)."""
 
-    params = (
-        Param("light_pos_mm", "list", [300.0, 0.0, 520.0], "point-light position in the sample frame", length=3,
-              item="float", unit="mm"),
-        Param("camera_pos_mm", "list", [0.0, 0.0, 800.0], "eye position in the sample frame", length=3, item="float",
-              unit="mm"),
-        Param("intensity", "float", None, "light radiant intensity I; default |light|² (unit irradiance at the centre)",
-              nullable=True, bounds=(0.0, None)),
-        Param("exposure", "float", None, "display exposure for the PNG; default maps the 99th percentile to 0.8",
-              nullable=True, bounds=(0.0, None)),
-    )
+    params = PREVIEW
 
     def __init__(self, *, light_pos_mm=[300.0, 0.0, 520.0], camera_pos_mm=[0.0, 0.0, 800.0],  # noqa: B006 (read only)
                  intensity: float | None = None, exposure: float | None = None):

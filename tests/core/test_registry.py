@@ -132,6 +132,24 @@ def test_listing_plugins_imports_no_heavy_module():
     assert _heavy_after(["plugins"]) == []
 
 
+def test_listing_imports_no_implementation_whose_spec_declares_its_parameters():
+    """A spec that carries its parameters (the plugin's light declarations) is listed from them: ``sbrdf plugins``
+    imports none of those implementations (npe2's manifest, read without running plugin code)."""
+    code = (
+        "import contextlib, io, sys; from sbrdf_core.registry import Registry; from sbrdf_core.cli import main\n"
+        "declared = sorted({s.impl.partition(':')[0] for specs in Registry().specs.values() for s in specs.values()\n"
+        "                   if s.params is not None})\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        "    main(['plugins'])\n"
+        "print(len(declared), [m for m in declared if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stdout + out.stderr
+    n, imported = out.stdout.strip().splitlines()[-1].split(" ", 1)
+    assert int(n) > 0
+    assert ast.literal_eval(imported) == []
+
+
 def test_validating_a_graph_imports_no_heavy_module():
     assert _heavy_after(["validate", "graphs/virtual-scan.yaml"]) == []
 
