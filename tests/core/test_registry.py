@@ -42,6 +42,16 @@ def test_builtins_come_through_the_installed_entry_points():
     assert reg.get("fitter", "lm").plugin == "fitters"
 
 
+def test_every_builtin_plugin_package_is_an_entry_point():
+    """A package under ``plugins/`` is named once, by its entry point; packaging finds it by its ``sbrdf_`` prefix."""
+    from importlib.metadata import entry_points
+
+    named = {e.value.split(".")[0].partition(":")[0] for e in entry_points(group="sbrdf")}
+    packages = {p.name for p in (ROOT / "plugins").iterdir() if (p / "__init__.py").exists()}
+    assert packages <= named, f"plugin packages without an entry point: {sorted(packages - named)}"
+    assert all(p.startswith("sbrdf_") for p in packages)
+
+
 def test_discovery_from_hand_built_entry_points():
     module("fake_plugin_a", sbrdf_brdf_models=lambda: [PluginSpec("fake-model", "sbrdf_models.lambert:LambertModel")])
     reg = Registry(entry_points_=[ep("a", "fake_plugin_a")])
