@@ -45,7 +45,7 @@ from report import machine, replace_section  # noqa: E402
 
 THETA = np.arange(10) * 9.0
 SIZE_MM = (20.0, 20.0)
-MATERIALS = {  # name: (height field, albedo) as sbrdf_cameras.mesostructure configurations
+MATERIALS = {  # name: (height field, albedo) as sbrdf_lib.mesostructure configurations
     "noise (suede-like)": ({"procedural": "noise", "amplitude_mm": 0.15, "period_mm": 0.6, "seed": 1},
                            {"procedural": "noise", "low": 0.5, "high": 0.7, "period_mm": 1.0, "seed": 2}),
     "bumps (plastic-like)": ({"procedural": "bumps", "amplitude_mm": 0.3, "period_mm": 1.5, "seed": 3}, 0.6),
@@ -58,7 +58,7 @@ PHONG = {"rho_d": 0.05, "rho_s": 0.25, "exponent": 20.0}
 
 
 def capture(name: str, texels: tuple[int, int]) -> np.ndarray:
-    from sbrdf_cameras.mesostructure import Mesostructure
+    from sbrdf_lib.mesostructure import Mesostructure
     from sbrdf_shading.arc import render_arc_image
 
     height, albedo = MATERIALS[name]

@@ -36,7 +36,7 @@ import numpy as np
 from sbrdf_core import input_files
 from sbrdf_core.errors import SbrdfError
 
-__all__ = ["FORMATS", "MeshData", "load_mesh", "load_obj", "mesh_files", "mesh_vertex_radius", "obj_vertex_radius", "read_obj"]
+__all__ = ["FORMATS", "MeshData", "load_mesh", "load_obj", "mesh_files", "mesh_vertex_radius", "read_obj"]
 
 #: File suffixes :func:`load_mesh` reads, with the format's name.
 FORMATS = {".obj": "OBJ", ".ply": "PLY", ".gltf": "glTF", ".glb": "glTF binary (GLB)"}
@@ -107,11 +107,6 @@ def mesh_files(path: str) -> list[str]:
             return out
         out += [str(Path(path).parent / u) for u in uris if isinstance(u, str) and u and ":" not in u]
     return out
-
-
-def obj_vertex_radius(path: str) -> float:
-    """Kept for one release: :func:`mesh_vertex_radius`."""
-    return mesh_vertex_radius(path)
 
 
 def mesh_vertex_radius(path: str) -> float:

@@ -2,7 +2,7 @@
 
 The solver itself (:func:`~sbrdf_lib.lm.fit_model` and its parts) is shared
 library code in :mod:`sbrdf_lib.lm`; this module is the fitter plugin around
-it.  The names below are re-exported for one release so old imports work.
+it.
 """
 
 from __future__ import annotations
@@ -14,18 +14,7 @@ import numpy as np
 
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable_mask
 from sbrdf_core.params import Param
-from sbrdf_lib.lm import (  # noqa: F401  (re-exported for one release)
-    EXACT,
-    IRLS_ROUNDS,
-    LOSSES,
-    MAX_DAMPING,
-    WEIGHTING,
-    candidate_starts,
-    fit_model,
-    levenberg_marquardt,
-    projector,
-    robust_weights,
-)
+from sbrdf_lib.lm import WEIGHTING, fit_model
 
 logger = logging.getLogger(__name__)
 

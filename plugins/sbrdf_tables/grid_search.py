@@ -20,7 +20,7 @@ What the thesis does, and how it is vectorised here:
   (§5.5 of the notes), for ``alternations`` passes.
 - **Reflection and transmission** lobes are searched separately, each on its
   own hemisphere's entries (no diffuse term on the transmission side).
-- ``lm_refine``: Levenberg–Marquardt (``sbrdf_fitters.lm.levenberg_marquardt``)
+- ``lm_refine``: Levenberg–Marquardt (``sbrdf_lib.lm.levenberg_marquardt``)
   from the grid result, minimising the same weights in L2, so the two can be
   compared (benchmarks/bsdf_tables.py).
 """

@@ -62,7 +62,7 @@ def test_no_effects_is_linear_float_and_runs_nothing(registry):
 
 
 def test_all_effects_run_and_are_recorded(registry):
-    # shadowing and masking act on a height field: give the sample one (sbrdf_cameras.mesostructure)
+    # shadowing and masking act on a height field: give the sample one (sbrdf_lib.mesostructure)
     cam = camera(registry, effects=list(EFFECTS), mesostructure={"height_mm": {"procedural": "bumps", "amplitude_mm": 1.0}})
     img = cam.photograph(*OVERHEAD, 1.0, pose_id=0)
     assert img.dtype == np.uint8 and cam.effects_ran == set(EFFECTS)

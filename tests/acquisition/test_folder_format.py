@@ -452,17 +452,13 @@ def test_a_pose_whose_every_pixel_is_negative_is_an_error_naming_pose_and_file(r
         run_graph(str(graph))
 
 
-def test_old_module_paths_re_export_the_library_layer():
-    """The format moved to sbrdf_lib (writers in other packages share it); the old paths stay for one release."""
+def test_capture_modules_use_the_library_layer():
+    """The format is in sbrdf_lib (writers in other packages share it); the capture plugins use those objects."""
     import sbrdf_lib.capture_folder as lib
-    import sbrdf_lib.mesostructure
     import sbrdf_lib.patterns
     import sbrdf_lib.response
-    from sbrdf_cameras import mesostructure
-    from sbrdf_capture import capture_folder, folder, response, synthetic
+    from sbrdf_capture import folder, response, synthetic
 
-    assert capture_folder.CaptureFolderWriter is lib.CaptureFolderWriter and set(capture_folder.__all__) == set(lib.__all__)
     assert folder.manifest_sections is lib.manifest_sections and folder.read_image is lib.read_image
     assert response.ResponseCurve is sbrdf_lib.response.ResponseCurve
     assert synthetic.pattern is sbrdf_lib.patterns.pattern
-    assert mesostructure.Mesostructure is sbrdf_lib.mesostructure.Mesostructure

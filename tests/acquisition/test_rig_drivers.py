@@ -375,16 +375,3 @@ def test_a_device_back_under_the_same_name_is_still_halted(start_simulator, tmp_
                                        r"port closed \(command 'PP1556'"):
         ptu.move_to(pan_deg=20.0)
     assert back.received == ["H"] and not ptu.is_open
-
-
-def test_old_module_paths_re_export_the_library_layer():
-    """Code written against sbrdf_rig's old modules keeps working for one release: same objects, not copies."""
-    import sbrdf_lib.rig_geometry
-    import sbrdf_lib.serial
-    from sbrdf_rig import controller, errors, kinematics, link
-    from sbrdf_rig.sim import base
-
-    assert controller.MotorController is sbrdf_lib.serial.MotorController
-    assert link.SerialLink is sbrdf_lib.serial.SerialLink and errors.LinkLost is sbrdf_lib.serial.LinkLost
-    assert base.PtySimulator is sbrdf_lib.serial.PtySimulator and base.Fault is Fault
-    assert kinematics.RigGeometry is sbrdf_lib.rig_geometry.RigGeometry

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from sbrdf_cameras.mesostructure import Mesostructure, procedural
 from sbrdf_core.registry import default_registry
+from sbrdf_lib.mesostructure import Mesostructure, procedural
 from sbrdf_shading.arc import render_arc_image
 from sbrdf_shading.compress import evaluate_power, fit_power
 from sbrdf_shading.linearize import interpolation_weights, linearize

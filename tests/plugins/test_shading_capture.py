@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sbrdf_cameras.mesostructure import Mesostructure
 from sbrdf_core.errors import ParameterError, PluginError
 from sbrdf_core.geometry import look_at
 from sbrdf_core.runner import run_graph
 from sbrdf_core.store import open_artifact
+from sbrdf_lib.mesostructure import Mesostructure
 from sbrdf_shading.arc import light_arc_angles
 
 SMALL = {"width": 160, "height": 120, "focal_px": 200.0, "texels": [32, 32], "dist": [0, 0, 0, 0, 0]}
@@ -104,7 +104,7 @@ def test_05_masking_finds_the_first_hit_on_a_tilted_plane():
 
 
 def test_06_light_arc_plan_puts_the_light_at_the_wanted_elevations():
-    from sbrdf_rig.kinematics import RigGeometry, forward
+    from sbrdf_lib.rig_geometry import RigGeometry, forward
 
     theta = [15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0, 85.0]
     g = RigGeometry()
