@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # the contract never imports the engine or numpy at runtime
     import numpy as np
 
     from .brdf import ModelParameter
-    from .types import CaptureDescription, Encoded, Limits, Material, RenderResult
+    from .types import CaptureDescription, Encoded, InputArtifact, Limits, Material, RenderResult
     from .types import Registration as RegistrationResult
 
 
@@ -203,8 +203,15 @@ class Quantizer(Protocol):
 class Renderer(Protocol):
     """The ``plugin:`` of a ``Render`` node."""
 
-    def render(self, material: Material, **kw: Any) -> RenderResult:
-        """An image (lazy or NumPy) of the material (``prepared=`` if it declares ``prepare``)."""
+    def render(self, material: Material | InputArtifact, prepared: Mapping[str, Any] | None = None) -> RenderResult:
+        """An image (lazy or NumPy) of the material.
+
+        ``material`` is a :class:`~sbrdf_core.types.Material` for a ParamMaps or
+        TextureSet input, and an :class:`~sbrdf_core.types.InputArtifact` for a
+        kind a plugin declares renderable (a shading map).  ``prepared`` is what
+        the renderer's ``prepare`` returned, computed; it is passed only to a
+        renderer that declares ``prepare``.
+        """
 
 
 @runtime_checkable

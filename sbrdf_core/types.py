@@ -14,6 +14,7 @@ Registration           a registration's ``register()``      the Register node, `
 Limits                 the Fit node                         a model's ``constrain()``
 Encoded                a quantizer's ``encode()``           the Quantize node
 Material               the Render node, ``load_material``   renderers, exporters
+InputArtifact          the Render node                      renderers of a plugin's kind
 RenderResult           a renderer's ``render()``            the Render node
 PluginRegistry         the registry                         nodes, hooks, plugins that create
 =====================  ===================================  ==================================
@@ -31,7 +32,8 @@ if TYPE_CHECKING:
     from .plugin import PluginSpec
 
 __all__ = [
-    "HALF_MAX", "CaptureDescription", "Encoded", "Limits", "Material", "PluginRegistry", "Registration", "RenderResult",
+    "HALF_MAX", "CaptureDescription", "Encoded", "InputArtifact", "Limits", "Material", "PluginRegistry", "Registration",
+    "RenderResult",
 ]
 
 
@@ -215,6 +217,17 @@ class Material:
     encoded: dict | None = None
     #: MIP levels 1 … L (a Mip node's ``mip/<l>/<parameter>``): ``[{name: (V >> l, U >> l, C)}]``, lazy.
     levels: list = field(default_factory=list)
+
+
+@dataclass
+class InputArtifact:
+    """A Render input of a kind a plugin renders (a shading map): renderers look its adapter up by its kind."""
+
+    artifact: Any
+
+    @property
+    def source(self) -> str:
+        return self.artifact.url
 
 
 @dataclass

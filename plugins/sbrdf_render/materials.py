@@ -228,7 +228,7 @@ def resolve(scene, input_material: Material | None, registry, prepared: dict | N
     """Every material the scene's objects use, loaded once; ``prepared``: :func:`prepare` computed."""
     used = {o.material for o in scene.objects}
     out = {}
-    from sbrdf_core.nodes.render import InputArtifact
+    from sbrdf_core.types import InputArtifact
 
     stored = None
     for name in sorted(used):
@@ -267,9 +267,9 @@ def surface_mapped(scene, name: str, model, ref, input_material) -> SceneMateria
     ``adapter(artifact, model, params, **options) -> surface``.
     """
     from sbrdf_core.artifacts import KINDS
-    from sbrdf_core.nodes.render import InputArtifact
     from sbrdf_core.registry import import_path
     from sbrdf_core.store import open_artifact
+    from sbrdf_core.types import InputArtifact
 
     surface = ref.surface
     if surface["store"] == "input":

@@ -7,7 +7,7 @@ the quantizer that wrote it, so the renderer always sees the model and its
 parameter maps (and, for renderers that emulate a texture format, the encoded
 textures too).  It also accepts every kind a plugin declares renderable
 (``ArtifactKind.material``, e.g. a shading map), handed over as an
-:class:`InputArtifact`.  Renderers that draw scenes read the scene file
+:class:`~sbrdf_core.types.InputArtifact`.  Renderers that draw scenes read the scene file
 themselves and may load further materials with :func:`load_material`.
 
 A renderer that needs arrays in memory declares ``prepare(material) ->
@@ -18,8 +18,6 @@ renderer gets ``render(material, prepared=...)`` — building never computes.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -28,7 +26,7 @@ from .. import contracts
 from ..artifacts import KINDS, Images, ParamMaps, TextureSet
 from ..io import linear_to_srgb8, write_exr, write_png
 from ..store import join
-from ..types import Material, RenderResult
+from ..types import InputArtifact, Material
 from .base import BuildContext, NodeKind, Output, Port
 
 
@@ -58,17 +56,6 @@ def open_material(registry, url: str) -> Material:
     from ..store import open_artifact
 
     return load_material(registry, open_artifact(url, (ParamMaps, TextureSet)))
-
-
-@dataclass
-class InputArtifact:
-    """A Render input of a kind a plugin renders (a shading map): renderers look its adapter up by its kind."""
-
-    artifact: Any
-
-    @property
-    def source(self) -> str:
-        return self.artifact.url
 
 
 def material_from(ctx: BuildContext, art) -> Material | InputArtifact:
@@ -127,13 +114,10 @@ class Render(NodeKind):
         art = ctx.inputs["material"]
         material = material_from(ctx, art)
         renderer: contracts.Renderer = ctx.plugin
-        # contracts.Renderer.render names a Material; a kind a plugin declares renderable (a shading map) reaches
-        # the same method as an InputArtifact, which the protocol does not say yet.
-        render: Callable[..., RenderResult] = renderer.render
         if contracts.optional(renderer, "prepare", "renderer") is not None:
-            result = render(material, prepared=ctx.prepared)
+            result = renderer.render(material, prepared=ctx.prepared)
         else:
-            result = render(material)
+            result = renderer.render(material)
 
         def finalize(art):
             t0 = time.perf_counter()

@@ -103,7 +103,7 @@ def test_the_shipped_shading_map_scene_shows_the_exponent(registry):
 
 
 def test_a_shading_map_input_needs_a_shading_material(registry):
-    from sbrdf_core.nodes.render import InputArtifact
+    from sbrdf_core.types import InputArtifact
 
     class Art:
         kind, url = "ShadingMap", "/nowhere"
