@@ -6,10 +6,41 @@ McAllister's prefiltered maps (D(N) and S(ω_p, n), Eq 6.18), Mühlbacher's
 deterministic filtered in-lobe sampling (Eqs 4.10–4.25), or Monte Carlo
 (the cpu reference, progressive in gl).  Renderers consult it only when a
 scene has ``environment:``.  See ``docs/environment-lighting.md``.
+
+The effects' options are declared here, once, so listing and validating read
+them without importing the effects; the effect classes take the same tuples.
 """
 
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
+
+#: Options of the ``environment`` scene effect: the ``options:`` of the scene's ``environment:`` section.
+ENVIRONMENT_OPTIONS = (
+    Param("method", "str", "prefiltered-discrete", "prefiltered-discrete | prefiltered-mip (McAllister Eq 6.18), "
+          "sampling (Muehlbacher's deterministic in-lobe samples), mc (cpu Monte Carlo reference), progressive "
+          "(gl: mc_samples per frame, running mean over frames)",
+          choices=("prefiltered-discrete", "prefiltered-mip", "sampling", "mc", "progressive")),
+    Param("size", "int", 32, "cube face size of the environment (power of two); its MIP chain feeds sampling",
+          bounds=(1, 4096)),
+    Param("prefiltered_size", "int", 32, "face size of the specular maps S(., n) (MIP form: of n = 256)",
+          bounds=(1, 4096)),
+    Param("diffuse_size", "int", 16, "face size of the diffuse map D(N)", bounds=(1, 4096)),
+    Param("cosine", "str", "normalized", "Eq 6.18's cosine: N.p/|p| clamped at 0 (normalized) or the printed N.p "
+          "(literal)", choices=("normalized", "literal")),
+    Param("prefilter", "str", "auto", "where the maps are convolved: gl (a fragment pass), numpy (the float64 "
+          "reference integrator), auto (gl in the gl renderer, numpy in cpu)", choices=("auto", "gl", "numpy")),
+    Param("samples", "int", 7, "deterministic samples per lobe (Table 4.1: 3 to 19)", bounds=(1, 64)),
+    Param("estimator", "str", "4.25", "ratio estimator of the deterministic samples (Eq 4.23, 4.24 or 4.25)",
+          choices=("4.23", "4.24", "4.25")),
+    Param("xi_border", "float", 0.01, "lobe cut: the importance-sampling mass left outside the pattern",
+          bounds=(1e-6, 0.5)),
+    Param("ring_radius", "float", 0.6, "xi_1 of the ring (theta_h = 0.4 theta_thresh)", bounds=(0.0, 1.0)),
+    Param("line_threshold", "float", 4.0, "m_y/m_x (or m_x/m_y) above which the line pattern replaces the ring "
+          "(not given in the thesis)", bounds=(1.0, None)),
+    Param("mc_samples", "int", 64, "Monte Carlo samples per strategy and pixel (per frame when progressive)",
+          bounds=(1, 1 << 20)),
+    Param("seed", "int", 0, "seed of the scrambled Sobol points", bounds=(0, None)),
+)
 
 #: Options of the ``mirror`` scene effect: the scene's ``mirror:`` section, validated by the scene loader.
 MIRROR_PARAMS = (
@@ -70,12 +101,12 @@ def sbrdf_scene_keys():
 
 @hookimpl
 def sbrdf_scene_effects():
-    return [PluginSpec("environment", "sbrdf_envmap.effect:EnvironmentEffect",
+    return [PluginSpec("environment", "sbrdf_envmap.effect:EnvironmentEffect", params=ENVIRONMENT_OPTIONS,
                        summary="Environment maps: McAllister's prefiltered maps, Muehlbacher's deterministic "
                                "in-lobe sampling, Monte Carlo reference"),
-            PluginSpec("cubemaps", "sbrdf_envmap.cubemaps:CubeMapEffect",
+            PluginSpec("cubemaps", "sbrdf_envmap.cubemaps:CubeMapEffect", params=CUBE_MAP_PARAMS,
                        summary="Per-object cube maps (cube_map: on an object): the diffuse scene rendered at its "
                                "centre, bounding-plane parallax correction, deterministic in-lobe samples"),
-            PluginSpec("mirror", "sbrdf_envmap.mirror:MirrorEffect",
+            PluginSpec("mirror", "sbrdf_envmap.mirror:MirrorEffect", params=MIRROR_PARAMS,
                        summary="Planar reflectors (reflector: true planes): Muehlbacher's mirrored-camera buffer "
                                "with tangent-plane projection; ray-cast Monte Carlo reference in cpu")]

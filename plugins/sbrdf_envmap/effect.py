@@ -23,9 +23,8 @@ import threading
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
-from sbrdf_core.params import Param
 
-from . import cubemap, lobes, prefilter, sampling
+from . import ENVIRONMENT_OPTIONS, cubemap, lobes, prefilter, sampling
 
 logger = logging.getLogger(__name__)
 
@@ -65,32 +64,7 @@ class EnvironmentEffect:
 
     name = "environment"
 
-    params = (
-        Param("method", "str", "prefiltered-discrete", "prefiltered-discrete | prefiltered-mip (McAllister Eq 6.18), "
-              "sampling (Muehlbacher's deterministic in-lobe samples), mc (cpu Monte Carlo reference), progressive "
-              "(gl: mc_samples per frame, running mean over frames)",
-              choices=("prefiltered-discrete", "prefiltered-mip", "sampling", "mc", "progressive")),
-        Param("size", "int", 32, "cube face size of the environment (power of two); its MIP chain feeds sampling",
-              bounds=(1, 4096)),
-        Param("prefiltered_size", "int", 32, "face size of the specular maps S(., n) (MIP form: of n = 256)",
-              bounds=(1, 4096)),
-        Param("diffuse_size", "int", 16, "face size of the diffuse map D(N)", bounds=(1, 4096)),
-        Param("cosine", "str", "normalized", "Eq 6.18's cosine: N.p/|p| clamped at 0 (normalized) or the printed N.p "
-              "(literal)", choices=("normalized", "literal")),
-        Param("prefilter", "str", "auto", "where the maps are convolved: gl (a fragment pass), numpy (the float64 "
-              "reference integrator), auto (gl in the gl renderer, numpy in cpu)", choices=("auto", "gl", "numpy")),
-        Param("samples", "int", 7, "deterministic samples per lobe (Table 4.1: 3 to 19)", bounds=(1, 64)),
-        Param("estimator", "str", "4.25", "ratio estimator of the deterministic samples (Eq 4.23, 4.24 or 4.25)",
-              choices=("4.23", "4.24", "4.25")),
-        Param("xi_border", "float", 0.01, "lobe cut: the importance-sampling mass left outside the pattern",
-              bounds=(1e-6, 0.5)),
-        Param("ring_radius", "float", 0.6, "xi_1 of the ring (theta_h = 0.4 theta_thresh)", bounds=(0.0, 1.0)),
-        Param("line_threshold", "float", 4.0, "m_y/m_x (or m_x/m_y) above which the line pattern replaces the ring "
-              "(not given in the thesis)", bounds=(1.0, None)),
-        Param("mc_samples", "int", 64, "Monte Carlo samples per strategy and pixel (per frame when progressive)",
-              bounds=(1, 1 << 20)),
-        Param("seed", "int", 0, "seed of the scrambled Sobol points", bounds=(0, None)),
-    )
+    params = ENVIRONMENT_OPTIONS
 
     def __init__(self, *, method: str = "prefiltered-discrete", size: int = 32, prefiltered_size: int = 32,
                  diffuse_size: int = 16, cosine: str = "normalized", prefilter: str = "auto", samples: int = 7,

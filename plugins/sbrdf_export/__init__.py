@@ -10,20 +10,22 @@ exporter is the ``plugin:`` of an ``Export`` node (docs/interchange.md).
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from . import declarations
+
 
 @hookimpl
 def sbrdf_exporters():
     return [
-        PluginSpec("exr-set", "sbrdf_export.exr_set:EXRSetExporter",
+        PluginSpec("exr-set", "sbrdf_export.exr_set:EXRSetExporter", params=declarations.EXR_SET,
                    summary="One float EXR per model parameter plus a JSON sidecar (units, channels, model, texel "
                            "grid, GLSL): the model's own maps, no conversion"),
-        PluginSpec("materialx", "sbrdf_export.materialx:MaterialXExporter",
+        PluginSpec("materialx", "sbrdf_export.materialx:MaterialXExporter", params=declarations.MATERIALX,
                    summary="MaterialX document (standard_surface with image nodes) of the GGX metallic-roughness "
                            "conversion"),
         PluginSpec("usd", "sbrdf_export.usd:USDExporter",
                    summary="USD stage with a UsdShade material (UsdPreviewSurface + UsdUVTexture) bound to a plane, "
                            "from the GGX metallic-roughness conversion"),
-        PluginSpec("mitsuba", "sbrdf_export.mitsuba:MitsubaExporter",
+        PluginSpec("mitsuba", "sbrdf_export.mitsuba:MitsubaExporter", params=declarations.MITSUBA,
                    summary="Mitsuba 3 scene (XML + EXR bitmaps): diffuse + GGX rough conductor from the GGX "
                            "conversion, camera and lights from a project scene file"),
     ]

@@ -19,9 +19,9 @@ import os
 import numpy as np
 
 from sbrdf_core.io import write_exr_channels
-from sbrdf_core.params import Param
 
 from .common import exr_channels, model_config, texel_grid, write_json
+from .declarations import EXR_SET
 
 FORMAT = "sbrdf-exr-set/1"
 
@@ -29,11 +29,7 @@ FORMAT = "sbrdf-exr-set/1"
 class EXRSetExporter:
     """The model's parameter maps, one EXR each, plus ``material.json`` and ``brdf.glsl``."""
 
-    params = (
-        Param("colour_space", "str", "mcallister", "linear RGB primaries of the colour parameters (recorded in the JSON)",
-              choices=("mcallister", "rec709", "rec2020")),
-        Param("glsl", "bool", True, "also write the model's GLSL (brdf.glsl) and put it in the JSON"),
-    )
+    params = EXR_SET
 
     def __init__(self, *, colour_space: str = "mcallister", glsl: bool = True):
         self.colour_space = colour_space

@@ -15,17 +15,6 @@ import os
 
 import numpy as np
 
-from sbrdf_core.params import Param
-
-STARTS = Param("starts", "int", 1, "LM starts of the per-texel GGX refit (the start is already the best of a "
-               "40-value roughness grid)", bounds=(1, 8))
-ITERATIONS = Param("iterations", "int", 8, "LM iterations refining the per-texel GGX refit (0: the grid start alone)",
-                   bounds=(0, 1000))
-MAX_THETA = Param("max_theta_deg", "float", 70.0, "largest light or view angle from the normal the conversion fits "
-                  "and scores (the directions a viewer meets)", bounds=(10.0, 89.0), unit="deg")
-FLAG_ERROR = Param("flag_error", "float", 0.25, "texels whose conversion error (cosine-weighted relative RMS on "
-                   "held-out directions) is above this are flagged (flagged.png, attrs['flagged'])", bounds=(0.0, None))
-
 
 def with_flags(maps: dict, flag_error: float) -> dict:
     """``maps`` plus ``conversion_error`` (= ``error``) and ``flagged`` (1.0 where error > ``flag_error``), lazily."""

@@ -26,10 +26,10 @@ import os
 import numpy as np
 
 from sbrdf_core.io import write_exr
-from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json
-from .ggx import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS, GGXConverting, write_error_files
+from .declarations import MATERIALX
+from .ggx import GGXConverting, write_error_files
 
 #: Standard Surface input <- (map, MaterialX type).
 INPUTS = {"base_color": ("base_color", "color3"), "metalness": ("metallic", "float"),
@@ -77,13 +77,7 @@ class MaterialXExporter(GGXConverting):
     #: Optional modules ``write`` imports: ``sbrdf validate`` reports a missing one with its extra.
     requires = ("MaterialX",)
 
-    params = (
-        Param("name", "str", "sbrdf", "material name in the document (node names derive from it)"),
-        STARTS,
-        ITERATIONS,
-        FLAG_ERROR,
-        MAX_THETA,
-    )
+    params = MATERIALX
 
     def __init__(self, *, name: str = "sbrdf", starts: int = 1, iterations: int = 8, flag_error: float = 0.25,
                  max_theta_deg: float = 70.0):

@@ -38,10 +38,10 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from sbrdf_core.io import write_exr
-from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json
-from .ggx import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS, GGXConverting, write_error_files
+from .declarations import MITSUBA
+from .ggx import GGXConverting, write_error_files
 
 FORMAT = "sbrdf-mitsuba/1"
 #: F0 above this is written as this (η stays finite).
@@ -78,16 +78,7 @@ def _el(parent, tag: str, **attrs) -> ET.Element:
 class MitsubaExporter(GGXConverting):
     """GGX-converted bitmaps and a Mitsuba 3 scene generated from a project scene file."""
 
-    params = (
-        Param("scene", "str", None, "project scene file (YAML, docs/scenes.md) to translate; default: a plane under "
-              "a point light (written as scene.yaml)", nullable=True, extra={"path": True}),
-        Param("resolution", "list", [256, 192], "image size [width, height] of the default scene", length=2,
-              item="int", bounds=(1, 16384)),
-        STARTS,
-        ITERATIONS,
-        FLAG_ERROR,
-        MAX_THETA,
-    )
+    params = MITSUBA
 
     def __init__(self, *, scene: str | None = None, resolution: list | tuple = (256, 192), starts: int = 1,
                  iterations: int = 8, flag_error: float = 0.25,

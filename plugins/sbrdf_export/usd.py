@@ -33,7 +33,8 @@ import numpy as np
 from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json, write_png
-from .ggx import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS, GGXConverting, write_error_files
+from .declarations import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS
+from .ggx import GGXConverting, write_error_files
 
 #: UsdPreviewSurface input <- (texture file, type, colour space, channels).
 TEXTURES = {"diffuseColor": ("diffuse_color.png", "color3f", "sRGB", "rgb"),

@@ -37,7 +37,6 @@ from sbrdf_core.brdf import LOG_CAP, BRDFModel, ModelParameter, above_horizon, p
 from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
-from sbrdf_lib.lm import diffuse_percentile
 
 #: McAllister's initial guesses (§4.3.1): lobe 1 forward (mirror), lobe 2 back-scatter.
 INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
@@ -682,6 +681,8 @@ class LafortuneFitForm(LafortuneModel):
 
         T = f_r.shape[0]
         params = self.defaults(T)
+        from sbrdf_lib.lm import diffuse_percentile  # the solver library, needed only when a fit starts
+
         params["rho_d"] = diffuse_percentile(f_r, valid, 10.0)
         if not self.lobes:
             return params

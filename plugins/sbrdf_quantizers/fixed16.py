@@ -32,8 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from sbrdf_core.params import Param
 from sbrdf_core.types import Encoded
+
+from .declarations import FIXED16
 
 TOP = 65535
 #: Positive parameters whose declared bounds span more than this ratio are stored as logarithms.
@@ -61,9 +62,7 @@ def _canonical_block(packed, model):
 class Fixed16Quantizer:
     """16-bit fixed point over each channel's range; magnitudes, exponents and widths stored as logarithms."""
 
-    params = (
-        Param("canonical", "bool", False, "store the model's canonical parameters (Lafortune: C_z = 1)"),
-    )
+    params = FIXED16
 
     def __init__(self, *, canonical: bool = False):
         self.canonical = canonical

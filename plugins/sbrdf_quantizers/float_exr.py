@@ -24,9 +24,10 @@ import numpy as np
 
 from sbrdf_core.brdf import LUMINANCE_WEIGHTS
 from sbrdf_core.io import read_exr_channels, write_exr_channels
-from sbrdf_core.params import Param
 from sbrdf_core.store import join
 from sbrdf_core.types import Encoded
+
+from .declarations import FLOAT_EXR
 
 FORMAT = "sbrdf-material/1"
 RGB = "RGB"
@@ -106,11 +107,7 @@ def _to_float(x, dtype):
 class FloatEXRQuantizer:
     """Float textures (exact for float32); the EXR + JSON pair is written beside them."""
 
-    params = (
-        Param("dtype", "str", "float16", "float32 (exact) or half float", choices=("float16", "float32")),
-        Param("colour_space", "str", "mcallister", "linear RGB primaries the material is in (recorded in the JSON)",
-              choices=("mcallister", "rec709", "rec2020")),
-    )
+    params = FLOAT_EXR
 
     def __init__(self, *, dtype: str = "float16", colour_space: str = "mcallister"):
         self.dtype = np.dtype(dtype)

@@ -12,16 +12,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from sbrdf_core.params import Param
 from sbrdf_core.types import Encoded
+
+from .declarations import LINEAR
 
 
 class LinearQuantizer:
     """One texture per model parameter: fixed point with per-channel scale/bias over the data range, or float."""
 
-    params = (
-        Param("dtype", "str", "uint8", "texel storage type", choices=("uint8", "uint16", "float16", "float32")),
-    )
+    params = LINEAR
 
     def __init__(self, *, dtype: str = "uint8"):
         self.dtype = np.dtype(dtype)

@@ -43,8 +43,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from sbrdf_core.params import Param
 from sbrdf_core.types import Encoded
+
+from .declarations import MCALLISTER8
 
 RESCALES = ("max", "balanced", "none")
 
@@ -115,14 +116,7 @@ def _encode_block(packed, model, strategy, c_range, names):
 class McAllister8Quantizer:
     """The hardware layout; ``decode`` is exact given the codes (the only loss is in ``encode``)."""
 
-    params = (
-        Param("rescale", "str", "max", "per-texel rho_s/C gauge: max(rho_s) = 1, min(rho_s) = min|C|, or as fitted",
-              choices=("max", "balanced", "none")),
-        Param("c_range", "float", 1.0, "C biased over -1..1 (7 bits) or -2..2 (6 bits, keeps |C| > 1)",
-              choices=(1.0, 2.0)),
-        Param("alpha", "str", None, "transparency mask: a PNG of the texel grid (0 = cut away) stored as "
-              "rho_d's alpha; relative to the graph file", nullable=True, extra={"path": True}),
-    )
+    params = MCALLISTER8
 
     def __init__(self, *, rescale: str = "max", c_range: float = 1.0, alpha: str | None = None):
         if rescale not in RESCALES:

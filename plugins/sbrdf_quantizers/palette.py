@@ -30,9 +30,10 @@ import numpy as np
 
 from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.io import read_png, write_png
-from sbrdf_core.params import Param
 from sbrdf_core.store import join
 from sbrdf_core.types import Encoded
+
+from .declarations import PALETTE
 
 
 def sample_directions(n: int = 12) -> tuple[np.ndarray, np.ndarray]:
@@ -158,11 +159,7 @@ def _take_block(index, pal):
 class PaletteQuantizer:
     """K ≤ 256 representative BRDFs clustered in sampled-BRDF space; an index PNG and the palette."""
 
-    params = (
-        Param("k", "int", 256, "palette entries at most (8-bit index)", bounds=(1, 256)),
-        Param("directions", "int", 12, "Fibonacci directions per side of the sampled-BRDF vectors", bounds=(2, 64)),
-        Param("seed", "int", 0, "k-means seed"),
-    )
+    params = PALETTE
 
     def __init__(self, *, k: int = 256, directions: int = 12, seed: int = 0):
         self.k, self.directions, self.seed = k, directions, seed

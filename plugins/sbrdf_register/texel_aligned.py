@@ -13,17 +13,15 @@ import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import camera_centre
-from sbrdf_core.params import Param
 from sbrdf_core.types import Registration
+
+from .declarations import TEXEL_ALIGNED
 
 
 class TexelAligned:
     """Register plugin ``texel-aligned`` (see the module docstring)."""
 
-    params = (
-        Param("max_rms_mm", "float", 0.5, "reject poses whose registration residual exceeds this", bounds=(0.0, None),
-              unit="mm"),
-    )
+    params = TEXEL_ALIGNED
 
     def __init__(self, *, max_rms_mm: float = 0.5):
         self.max_rms_mm = max_rms_mm
