@@ -183,7 +183,7 @@ def cmd_plugins(args) -> int:
             continue
         print(f"\n{category}:")
         for name in sorted(specs):
-            try:  # parameters are declared on the implementation: listing imports it
+            try:  # a spec without its parameters names them on the implementation, which this imports
                 spec = reg.get(category, name)
             except PluginError as e:
                 print(f"  {name}  unavailable: {e}", file=sys.stderr)
