@@ -297,6 +297,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                       "found (poses with pixels made invalid, the worst one), asked once every pose "
                                       "is written: the Capture node logs the line as one warning and stores `attrs` "
                                       "on the CaptureSet, so a source warns once per node, not once per pose.", None),
+        "calibrate": OptionalMember("`calibrate(*, dark_offset, dark_rate, flat)`: correct every exposure with the "
+                                    "Capture node's `dark` (DarkFrame) and `flat` (FlatField) inputs, `(H, W, 3)` "
+                                    "arrays in linear signal units, before the bracket is merged; called before "
+                                    "`describe`. Without it the node refuses those inputs.", None),
     },
     "device": {**_COMMON},
     "registration": {

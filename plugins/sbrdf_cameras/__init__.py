@@ -8,7 +8,9 @@ device into an ``sbrdf-capture/1`` folder and reads it back as ``folder``
 does, so a graph can make its own simulated scan.  Each implementation
 declares its parameters on its class (``params``, above ``__init__``);
 implementation modules are imported only when a device or source is created
-(or its parameters are asked for).
+(or its parameters are asked for).  The calibration captures are node kinds
+of their own (``DarkFrame``, ``FlatField``: :mod:`sbrdf_cameras.calibration`),
+whose artifacts the Capture node's ``dark`` and ``flat`` inputs take.
 """
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -41,3 +43,17 @@ def sbrdf_captures():
                     "folder does: a graph that makes its own simulated scan",
         ),
     ]
+
+
+@hookimpl
+def sbrdf_node_kinds():
+    from .calibration import DarkFrame, FlatField
+
+    return [DarkFrame, FlatField]
+
+
+@hookimpl
+def sbrdf_artifact_kinds():
+    from .calibration import DARK_FRAME, FLAT_FIELD
+
+    return [DARK_FRAME, FLAT_FIELD]

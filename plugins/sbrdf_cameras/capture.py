@@ -285,6 +285,16 @@ class VirtualFolderCapture:
         self.reader.manifest = None  # (re)read the finished folder as the folder plugin would
         return self.reader.describe()
 
+    def calibrate(self, *, dark_offset: np.ndarray | None = None, dark_rate: np.ndarray | None = None,
+                  flat: np.ndarray | None = None) -> None:
+        """Dark model and flat field of the Capture node's ``dark``/``flat`` inputs: the folder reader applies them
+        (:meth:`sbrdf_capture.folder.FolderCapture.calibrate`)."""
+        if self.reader is None:
+            from sbrdf_core.registry import default_registry
+
+            self.bind(default_registry())
+        self.reader.calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
+
     def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         if not self._ready:
             self.describe()

@@ -29,6 +29,8 @@ effect          what it does
                 σ ``motor_rotation_deg``, light offset of σ ``motor_light_mm``);
                 the capture records the nominal pose, :meth:`true_pose` the real one
 ``dark_current`` a fixed per-sensel dark signal rate (signal/s) added to every frame
+``black_level`` a fixed per-sensel pedestal (``black_level`` of saturation, 10 % spread
+                between sensels) added to every frame whatever its exposure
 ``noise``       shot noise (``full_well`` electrons at saturation) and read noise
 ``saturation``  the linear signal clips at 1 (the sensor's full well)
 ``response``    an 8/16-bit camera response curve (gamma, sRGB or McAllister's cubic)
@@ -62,8 +64,8 @@ from sbrdf_core.params import Param
 
 logger = logging.getLogger(__name__)
 
-EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "noise", "saturation", "response",
-           "shadowing", "masking")
+EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "black_level", "noise", "saturation",
+           "response", "shadowing", "masking")
 #: Effects that need a mesostructure to act on.
 MESOSTRUCTURE_EFFECTS = ("shadowing", "masking")
 WHITE_ALBEDO = 0.80
@@ -125,6 +127,8 @@ class VirtualCamera:
         Param("read_noise", "float", 0.001, "noise effect: read noise σ as a fraction of saturation", bounds=(0.0, None)),
         Param("dark_current", "float", 0.002, "dark_current effect: mean dark signal per second (fraction of saturation)",
               bounds=(0.0, None), unit="1/s"),
+        Param("black_level", "float", 0.02, "black_level effect: mean pedestal of every frame (fraction of saturation)",
+              bounds=(0.0, 0.5)),
         Param("vignetting_power", "float", 4.0, "vignetting effect: factor cos^p of the off-axis angle", bounds=(0.0, 16.0)),
         Param("motor_rotation_deg", "float", 0.786, "motor_error effect: σ of the sample rotation (PTU-46-70 repeatability)",
               bounds=(0.0, 45.0), unit="deg"),
@@ -148,7 +152,7 @@ class VirtualCamera:
                  effects: Sequence[str] = (), response_curve: str = "srgb", response_gamma: float = 2.2,
                  response_coefficients: Sequence[float] = (2.0, -0.05, -0.01), bit_depth: int = 8,
                  record_response: bool = True, full_well: float = 20000.0, read_noise: float = 0.001,
-                 dark_current: float = 0.002, vignetting_power: float = 4.0, motor_rotation_deg: float = 0.786,
+                 dark_current: float = 0.002, black_level: float = 0.02, vignetting_power: float = 4.0, motor_rotation_deg: float = 0.786,
                  motor_light_mm: float = 2.462, blur_px: float = 0.7, seed: int = 0, row_chunk: int = 128,
                  carrier_supersample: int = 4, mesostructure: Mapping | None = None):
         unknown = [e for e in effects if e not in EFFECTS]
@@ -171,6 +175,7 @@ class VirtualCamera:
         self.response_curve, self.response_gamma = response_curve, response_gamma
         self.response_coefficients, self.bit_depth, self.record_response = list(response_coefficients), bit_depth, record_response
         self.full_well, self.read_noise, self.dark_current = full_well, read_noise, dark_current
+        self.black_level = float(black_level)
         self.vignetting_power = vignetting_power
         self.motor_rotation_deg, self.motor_light_mm, self.blur_px = motor_rotation_deg, motor_light_mm, blur_px
         self.seed, self.row_chunk = seed, row_chunk
@@ -285,6 +290,8 @@ class VirtualCamera:
             settings.update(full_well=self.full_well, read_noise=self.read_noise)
         if "dark_current" in self.effects:
             settings["dark_current"] = self.dark_current
+        if "black_level" in self.effects:
+            settings["black_level"] = self.black_level
         if "vignetting" in self.effects:
             settings["vignetting_power"] = self.vignetting_power
         if "motor_error" in self.effects:
@@ -584,11 +591,22 @@ class VirtualCamera:
             self._dark_rate_map = (self.dark_current * rng.gamma(4.0, 0.25, (self.height, self.width, 3))).astype(np.float32)
         return self._dark_rate_map
 
+    def _black_level(self) -> np.ndarray:
+        """Fixed-pattern pedestal per sensel and channel (signal), from the camera seed."""
+        if getattr(self, "_black_level_map", None) is None:
+            rng = np.random.default_rng([self.seed, 5])
+            spread = 1.0 + 0.1 * rng.standard_normal((self.height, self.width, 3))
+            self._black_level_map = (self.black_level * spread).astype(np.float32)
+        return self._black_level_map
+
     def _sensor(self, L: np.ndarray, exposure_s: float, noise_key: Sequence[int], stream: int = 2) -> np.ndarray:
         S = L * np.float32(exposure_s * self.sensitivity)
         if "dark_current" in self.effects:
             self.effects_ran.add("dark_current")
             S = S + self._dark_rate() * np.float32(exposure_s)
+        if "black_level" in self.effects:
+            self.effects_ran.add("black_level")
+            S = S + self._black_level()
         if "noise" in self.effects:
             self.effects_ran.add("noise")
             rng = np.random.default_rng([self.seed, stream, *noise_key])
@@ -619,9 +637,24 @@ class VirtualCamera:
         return self._sensor(L, exposure_s, (key, exposure_index))
 
     def dark_frame(self, exposure_s: float, frame_id: int = 0) -> np.ndarray:
-        """A lens-capped frame (no light): dark current and noise only, through the same sensor."""
+        """A lens-capped frame (no light): dark current, black level and noise only, through the same sensor."""
         L = np.zeros((self.height, self.width, 3), np.float32)
         return self._sensor(L, exposure_s, (frame_id, 0), stream=4)
+
+    def flat_frame(self, exposure_s: float, frame_id: int = 0) -> np.ndarray:
+        """A frame of a uniform target filling the view (a diffuser on the lens, an integrating sphere's port).
+
+        The target's radiance puts the signal of an on-axis pixel at half of
+        saturation at ``exposure_s``; the optics (vignetting) and the sensor
+        (dark current, black level, noise, response) act on it as on a
+        photograph.
+        """
+        if not exposure_s > 0:
+            raise ParameterError(f"virtual-camera: exposure time must be positive, got {exposure_s!r}")
+        L = np.full((self.height, self.width, 3), 0.5 / (exposure_s * self.sensitivity), np.float32)
+        if "vignetting" in self.effects:
+            L *= self.vignetting()[..., None].astype(np.float32)
+        return self._sensor(L, exposure_s, (frame_id, 0), stream=6)
 
 
 # ---------------------------------------------------------------------------

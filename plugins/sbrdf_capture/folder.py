@@ -13,6 +13,14 @@ dark frame, and merge the bracket (:func:`sbrdf_capture.hdr.merge_exposures`);
 saturated and under-exposed pixels are marked invalid.  An optional 3×3
 colour matrix takes camera RGB to the working space.
 
+Calibration captures (the ``DarkFrame`` and ``FlatField`` nodes, wired into
+the Capture node's ``dark`` and ``flat`` inputs) reach the reader through
+:meth:`FolderCapture.calibrate`: every exposure's linear signal becomes
+``(S - offset - rate · t) / flat`` (:func:`sbrdf_lib.calibration.correct`)
+before the merge, and pixels the flat cannot correct are invalid.  The
+``dark_frame`` parameter (a lens-capped image inside the folder, scaled by
+exposure time) is the older, simpler form; a reader takes one or the other.
+
 Response curve: the manifest's, else ``"linear"`` for float images, else it
 is recovered from the brackets (McAllister's cubic by default, or Debevec's)
 once, at describe time, from a sample of pixels of up to ``response_poses``
@@ -49,6 +57,7 @@ import numpy as np
 
 from sbrdf_core.params import REQUIRED, Param
 from sbrdf_core.types import CaptureDescription
+from sbrdf_lib.calibration import correct, flat_usable
 from sbrdf_lib.capture_folder import (
     MANIFEST,
     CaptureFolderError,
@@ -120,6 +129,8 @@ class FolderCapture:
         self.curve: ResponseCurve | None = None
         self.linear = False
         self._dark: np.ndarray | None = None
+        #: ``(offset, rate, flat)`` from calibration captures (:meth:`calibrate`), each ``(H, W, 3)`` or ``None``.
+        self._calibration: tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None] = (None, None, None)
 
     # -- protocol ------------------------------------------------------------------
 
@@ -192,6 +203,33 @@ class FolderCapture:
         pose = m.poses[index]
         return self.read_record(pose, f"poses[{index}] (id {pose.id})")
 
+    def calibrate(self, *, dark_offset: np.ndarray | None = None, dark_rate: np.ndarray | None = None,
+                  flat: np.ndarray | None = None) -> None:
+        """Correct every exposure with a dark model and a normalised flat field (module docstring).
+
+        Each array is ``(H, W, 3)`` in linear signal units (the camera's codes
+        through the same response as the photographs): what the ``DarkFrame``
+        and ``FlatField`` nodes store.  The Capture node calls this before
+        :meth:`describe` when its ``dark``/``flat`` inputs are wired.
+        """
+        if self.dark_frame_name and (dark_offset is not None or dark_rate is not None):
+            raise CaptureFolderError(f"{self.path / MANIFEST}: both a dark_frame ({self.dark_frame_name}) and a DarkFrame "
+                                     "input were given; use one of them")
+        arrays = [None if a is None else np.asarray(a, np.float32) for a in (dark_offset, dark_rate, flat)]
+        shapes = {a.shape for a in arrays if a is not None}
+        if len(shapes) > 1 or any(len(s) != 3 or s[2] != 3 for s in shapes):
+            raise CaptureFolderError(f"{self.path / MANIFEST}: calibration arrays must share one (H, W, 3) shape, got "
+                                     f"{sorted(shapes)}")
+        self._calibration = (arrays[0], arrays[1], arrays[2])
+
+    def _check_calibration(self, m: Manifest) -> None:
+        shapes = {a.shape[:2] for a in self._calibration if a is not None}
+        if shapes and shapes != {(m.camera.height, m.camera.width)}:
+            (h, w), = shapes
+            raise CaptureFolderError(f"{self.path / MANIFEST}: the calibration captures (dark frame, flat field) are "
+                                     f"{w}x{h} pixels but the camera is {m.camera.width}x{m.camera.height}; take them "
+                                     "with the camera and region of interest of the capture")
+
     # -- shared with rigs that write a folder while they read it (the ``gonio`` source) -------
 
     def attach(self, manifest: Manifest) -> None:
@@ -206,6 +244,7 @@ class FolderCapture:
         """
         self.linear, self.curve, self._dark = False, None, None
         self._choose_response(manifest)
+        self._check_calibration(manifest)
         self.manifest = manifest
         if self.dark_frame_name:
             self._load_dark(manifest)
@@ -217,15 +256,24 @@ class FolderCapture:
             raise CaptureFolderError(f"{self.path / MANIFEST}: read_record before the folder was opened or attached")
         signals, levels, times = [], [], []
         float_pose = False  # local: dask threads read poses of one capture concurrently
+        offset, rate, flat = self._calibration
         for k, e in enumerate(pose.exposures):
             at = f"{where}.exposures[{k}]"
             img = self._read(resolve_image(self.path, e, at + ".file"), at, m)
             signal, level = self._linearize(img, at)
             float_pose = float_pose or img.dtype.kind == "f"
-            signals.append(subtract_dark(signal, self._dark, self.dark_time_s or 1.0, e.time_s))
+            signal = subtract_dark(signal, self._dark, self.dark_time_s or 1.0, e.time_s)
+            if offset is not None or rate is not None:
+                if self.linear and img.dtype.kind == "u":
+                    # Linear codes: judge under-exposure above the dark signal, not above zero.
+                    level = correct(level, e.time_s, offset, rate)
+                signal = correct(signal, e.time_s, offset, rate)
+            signals.append(signal if flat is None else correct(signal, e.time_s, flat=flat))
             levels.append(level)
             times.append(e.time_s)
         radiance, valid = merge_exposures(signals, levels, times, self.saturation, self.underexposure)
+        if flat is not None:
+            valid = valid & flat_usable(flat)
         valid = self._negative_radiance(radiance, valid, pose, where, max(times), float_pose)
         if self.colour_matrix is not None:
             from .colour import apply_matrix

@@ -525,6 +525,16 @@ class GonioCapture:
             sample=sample, camera=camera, light=light,
         )
 
+    def calibrate(self, *, dark_offset: np.ndarray | None = None, dark_rate: np.ndarray | None = None,
+                  flat: np.ndarray | None = None) -> None:
+        """Dark model and flat field of the Capture node's ``dark``/``flat`` inputs: the folder reader applies them
+        (:meth:`sbrdf_capture.folder.FolderCapture.calibrate`)."""
+        if self.reader is None:
+            from sbrdf_core.registry import default_registry
+
+            self.bind(default_registry())
+        self.reader.calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
+
     def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Take the poses up to ``index`` that the folder lacks, then read pose ``index`` back from the folder."""
         angles, times = self.planned()

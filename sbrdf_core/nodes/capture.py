@@ -4,6 +4,13 @@ The node's plugin is a *capture source* (a device rig, a capture folder, a
 simulator).  The source describes the poses up front and hands over one linear
 HDR image per pose; the node stores them pose-major, one pose per chunk, so an
 interrupted capture resumes from the last pose written.
+
+Calibration captures are nodes too: a ``DarkFrame`` artifact wired into the
+optional ``dark`` input and a ``FlatField`` into ``flat`` are handed to the
+source's ``calibrate`` (dark offset and rate, normalised flat, each
+``(H, W, 3)``) before it describes the poses, and the source corrects every
+exposure with them before merging the bracket.  A source without
+``calibrate`` refuses the inputs.
 """
 
 from __future__ import annotations
@@ -15,8 +22,9 @@ import numpy as np
 
 from ..artifacts import CaptureSet
 from ..contracts import CaptureSource, optional
+from ..errors import SbrdfError
 from ..types import CaptureDescription
-from .base import BuildContext, NodeKind, Output, shared
+from .base import BuildContext, NodeKind, Output, Port, shared
 
 #: The node's summary of what reading found; ``sbrdf run -q`` silences it (``sbrdf_core.cli.REPORT_LOGGER``).
 report_logger = logging.getLogger("sbrdf.report.capture")
@@ -38,12 +46,33 @@ class Capture(NodeKind):
     doc = "Photograph the sample from a capture source; stores a pose-major CaptureSet."
     output = CaptureSet
     plugin_category = "capture"
+    inputs = (
+        Port("dark", ("DarkFrame",), "dark model (offset + rate · t) subtracted from every exposure", optional=True),
+        Port("flat", ("FlatField",), "normalised flat field every exposure is divided by", optional=True),
+    )
+
+    @classmethod
+    def prepare(cls, ctx: BuildContext) -> dict[str, Any]:
+        """The calibration arrays of the ``dark`` and ``flat`` inputs (small: one frame each)."""
+        wanted: dict[str, Any] = {}
+        if "dark" in ctx.inputs:
+            wanted.update(dark_offset=ctx.inputs["dark"].array("offset"), dark_rate=ctx.inputs["dark"].array("rate"))
+        if "flat" in ctx.inputs:
+            wanted["flat"] = ctx.inputs["flat"].array("flat")
+        return wanted
 
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
 
         source: CaptureSource = ctx.plugin
+        if ctx.prepared:
+            calibrate = optional(source, "calibrate", "capture")
+            if calibrate is None:
+                raise SbrdfError(f"node {ctx.node!r}: capture plugin {ctx.plugin_name!r} cannot apply calibration "
+                                 f"captures ({', '.join(sorted(ctx.inputs))} inputs); folder, virtual-folder and "
+                                 "gonio can")
+            calibrate(**ctx.prepared)
         desc: CaptureDescription = source.describe()
         P, H, W = desc.n_poses, desc.height, desc.width
         index = da.arange(P, chunks=1)
