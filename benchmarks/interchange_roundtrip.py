@@ -26,7 +26,11 @@ fit itself (a Lafortune lobe that explodes outside the captured directions;
 0.5 % of the pixels of the demo's fit at full size, up to 1e25): they are left
 out and counted (``glossy_fireflies``).
 ``gltf_roughness_p50`` / ``_p99``: the demo's exported glTF roughness over
-its texels.  Without three.js, chromium or Mitsuba, those figures are ``nan``.
+its texels.  ``usd_roughness_p50``, ``usd_clearcoat_roughness_p50`` and
+``usd_conv_err_p50``: the demo's USD export (``usd``, UsdPreviewSurface with
+its clearcoat, :mod:`sbrdf_lib.usd_preview`): the first lobe's and the
+clearcoat's median roughness and the median per-texel conversion error
+(``rough_usd_conv_err_p50`` the rough material's); ``nan`` without usd-core.  Without three.js, chromium or Mitsuba, those figures are ``nan``.
 
     .venv/bin/python benchmarks/interchange_roundtrip.py --quick   # 32 x 32 texels, 160 x 120 pixels
     .venv/bin/python benchmarks/interchange_roundtrip.py           # 128 x 128 texels, 320 x 240 pixels
@@ -127,6 +131,8 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
         "  gltf: {kind: Export, plugin: gltf, in: {material: fit}}\n"
         f"  mitsuba: {{kind: Export, plugin: mitsuba, in: {{material: fit}}, params: {{scene: {scene}}}}}\n"
         f"  cpu: {{kind: Render, plugin: cpu, in: {{material: fit}}, params: {{scene: {scene}}}}}\n")
+    if importlib.util.find_spec("pxr") is not None:
+        text += "  usd: {kind: Export, plugin: usd, in: {material: fit}}\n"
     runner = Runner(registry=Registry(extra=["sbrdf_export", "sbrdf_gltf"]), progress=False)
     t0 = time.perf_counter()
     runner.run(load_graph(text, runner.registry))
@@ -138,6 +144,12 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
                conversion_err_p50=float(np.median(err)),
                flagged=float((err > gltf.attrs.get("flag_error", 0.25)).mean()),
                export_gltf_s=gltf.attrs["run"]["wall_s"])
+    out.update(usd_roughness_p50=float("nan"), usd_clearcoat_roughness_p50=float("nan"), usd_conv_err_p50=float("nan"))
+    if importlib.util.find_spec("pxr"):
+        usd = open_artifact(f"{store}/usd")
+        out.update(usd_roughness_p50=float(np.median(usd.read("maps/roughness"))),
+                   usd_clearcoat_roughness_p50=float(np.median(usd.read("maps/clearcoat_roughness"))),
+                   usd_conv_err_p50=float(np.median(usd.read("error"))), export_usd_s=usd.attrs["run"]["wall_s"])
     cpu = open_artifact(f"{store}/cpu").read("image")
     for r in ("gltf", "mitsuba"):
         out.update({f"{r}_rel_err": float("nan"), f"{r}_rms": float("nan"), f"{r}_peak_px": float("nan"),
@@ -214,7 +226,9 @@ def main(argv=None) -> int:
           f"rough_mitsuba_rms={r['mitsuba_rms']:.4g} glossy_fireflies={g['gltf_fireflies']} "
           f"rough_fireflies={r['gltf_fireflies']} glossy_conversion_err={g['conversion_err_p50']:.4g} "
           f"glossy_flagged={g['flagged']:.4g} rough_conversion_err={r['conversion_err_p50']:.4g} "
-          f"rough_flagged={r['flagged']:.4g}")
+          f"rough_flagged={r['flagged']:.4g} usd_roughness_p50={g['usd_roughness_p50']:.4g} "
+          f"usd_clearcoat_roughness_p50={g['usd_clearcoat_roughness_p50']:.4g} "
+          f"usd_conv_err_p50={g['usd_conv_err_p50']:.4g} rough_usd_conv_err_p50={r['usd_conv_err_p50']:.4g}")
     return 0
 
 

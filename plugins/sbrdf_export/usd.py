@@ -1,19 +1,25 @@
 """usd: a USD stage with a UsdShade material (UsdPreviewSurface) bound to a plane of the sample's size.
 
-The material is refitted per texel to the GGX cook-torrance model
-(:func:`sbrdf_lib.convert.to_ggx` with ``grazing=False``: ρ_d, F0, α) and
-written in UsdPreviewSurface's *specular workflow*, which carries exactly
-those three.  Its Fresnel always rises to white at grazing (F90 is 1; there
-is no specular weight), so a measured lobe that does not brighten toward
-grazing converts with a larger error than in glTF, MaterialX or Mitsuba
-(``flagged.png``, ``attrs["flagged"]``):
-``diffuseColor`` = π ρ_d (the Lambert albedo), ``specularColor`` = F0 (the
-Fresnel reflectance at normal incidence, Schlick), ``roughness`` = √α (the
-preview surface squares it into the GGX α), ``useSpecularWorkflow`` 1.
-Each is a ``UsdUVTexture`` reading a PNG (colours 8-bit sRGB, roughness
-16-bit raw) through a ``UsdPrimvarReader_float2`` of ``st``; USD puts st
-(0, 0) at an image's lower-left corner, so rows are written bottom-up.
-Values beyond [0, 1] are clipped (``attrs["clipped"]`` counts them).
+The material is fitted per texel to UsdPreviewSurface's own BRDF as Storm
+shades it (:mod:`sbrdf_lib.usd_preview`: the specular workflow's lobe, whose
+Fresnel always rises to white at grazing, plus the clearcoat lobe, whose
+Fresnel runs from c·R to c), cosine-weighted over the directions a viewer
+meets, so ``error`` is the error of what a USD renderer shows.  The gloss of a
+measured lobe that does not brighten toward grazing goes into the clearcoat
+(``clearcoat`` weight, ``ior`` for its normal-incidence Fresnel R,
+``clearcoatRoughness``), the first lobe stays the rough grazing term every
+UsdPreviewSurface has; ``clearcoat: false`` fits the first lobe alone.
+Texels whose error is above ``flag_error`` are flagged (``flagged.png``,
+``attrs["flagged"]``).
+
+Inputs (``useSpecularWorkflow`` 1): ``diffuseColor`` = d, ``specularColor`` =
+F0, ``roughness`` (USD squares it into the GGX α), and with the clearcoat
+``clearcoat``, ``clearcoatRoughness`` and ``ior`` = (1 + √R)/(1 − √R) (in
+the specular workflow ior sets the clearcoat's Fresnel only).  Each is a
+``UsdUVTexture`` reading a PNG (colours 8-bit sRGB, the rest 16-bit raw; the
+ior texture holds (ior − 1)/(:data:`IOR_MAX` − 1), undone by the texture's
+``scale`` and ``bias``) through a ``UsdPrimvarReader_float2`` of ``st``; USD
+puts st (0, 0) at an image's lower-left corner, so rows are written bottom-up.
 The primvar reader's ``varname`` and the material's ``frame:stPrimvarName``
 are ``string`` inputs, as UsdPreviewSurface's shader definitions declare
 (``usdchecker`` / ``UsdValidation`` report a ``token`` there).
@@ -34,41 +40,62 @@ from sbrdf_core.params import Param
 
 from .common import model_config, texel_grid, write_json, write_png
 from .declarations import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS
-from .ggx import GGXConverting, write_error_files
+from .ggx import GGXConverting, with_flags, write_error_files
 
 #: UsdPreviewSurface input <- (texture file, type, colour space, channels).
 TEXTURES = {"diffuseColor": ("diffuse_color.png", "color3f", "sRGB", "rgb"),
             "specularColor": ("specular_color.png", "color3f", "sRGB", "rgb"),
             "roughness": ("roughness.png", "float", "raw", "r")}
+#: The clearcoat's inputs, written with ``clearcoat`` on.
+CLEARCOAT_TEXTURES = {"clearcoat": ("clearcoat.png", "float", "raw", "r"),
+                      "clearcoatRoughness": ("clearcoat_roughness.png", "float", "raw", "r"),
+                      "ior": ("ior.png", "float", "raw", "r")}
+#: The ior texture's range: [1, IOR_MAX] stored as [0, 1] (the clearcoat's largest R, 0.81, is ior 19).
+IOR_MAX = 19.0
 
 
 class USDExporter(GGXConverting):
-    """``material.usda`` with PNG textures of the GGX fit in UsdPreviewSurface's specular workflow."""
+    """``material.usda`` with PNG textures of the UsdPreviewSurface fit (specular workflow and clearcoat)."""
 
     #: Optional modules ``write`` imports: ``sbrdf validate`` reports a missing one with its extra.
     requires = ("pxr",)
 
     params = (
         Param("name", "str", "Material", "the material prim's name"),
+        Param("clearcoat", "bool", True, "carry the gloss in UsdPreviewSurface's clearcoat lobe, whose Fresnel can stay "
+              "dim at grazing (false: the specular workflow's one lobe, which brightens to white there)"),
         STARTS,
         ITERATIONS,
         FLAG_ERROR,
         MAX_THETA,
     )
 
-    def __init__(self, *, name: str = "Material", starts: int = 1, iterations: int = 8, flag_error: float = 0.25,
-                 max_theta_deg: float = 70.0):
+    def __init__(self, *, name: str = "Material", clearcoat: bool = True, starts: int = 1, iterations: int = 8,
+                 flag_error: float = 0.25, max_theta_deg: float = 70.0):
         self.name = name
+        self.clearcoat = clearcoat
         self.starts, self.iterations, self.flag_error = starts, iterations, flag_error
         self.max_theta_deg = max_theta_deg
 
     def convert(self, material):
-        return self.ggx_maps(material, grazing=False)
+        from sbrdf_lib.usd_preview import to_preview_surface_blocks
+
+        return with_flags(to_preview_surface_blocks(material.model, material.params, self._ggx(),
+                                                    clearcoat=self.clearcoat, starts=self.starts,
+                                                    iterations=self.iterations, max_theta_deg=self.max_theta_deg),
+                          self.flag_error)
 
     def textures(self, maps) -> dict[str, np.ndarray]:
-        rho_d = np.asarray(maps["rho_d"], np.float64)
-        return {"diffuseColor": np.pi * rho_d, "specularColor": np.asarray(maps["f0"], np.float64),
-                "roughness": np.sqrt(np.clip(np.asarray(maps["alpha"], np.float64), 0.0, None))}
+        """The stored maps as the textures' values (the ior texture as (ior − 1)/(IOR_MAX − 1))."""
+        from sbrdf_lib.usd_preview import ior_of
+
+        get = lambda k: np.asarray(maps[k], np.float64)  # noqa: E731
+        out = {"diffuseColor": get("diffuse_color"), "specularColor": get("specular_color"),
+               "roughness": get("roughness")}
+        if self.clearcoat:
+            out.update(clearcoat=get("clearcoat"), clearcoatRoughness=get("clearcoat_roughness"),
+                       ior=(ior_of(get("clearcoat_f0")) - 1.0) / (IOR_MAX - 1.0))
+        return out
 
     def write(self, directory, maps, material):
         from sbrdf_core.extras import require
@@ -79,8 +106,9 @@ class USDExporter(GGXConverting):
         d = directory
         files, flag_attrs = write_error_files(d, maps, self.flag_error, rows_bottom_up=True)
         clipped = {}
+        inputs = {**TEXTURES, **(CLEARCOAT_TEXTURES if self.clearcoat else {})}
         for inp, a in self.textures(maps).items():
-            file, _, space, _ = TEXTURES[inp]
+            file, _, space, _ = inputs[inp]
             clipped[inp] = int(np.count_nonzero((a < 0) | (a > 1)))
             write_png(os.path.join(d, file), a[::-1], srgb=space == "sRGB")  # st (0, 0) at the lower left
             files.append(file)
@@ -116,7 +144,7 @@ class USDExporter(GGXConverting):
         varname.Set("st")
         reader.CreateInput("varname", Sdf.ValueTypeNames.String).ConnectToSource(varname)
         reader_out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-        for inp, (file, typ, space, channels) in TEXTURES.items():
+        for inp, (file, typ, space, channels) in inputs.items():
             tex = UsdShade.Shader.Define(stage, f"{mpath}/{inp}Texture")
             tex.CreateIdAttr("UsdUVTexture")
             tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(f"./{file}")
@@ -124,6 +152,9 @@ class USDExporter(GGXConverting):
             tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
             tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
             tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader_out)
+            if inp == "ior":  # the texture holds (ior − 1)/(IOR_MAX − 1)
+                tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(IOR_MAX - 1.0, 1.0, 1.0, 1.0))
+                tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(1.0, 0.0, 0.0, 0.0))
             out = tex.CreateOutput(channels, Sdf.ValueTypeNames.Float3 if channels == "rgb" else Sdf.ValueTypeNames.Float)
             value_type = Sdf.ValueTypeNames.Color3f if typ == "color3f" else Sdf.ValueTypeNames.Float
             surf.CreateInput(inp, value_type).ConnectToSource(out)
@@ -133,8 +164,11 @@ class USDExporter(GGXConverting):
         files.append(write_json(d, "usd.json", {
             "format": "sbrdf-usd/1", "model": material.model.name, "model_config": model_config(material),
             **texel_grid(material), "stage": "material.usda", "material": mpath, "mesh": "/Sample/Plane",
-            "workflow": "specular", "inputs": {k: v[0] for k, v in TEXTURES.items()},
-            "values": {"diffuseColor": "pi rho_d", "specularColor": "F0", "roughness": "sqrt(alpha)"},
+            "workflow": "specular", "clearcoat": self.clearcoat, "inputs": {k: v[0] for k, v in inputs.items()},
+            "values": {"diffuseColor": "d", "specularColor": "F0", "roughness": "sqrt(alpha)",
+                       **({"clearcoat": "c", "clearcoatRoughness": "sqrt(alpha_c)",
+                           "ior": f"1 + {IOR_MAX - 1.0:g} texture (R = ((1 - ior)/(1 + ior))^2)"}
+                          if self.clearcoat else {})},
             "rows": "bottom-up (USD st (0, 0) is the image's lower left)", "clipped": clipped,
             "conversion": flag_attrs}))
         return {"files": files, "material_path": mpath, "clipped": clipped, **flag_attrs}

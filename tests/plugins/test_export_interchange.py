@@ -19,6 +19,9 @@ PLUGINS = ("sbrdf_export",)
 #: the lit pixels).  A cook-torrance GGX fit converts exactly (error 0), so what is left is Mitsuba's separable
 #: Smith G and exact dielectric Fresnel against our height-correlated G and Schlick F (measured 0.009).
 MITSUBA_TOLERANCE = 0.03
+#: The UsdPreviewSurface fit of a cook-torrance GGX material: Storm's separable Smith-Schlick G, its ε and the
+#: diffuse dimmed by 1 − F against our height-correlated G and undimmed diffuse.
+USD_TOLERANCE = 0.05
 
 
 def has(module: str) -> bool:
@@ -128,8 +131,12 @@ def test_usd_stage_opens_binds_the_material_and_its_inputs_read_back(store):
         st = tex.GetInput("st").GetConnectedSources()[0][0].source
         assert UsdShade.Shader(st.GetPrim()).GetIdAttr().Get() == "UsdPrimvarReader_float2"
     rough = read_png(str(store / "usd" / "roughness.png"))[::-1].astype(np.float64) / 65535
-    np.testing.assert_allclose(rough, np.sqrt(art.read("maps/alpha")[..., 0]), atol=1e-4)
-    assert art.attrs["error_max"] < 1e-3  # cook-torrance GGX to GGX is exact
+    np.testing.assert_allclose(rough, art.read("maps/roughness")[..., 0], atol=1e-4)
+    ior = surface.GetInput("ior").GetConnectedSources()[0][0].source
+    tex = UsdShade.Shader(ior.GetPrim())
+    assert tex.GetInput("scale").Get()[0] == pytest.approx(18.0) and tex.GetInput("bias").Get()[0] == 1.0
+    # USD shades GGX with separable Smith-Schlick G and dims the diffuse by 1 - F: close to ours, not equal
+    assert art.attrs["error_max"] < USD_TOLERANCE
 
 
 def usd_validation_errors(stage) -> list[str]:

@@ -70,6 +70,9 @@ def test_glossy_fit_exports_glossy_within_the_formats_ranges(store):
     mitsuba = open_artifact(f"{s}/mitsuba")
     assert mitsuba.read("maps/alpha").max() <= 1.0  # Mitsuba's GGX α, no longer pinned at 2.0
     assert 0 < mitsuba.read("maps/specular").max() <= 1.0
+    if has("pxr"):  # UsdPreviewSurface's clearcoat carries the gloss its first lobe, white at grazing, cannot
+        usd = open_artifact(f"{s}/usd")
+        assert np.median(usd.read("maps/clearcoat_roughness")) < 0.5 and np.median(usd.read("error")) < 0.05
 
 
 def test_gltf_export_passes_the_khronos_validator(store):
