@@ -111,13 +111,15 @@ ParamMaps = ArtifactKind(
         ArraySpec("rms_holdout", "VU", "float32", "RMS error at the texel's held-out samples (never fitted), sr^-1; "
                   "NaN where none was held out", required=False),
         ArraySpec("samples", "VU", "int32", "number of valid samples the texel was fitted to"),
-        ArraySpec("flags", "VU", "uint8", "why a fit is missing or doubtful: bits listed in attrs flag_bits (0 = fine)"),
+        ArraySpec("flags", "VU", "uint16", "why a fit is missing or doubtful: bits listed in attrs flag_bits (0 = fine)"),
         ArraySpec("restarted", "VU", "uint8", "1 where the best fit came from a later start (multi-start)",
                   required=False),
         ArraySpec("bounded_by", "VU", "uint8", "which physical bound moved a texel flagged 'constrained' (bits in "
                   "attrs bounded_by_bits: 1 peak, 2 sharpness, 4 energy)", required=False),
         ArraySpec("fit_time_s", "VU", "float32", "fitting time per texel (its tile's time shared out), s",
                   timing=True),
+        ArraySpec("from_neighbour", "VU", "uint8", "1 where the texel's solution came from a neighbour's, which fits "
+                  "its samples better than its own fit did (coherence: neighbours)", required=False),
         ArraySpec("mip/*", "VUC", "float32", "MIP level l >= 1 of each parameter, mip/<l>/<parameter>, "
                   "(V >> l) x (U >> l) (a Mip node; attrs mip: levels, method, shapes)", required=False),
     ),

@@ -149,7 +149,8 @@ class Fitter(Protocol):
     model_config: dict
 
     def fit(self, model: BRDFModel, f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray, *,
-            limits: Limits | None = None, rms: bool = True, usable: bool = False) -> Any:
+            limits: Limits | None = None, rms: bool = True, usable: bool = False,
+            initial: Mapping[str, np.ndarray] | None = None) -> Any:
         """A ``FitResult`` for T texels with S samples each.
 
         ``f_r (T, S, 3)`` sr^-1, ``valid (T, S)`` (held-out samples already
@@ -160,8 +161,12 @@ class Fitter(Protocol):
         it scores the fit itself): ``FitResult.rms`` may be ``None``.
         ``usable`` True (the Fit node's): the samples are
         :func:`~sbrdf_core.nodes.fit.usable`'s already (float64, finite, 0
-        where not ``valid``), so a fitter that tests them may skip that.  Every
-        fitter accepts all three keywords, using what applies to it.
+        where not ``valid``), so a fitter that tests them may skip that.
+        ``initial`` (model-form parameters, ``(T, C)`` each): a solution to
+        refine rather than the fitter's own starts; the Fit node passes a
+        neighbour's solution this way when it fits the texel better
+        (``coherence``).  A fitter that cannot start from a given point ignores
+        it.  Every fitter accepts all four keywords, using what applies to it.
         Vectorised over texels; runs inside dask tasks, one tile at a time.
         """
 

@@ -496,6 +496,12 @@ class FitterTests(PluginTests):
         f = model.eval(truth, wi, wo)
         return fitter, model, f, np.ones((T, S), bool), wi, wo
 
+    @staticmethod
+    def _truth(model, T, seed=1):
+        """The parameters :meth:`_problem`'s samples are drawn from: its first draw of the same seed."""
+        rng = np.random.default_rng(seed)
+        return model.defaults(T) if not hasattr(model, "random_guess") else model.random_guess(rng, T)
+
     def test_result_has_one_row_per_texel(self):
         fitter, model, f, valid, wi, wo = self._problem()
         res = fitter.fit(model, f, valid, wi, wo)
@@ -533,6 +539,18 @@ class FitterTests(PluginTests):
         np.testing.assert_array_equal(checked.samples, raw.samples)
         for p in model.parameters:
             np.testing.assert_array_equal(checked.params[p.name], raw.params[p.name], err_msg=p.name)
+
+    def test_refines_from_a_given_solution(self):
+        """``initial`` (what the Fit node passes when a neighbour's solution fits a texel better): the fit from the
+        true parameters of clean data stays a fit of them, whether the fitter refines from it or ignores it."""
+        fitter, model, f, valid, wi, wo = self._problem()
+        truth = {k: np.asarray(v, np.float64) for k, v in model.unpack(model.pack(
+            self._truth(model, f.shape[0]))).items()}
+        res = fitter.fit(model, f, valid, wi, wo, initial=truth)
+        scale = np.sqrt(np.mean(f ** 2, axis=(1, 2)))
+        assert np.median(res.rms / np.maximum(scale, 1e-12)) < self.tolerance
+        for p in model.parameters:
+            assert res.params[p.name].shape == (f.shape[0], p.channels)
 
     def test_no_valid_sample_gives_finite_defaults(self):
         fitter, model, f, valid, wi, wo = self._problem(T=3)

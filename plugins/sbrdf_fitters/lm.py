@@ -62,16 +62,19 @@ class LevenbergMarquardtFitter:
             warnings.warn("lm: with 3 or more Lafortune lobes the fit depends on the starting point "
                           "(seed 000 §4.3.1); consider starts: 8", stacklevel=2)
 
-    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
-        """``rms`` False: no training RMS (``FitResult.rms`` None), for a caller that scores the fit itself
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None) -> FitResult:
+        """``initial`` (model form): one LM run from it, no other starts.  ``rms`` False: no training RMS
+        (``FitResult.rms`` None), for a caller that scores the fit itself
         (the Fit node): with a weighted objective it is a further pass over the samples.  ``usable`` True: the
         samples are :func:`~sbrdf_core.nodes.fit.usable`'s already (the Fit node's), not tested again."""
         # fit_model drops the unusable samples itself
         n = (np.asarray(valid, bool) if usable else usable_mask(f_r, valid)).sum(axis=1)
         stats: dict = {}
-        params, converged, cost = fit_model(model, f_r, valid, wi, wo, iterations=self.iterations,
+        start = None if initial is None else model.fit_form().from_model(initial)
+        params, converged, cost = fit_model(model, f_r, valid, wi, wo, initial=start, iterations=self.iterations,
                                             tolerance=self.tolerance, damping=self.damping, fixed=self.fixed,
-                                            starts=self.starts, seed=self.seed, limits=limits, loss=self.loss,
+                                            starts=self.starts if start is None else 1, seed=self.seed,
+                                            limits=limits, loss=self.loss,
                                             loss_scale=self.loss_scale, stats=stats,
                                             weighting=self.weighting, want_cost=rms, checked=usable)
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)

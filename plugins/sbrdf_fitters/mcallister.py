@@ -125,7 +125,8 @@ class McAllisterFitter:
         model = self._registry.create("brdf-model", "lafortune", {"lobes": lobes, "anisotropic": anisotropic, "beta": beta})
         return model.single_channel()
 
-    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False,
+            initial=None) -> FitResult:  # initial: no refinement from a given start here
         T = f_r.shape[0]
         f_r, valid = usable_samples(f_r, valid)
         # A sample whose direction is not finite cannot be used: left in, its NaN reaches every product the line

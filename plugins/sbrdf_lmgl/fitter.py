@@ -117,7 +117,8 @@ class GLLevenbergMarquardtFitter:
         """Refuse a model without a GLSL fit gradient when the graph is built, not at the first tile."""
         gradient_glsl(registry.create("brdf-model", self.model_name, dict(self.model_config)))
 
-    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None) -> FitResult:
+        """``initial`` (model form): one LM run from it, no other starts."""
         if self.loss not in LOSSES:
             raise ValueError(f"lm-gl: loss {self.loss!r} is not one of {', '.join(LOSSES)}")
         if self.weighting not in WEIGHTINGS:
@@ -144,9 +145,10 @@ class GLLevenbergMarquardtFitter:
         packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
         plain_weight = valid.astype(np.float64)
         base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model
-        initial = None
+        start = None if initial is None else form.from_model(initial)
+        starts = 1 if start is not None else self.starts or model.suggested_starts
         x_starts = starting_points(form, least_squares(form, f_r, base, wi, wo), f_r, valid, wi,
-                                   wo, self.starts or model.suggested_starts, self.seed, initial, free, project)
+                                   wo, starts, self.seed, start, free, project)
         n = valid.sum(axis=1)
         energy = np.einsum("tsc,tsc->t", f_r, f_r)
         scale = np.maximum(np.sqrt(energy / np.maximum(3 * n, 1)), 1e-6)  # residuals in units of the texel's RMS

@@ -85,7 +85,8 @@ class SeparableFitter:
             return svd(fn, param, self.size, self.terms, self.clamp_max, self.solver, self.impute)
         return nd(fn, param, self.size, self.terms, self.p, self.clamp_max, self.impute, self.refine)
 
-    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False,
+            initial=None) -> FitResult:  # initial: no refinement from a given start here
         T = f_r.shape[0]
         if T != 1:
             raise ValueError(f"{self.method} fitter: a separable decomposition describes one material; give a 1x1 "

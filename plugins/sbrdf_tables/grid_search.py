@@ -341,7 +341,8 @@ class GridSearchFitter:
                     problems.append((name, f"{key}: give [low, high] with low <= high, got {value!r}"))
         return problems
 
-    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False) -> FitResult:
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False,
+            initial=None) -> FitResult:  # initial: no refinement from a given start here
         f_r, valid = usable_samples(f_r, valid)
         T = f_r.shape[0]
         params = model.defaults(T)

@@ -36,6 +36,7 @@ import numpy as np
 from ..artifacts import ParamMaps, SampledReflectance
 from ..brdf import evaluate
 from ..channels import all_finite
+from ..coherence import APPEARANCE_PAIRS, cohere
 from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbourhood_max, sample_support
 from ..contracts import optional
 from ..geometry import tile_directions
@@ -56,11 +57,12 @@ FLAGS = {
     32: "overfit: held-out RMS far above training RMS",
     64: "constrained: the unconstrained fit left the physical bounds (peak, sharpness or albedo)",
     128: "too few samples: fitted to its own and its neighbours' samples",
+    256: "outlier: its appearance departs from its neighbourhood's, and no fit like its neighbours' fits its samples",
 }
 NO_SAMPLES, UNDERDETERMINED, NONFINITE_INPUT, NOT_CONVERGED, NONFINITE_RESULT = 1, 2, 4, 8, 16
-OVERFIT, CONSTRAINED, BORROWED = 32, 64, 128
+OVERFIT, CONSTRAINED, BORROWED, OUTLIER = 32, 64, 128, 256
 #: Columns the kernel appends after the packed parameters.
-EXTRA = ("rms", "rms_holdout", "samples", "flags", "restarted", "bounded_by", "fit_time_s")
+EXTRA = ("rms", "rms_holdout", "samples", "flags", "restarted", "bounded_by", "fit_time_s", "from_neighbour")
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,7 @@ class FitResult:
     params: dict[str, np.ndarray]  # name -> (T, C), in the model's own form
     rms: np.ndarray | None  # (T,) sr^-1 over valid samples, RGB pooled; None when the caller passed rms=False
     samples: np.ndarray  # (T,) valid sample count
-    flags: np.ndarray | None = None  # (T,) uint8 bits of FLAGS the fitter raised (e.g. NOT_CONVERGED)
+    flags: np.ndarray | None = None  # (T,) bits of FLAGS the fitter raised (e.g. NOT_CONVERGED)
     restarted: np.ndarray | None = None  # (T,) bool: the best result came from a later start (multi-start)
 
 
@@ -96,6 +98,15 @@ FIT_PARAMS = (
           "(0 = the model's parameter count)", bounds=(0, None)),
     Param("overfit_ratio", "float", 3.0, "flag a texel as overfit when its held-out RMS exceeds this times its "
           "training RMS", bounds=(1.0, None)),
+    Param("coherence", "str", "neighbours", "'neighbours': a texel whose own solution fits its training samples "
+          "clearly worse than a neighbour's solution is refitted from it (repeated, so a good solution spreads "
+          "across a uniform region; removes the specks of texels caught in a worse local minimum, at the cost of "
+          "refitting those texels); 'none': every texel alone, as the fitter leaves it",
+          choices=("neighbours", "none")),
+    Param("outlier_distance", "float", 0.05, "with coherence: neighbours, a texel whose appearance (f_r at fixed "
+          "direction pairs) departs from its 3x3 neighbourhood's median by more than this relative RMS is refitted "
+          "from the neighbour nearest that median, and takes that fit if it fits its own samples within the noise; "
+          "one that still departs is flagged an outlier (flag 256).  0 = neither", bounds=(0.0, None)),
 )
 
 
@@ -119,6 +130,8 @@ class FitOptions:
     overfit_ratio: float = DEFAULTS["overfit_ratio"]
     grazing_growth: float = DEFAULTS["grazing_growth"]
     microfacet_peak: str = DEFAULTS["microfacet_peak"]
+    coherence: str = DEFAULTS["coherence"]
+    outlier_distance: float = DEFAULTS["outlier_distance"]
 
     def limits(self, support: np.ndarray, resolution: np.ndarray, support_cosine: np.ndarray | None = None) -> Limits:
         on = self.peak_factor > 0
@@ -263,7 +276,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     T = wi.shape[0]
     given = valid.reshape(T, -1)
     f_r, valid = usable(f_r.reshape(T, -1, 3), given, np.float64)
-    flags = np.where((given & ~valid).any(axis=1), NONFINITE_INPUT, 0).astype(np.uint8)
+    flags = np.where((given & ~valid).any(axis=1), NONFINITE_INPUT, 0).astype(np.uint16)
     min_samples = options.min_samples or model.size
     support = neighbourhood_max(sample_support(f_r, valid).reshape(grid)).ravel()
     origin, skip = holdout_at if holdout_at is not None else ((v0, u0), 0)
@@ -279,13 +292,15 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
         support_cosine = neighbourhood_max(sample_support(f_r, valid, cosines).reshape(grid)).ravel()
     limits = options.limits(support, resolution, support_cosine)
 
-    def run(f, w, a, b, lim):
+    def run(f, w, a, b, lim, initial=None):
         # rms=False: the node scores the fit itself, below; usable=True: f, w are usable()'s (the pool's too)
-        return fitter.fit(model, f, w, a, b, limits=lim, rms=False, usable=True)
+        if initial is None:  # a fitter written before `initial` need not take it
+            return fitter.fit(model, f, w, a, b, limits=lim, rms=False, usable=True)
+        return fitter.fit(model, f, w, a, b, limits=lim, rms=False, usable=True, initial=initial)
 
     res: FitResult = run(f_r, train, wi, wo, limits)
     params = {k: np.array(v, dtype=np.float64) for k, v in res.params.items()}
-    rflags = np.zeros(T, np.uint8) if res.flags is None else res.flags.astype(np.uint8)
+    rflags = np.zeros(T, np.uint16) if res.flags is None else res.flags.astype(np.uint16)
     restarted = np.zeros(T, bool) if res.restarted is None else np.asarray(res.restarted, bool)
     if sparse.size:
         pooled = run(pf, pw, pi, po, limits.take(sparse))
@@ -294,8 +309,24 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
             params[k][sparse[helped]] = np.asarray(v)[helped]
         rflags[sparse[helped]] = 0 if pooled.flags is None else pooled.flags[helped]
         flags[sparse[helped]] |= BORROWED
+    from_neighbour = np.zeros(T, bool)
+    if options.coherence == "neighbours" and T > 1:
+        def refit(rows, initial, prior):
+            # the prior's samples (the neighbourhood's median appearance) ride along where given
+            pw, po = (np.broadcast_to(w, (rows.size,) + w.shape[1:]) for w in APPEARANCE_PAIRS)
+            use = np.broadcast_to(np.isfinite(prior).all(axis=-1), prior.shape[:2])
+            out = run(np.concatenate([f_r[rows], np.where(use[..., None], prior, 0.0)], axis=1),
+                      np.concatenate([train[rows], use], axis=1), np.concatenate([wi[rows], pw], axis=1),
+                      np.concatenate([wo[rows], po], axis=1), limits.take(rows), initial)
+            rflags[rows] = 0 if out.flags is None else out.flags
+            return model.pack({k: np.asarray(v, np.float64) for k, v in out.params.items()})
+
+        x, from_neighbour, outlier = cohere(model, model.pack(params), f_r, train, wi, wo, grid, refit,
+                                            options.outlier_distance)
+        params = model.unpack(x)
+        flags |= np.where(outlier, OUTLIER, 0).astype(np.uint16)
     params, changed, bounded_by = enforce(model, params, limits, why=True)
-    flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint8)
+    flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint16)
     x = model.pack(params)
     squares = residual_squares(model, params, wi, wo, f_r)  # one evaluation for both errors
     rms = squares_rms(squares, train, f_r.shape[-1])
@@ -303,18 +334,19 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     own = valid.sum(axis=1)
     bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(rms))
     empty = (own == 0) & ~((flags & BORROWED) > 0)
-    flags |= np.where(bad, NONFINITE_RESULT, 0).astype(np.uint8) | np.where(own == 0, NO_SAMPLES, 0).astype(np.uint8)
-    flags |= np.where((own > 0) & (own * 3 < model.size), UNDERDETERMINED, 0).astype(np.uint8)
+    flags |= np.where(bad, NONFINITE_RESULT, 0).astype(np.uint16) | np.where(own == 0, NO_SAMPLES, 0).astype(np.uint16)
+    flags |= np.where((own > 0) & (own * 3 < model.size), UNDERDETERMINED, 0).astype(np.uint16)
     with np.errstate(invalid="ignore"):
         overfit = rms_holdout > options.overfit_ratio * np.maximum(rms, 1e-3 * support + 1e-9)
-    flags |= np.where(overfit, OVERFIT, 0).astype(np.uint8)
+    flags |= np.where(overfit, OVERFIT, 0).astype(np.uint16)
     x[bad | empty] = model.pack(model.defaults(1))[0]
     rms = np.where(bad | empty, 0.0, rms)
     rms_holdout = np.where(bad | empty, np.nan, rms_holdout)
     seconds = np.full(T, (time.perf_counter() - t0) / T)
     logger.debug("fit tile of %d texels with %s: %.3f s, %d flagged", T, type(fitter).__name__, seconds.sum(),
                   int((flags != 0).sum()))
-    out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, bounded_by, seconds], axis=1)], axis=1)
+    out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, bounded_by, seconds, from_neighbour],
+                                      axis=1)], axis=1)
     return out.reshape(grid + (-1,)).astype(np.float32)
 
 
@@ -425,10 +457,11 @@ class Fit(NodeKind):
         arrays["rms"] = column["rms"]
         arrays["rms_holdout"] = column["rms_holdout"]
         arrays["samples"] = column["samples"].astype(np.int32)
-        arrays["flags"] = column["flags"].astype(np.uint8)
+        arrays["flags"] = column["flags"].astype(np.uint16)
         arrays["restarted"] = column["restarted"].astype(np.uint8)
         arrays["bounded_by"] = column["bounded_by"].astype(np.uint8)
         arrays["fit_time_s"] = column["fit_time_s"]
+        arrays["from_neighbour"] = column["from_neighbour"].astype(np.uint8)
         return Output(
             arrays=arrays,
             attrs={
@@ -444,6 +477,7 @@ class Fit(NodeKind):
                            "albedo_limit": options.albedo_limit, "resolve_sharpness": options.resolve_sharpness,
                            "grazing_growth": options.grazing_growth, "microfacet_peak": options.microfacet_peak},
                 "holdout": options.holdout,
+                "coherence": options.coherence,
             },
             finalize=summarize,
         )
@@ -468,6 +502,8 @@ def summarize(art) -> dict:
         "texels_without_samples": int((n == 0).sum()),
         "texels_flagged_any": int((flags > 0).sum()),
         "restart_won_fraction": float((restarted > 0).mean()) if restarted.size else 0.0,
+        "from_neighbour_fraction": float((art.read("from_neighbour") > 0).mean())
+        if "from_neighbour" in art.names() else 0.0,
         "texels_flagged": {FLAGS[b]: int(((flags & b) > 0).sum()) for b in FLAGS if ((flags & b) > 0).any()},
         "texels_bounded_by": {REASONS[b]: int(((bounded & b) > 0).sum()) for b in REASONS if ((bounded & b) > 0).any()},
     }}

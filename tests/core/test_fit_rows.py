@@ -5,6 +5,8 @@ budget (``sbrdf_core.nodes.fit.fit_block``), so its memory per task stays flat i
 A strip reads its neighbours' rows and the tile's held-out stream at its rows, so the maps are the
 same bits: checked here with a budget small enough for 2-row strips, with held-out samples, physical
 bounds and sparse texels that borrow their neighbours' samples (a seeded mask of mostly invalid texels).
+Without ``coherence``: a strip sees fewer neighbours' solutions than the whole tile, so with it the two may
+differ where a neighbour's solution was taken.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ nodes:
   register: {{kind: Register, plugin: texel-aligned, in: {{capture: capture}}}}
   reflectance: {{kind: Reflectance, in: {{stack: register}}, params: {{tile: 8}}}}
   fit: {{kind: Fit, plugin: lm, in: {{samples: reflectance}}, params: {{model: {model}, iterations: 30,
-         min_samples: 6}}}}
+         min_samples: 6, coherence: none}}}}
 """
 
 

@@ -320,7 +320,7 @@ class _NoRmsKeyword:
     def __init__(self, fitter):
         self.fitter = fitter
 
-    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False):
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None):
         return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits)
 
 
@@ -342,7 +342,7 @@ def test_the_node_skipping_lms_rms_changes_no_bit(registry, lafortune, weighting
     asked: list[bool] = []
 
     class Recording:  # lm, recording what the node asks of its rms keyword
-        def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False):
+        def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None):
             asked.append(rms)
             return lm.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms)
 

@@ -1,0 +1,239 @@
+"""Spatial coherence of a tile's fit: neighbours' solutions as restarts, outliers flagged.
+
+A fitter fits each texel alone, so neighbouring texels of one material can
+settle in different solutions, and a render shows them as specks: a texel
+fitted with a broad lobe among neighbours fitted with a sharp one.  Two cases
+make them, and the Fit node (``coherence: neighbours``) treats both with its
+texels' neighbours, which are usually the same material:
+
+- **a worse minimum**: a neighbour's solution, evaluated on the texel's own
+  training samples, fits them clearly better (cost below ``1 − MARGIN`` times
+  the texel's own).  The fitter refines the texel from it (the ``initial``
+  keyword of the fitter contract) and the texel keeps the lower of that refit
+  and the neighbour's solution as it is.
+- **an ambiguous texel**: its samples miss the lobe's peak, so a broad weak
+  lobe and a sharp strong one fit them equally well, and the fitter's pick
+  differs from its neighbours'.  A texel whose *appearance* (luminance at a
+  fixed set of direction pairs, :data:`APPEARANCE_PAIRS`) departs from its
+  3×3 neighbourhood's median appearance by more than ``outlier_distance``
+  and by more than :data:`ODD_FACTOR` times its neighbours' own departures
+  (so a region whose texels all scatter alike singles none out) is refined
+  from the neighbour nearest that median.  It takes whichever of that refit
+  and that neighbour's solution fits its own samples within the noise (cost
+  at most :data:`NOISE_TOLERANCE` parameters' worth of the texel's residual
+  variance above its own) and looks most like its neighbourhood.  A texel of another
+  material than its neighbours (a boundary, a single-texel feature) fits its
+  samples clearly worse from their solution and keeps its own.
+
+Sweeps repeat while a texel changed (at most :data:`SWEEPS`), so a good
+solution spreads from texel to texel.  A texel still farther than
+``outlier_distance`` from its neighbourhood's appearance is returned as an
+outlier for the node to flag.
+
+Invariant: a texel's training cost (plain sum of squares over its training
+samples and channels) rises only for an ambiguous texel and then within the
+noise; otherwise it changes only to a strictly lower cost.  Neighbours are
+those in the same tile (or strip of rows): a task sees no other.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+
+from .brdf import evaluate
+
+#: The eight neighbours' offsets (dv, du).
+OFFSETS = tuple((dv, du) for dv in (-1, 0, 1) for du in (-1, 0, 1) if dv or du)
+#: A neighbour's solution is tried when its cost on the texel's samples is below ``1 − MARGIN`` times the texel's
+#: own.  Why not 0: a neighbour of the same material fitted to its own noise scores a few percent either side of
+#: the texel's own solution (the fitter minimises a weighted objective, the comparison is plain); refitting those
+#: would cost a fit and change nothing a user can see.
+MARGIN = 0.1
+#: Sweeps at most: each lets a better solution move one texel further.
+SWEEPS = 4
+#: An ambiguous texel's coherent refit is taken when its cost rises by at most this many times the texel's
+#: residual variance (cost / (samples · channels − parameters)) per model parameter: the rise a change of that many
+#: parameters within their noise makes (a χ² with K degrees of freedom has mean K).
+NOISE_TOLERANCE = 1.0
+#: A texel is odd when its departure from its neighbourhood's appearance is over this times the median of its
+#: neighbours' departures from theirs (as :func:`specks` judges a value against its neighbours' spread).
+ODD_FACTOR = 4.0
+
+
+def _appearance_pairs(n: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """``(wi, wo)`` ``(1, n, 3)``: the view at the normal, the light on a Fibonacci spiral up to 75°: how a flat
+    sample looks from above under a moving light.  Why not mirror pairs: at the exact peak of a sharp lobe the
+    value rests on what samples rarely pin down (Lafortune's |C|ⁿ trades against ρ_s), so texels of one material
+    scatter there by tens of percent and an odd texel would not stand out."""
+    i = np.arange(n) + 0.5
+    z = 1 - (1 - np.cos(np.radians(75))) * i / n
+    phi = np.pi * (3 - np.sqrt(5)) * i
+    r = np.sqrt(1 - z * z)
+    wi = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+    return wi[None], np.broadcast_to(np.array([0.0, 0.0, 1.0]), wi.shape)[None]
+
+
+#: Direction pairs at which texels' appearances are compared.
+APPEARANCE_PAIRS = _appearance_pairs()
+
+
+def neighbour(x: np.ndarray, grid: tuple[int, int], dv: int, du: int) -> np.ndarray:
+    """Rows of ``x`` ``(V·U, ...)`` moved so that row t holds texel t's neighbour at ``(dv, du)``; NaN off the grid."""
+    V, U = grid
+    a = x.reshape((V, U) + x.shape[1:])
+    out = np.full_like(a, np.nan)
+    out[max(0, -dv):V - max(0, dv), max(0, -du):U - max(0, du)] = a[max(0, dv):V + min(0, dv),
+                                                                    max(0, du):U + min(0, du)]
+    return out.reshape(x.shape)
+
+
+def _cost(pred: np.ndarray, f_r: np.ndarray, train: np.ndarray) -> np.ndarray:
+    diff = pred - f_r
+    return np.where(train, (diff * diff).sum(axis=-1), 0.0).sum(axis=1)
+
+
+def _predict(model, x: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    with np.errstate(all="ignore"):
+        return evaluate(model, model.unpack(x), wi, wo)
+
+
+def appearance(model, x: np.ndarray) -> np.ndarray:
+    """``(T, Q, C)`` f_r at :data:`APPEARANCE_PAIRS`."""
+    wi, wo = (np.broadcast_to(w, (x.shape[0],) + w.shape[1:]) for w in APPEARANCE_PAIRS)
+    return _predict(model, x, wi, wo)
+
+
+def distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Relative RMS distance of appearances ``(..., Q, C)`` (channels summed): 0 alike, about 1 for one lobe
+    against none."""
+    a, b = a.sum(axis=-1), b.sum(axis=-1)
+    with np.errstate(all="ignore"):
+        d = np.sqrt(((a - b) ** 2).mean(axis=-1) / np.maximum((0.5 * (a + b)) ** 2, 1e-30).mean(axis=-1))
+    return np.where(np.isfinite(d), d, np.inf)
+
+
+def consensus(look: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """Each texel's 3×3 neighbourhood's median appearance ``(T, Q)`` (itself included; the grid's edge clipped)."""
+    stack = np.stack([look] + [neighbour(look, grid, dv, du) for dv, du in OFFSETS])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a texel with no finite neighbour: NaN, no judgement
+        return np.nanmedian(stack, axis=0)
+
+
+def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray,
+           grid: tuple[int, int], refit: Callable[[np.ndarray, dict, np.ndarray], np.ndarray], outlier_distance: float,
+           sweeps: int = SWEEPS, margin: float = MARGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(x, from_neighbour, outlier)`` for a tile's packed solutions ``x`` ``(T, K)`` on a ``grid`` of texels.
+
+    ``refit(rows, initial, prior)`` fits texels ``rows`` from ``initial`` (model-form parameters) and returns
+    their packed solutions; ``prior`` ``(R, Q, C)`` (NaN rows: none), when given, are extra samples at
+    :data:`APPEARANCE_PAIRS` to fit as well: the neighbourhood's median appearance, which pulls an ambiguous
+    texel toward its neighbours only where its own samples leave it free.  ``from_neighbour``: texels whose solution now comes from a neighbour's (as it is or
+    refined); ``outlier``: texels whose appearance stays farther than ``outlier_distance`` from their
+    neighbourhood's (0: no ambiguous-texel step, none flagged).  ``f_r`` and ``train`` are
+    :func:`~sbrdf_core.nodes.fit.usable`'s.
+    """
+    x = np.array(x, np.float64)
+    T, K = x.shape
+    has = np.asarray(train.any(axis=1), bool)
+    cost = np.where(has, _cost(_predict(model, x, wi, wo), f_r, train), np.inf)
+    cost = np.where(np.isfinite(cost), cost, np.inf)
+    dof = np.maximum(train.sum(axis=1) * f_r.shape[-1] - K, 1)
+    moved = np.zeros(T, bool)
+    look = appearance(model, x)
+    dev = np.zeros(T)
+    for sweep in range(sweeps + 1):
+        middle = consensus(look, grid)
+        dev = distance(look, middle)
+        odd = _odd(dev, has, grid, outlier_distance)
+        best_cost, best_x = cost * (1 - margin), x.copy()
+        near, near_x = np.full(T, np.inf), np.full_like(x, np.nan)
+        for dv, du in OFFSETS:
+            xn = neighbour(x, grid, dv, du)
+            rows = np.flatnonzero(has & np.isfinite(xn).all(axis=1))
+            if rows.size == 0:
+                continue
+            c = _cost(_predict(model, xn[rows], wi[rows], wo[rows]), f_r[rows], train[rows])
+            better = c < best_cost[rows]
+            best_cost[rows[better]], best_x[rows[better]] = c[better], xn[rows[better]]
+            d = distance(neighbour(look, grid, dv, du)[rows], middle[rows])
+            closer = odd[rows] & (d < near[rows])
+            near[rows[closer]], near_x[rows[closer]] = d[closer], xn[rows[closer]]
+        better = best_cost < cost * (1 - margin)
+        ambiguous = odd & ~better & np.isfinite(near)
+        cand = np.flatnonzero(better | ambiguous)
+        if cand.size == 0 or sweep == sweeps:
+            break
+        start = np.where(better[cand, None], best_x[cand], near_x[cand])
+        prior = np.where(better[cand, None, None], np.nan, middle[cand])
+        refined = np.asarray(refit(cand, model.unpack(start), prior), np.float64)
+        c_r = _cost(_predict(model, refined, wi[cand], wo[cand]), f_r[cand], train[cand])
+        c_r = np.where(np.isfinite(c_r), c_r, np.inf)
+        b = better[cand]
+        # a worse minimum: the lower of the refit and the neighbour's solution as it is
+        take_refit = b & (c_r < best_cost[cand])
+        take_start = b & ~take_refit
+        # an ambiguous texel: whichever of the two fits within the noise and looks most like its neighbourhood
+        limit = cost[cand] + NOISE_TOLERANCE * K * cost[cand] / dof[cand]
+        c_s = np.where(b, best_cost[cand], _cost(_predict(model, start, wi[cand], wo[cand]), f_r[cand], train[cand]))
+        d_r = np.where(c_r <= limit, distance(appearance(model, refined), middle[cand]), np.inf)
+        d_s = np.where(c_s <= limit, near[cand], np.inf)
+        take_refit |= ~b & (d_r < dev[cand]) & (d_r <= d_s)
+        take_start |= ~b & (d_s < dev[cand]) & (d_s < d_r)
+        rows = cand[take_refit | take_start]
+        if rows.size == 0:
+            break
+        new_x = np.where(take_refit[:, None], refined, start)[take_refit | take_start]
+        x[rows] = new_x
+        cost[rows] = np.where(take_refit, c_r, c_s)[take_refit | take_start]
+        look[rows] = appearance(model, new_x)
+        moved[rows] = True
+    return x, moved, _odd(dev, has, grid, outlier_distance)
+
+
+def _odd(dev: np.ndarray, has: np.ndarray, grid: tuple[int, int], threshold: float) -> np.ndarray:
+    """Texels departing from their neighbourhood by over ``threshold`` and :data:`ODD_FACTOR` × their
+    neighbours' departures (0: none)."""
+    if threshold <= 0:
+        return np.zeros(dev.shape, bool)
+    finite = np.where(np.isfinite(dev), dev, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # no finite neighbour: NaN, not odd
+        typical = np.nanmedian(np.stack([neighbour(finite, grid, dv, du) for dv, du in OFFSETS]), axis=0)
+    return has & (dev > threshold) & (dev > ODD_FACTOR * typical)
+
+
+def specks(image: np.ndarray, uniform: np.ndarray | None = None, factor: float = 4.0,
+           floor: float = 0.01) -> np.ndarray:
+    """``(V, U)`` mask of texels whose value departs from their 3×3 neighbourhood's median by more than
+    ``factor`` times the neighbourhood's spread: the specks a user sees in a render of a fit.
+
+    ``image`` ``(V, U)`` (or ``(V, U, C)``: luminance-like sum over channels) holds one value per texel, e.g.
+    f_r or a render at one light and view direction.  The spread is 1.4826 × the median absolute deviation of
+    the eight neighbours from that median (a standard deviation for Gaussian scatter), at least ``floor`` × the
+    median, so that a neighbourhood of one noise-free value does not call a rounding error a speck.  Only
+    texels whose whole 3×3 neighbourhood lies in ``uniform`` (a mask, default everywhere) and inside the grid
+    are judged: at a region's edge a texel differs from its neighbours by right.
+    """
+    a = np.asarray(image, np.float64)
+    if a.ndim == 3:
+        a = a.sum(axis=-1)
+    V, U = a.shape
+    out = np.zeros((V, U), bool)
+    if V < 3 or U < 3:
+        return out
+    ring = np.stack([a[1 + dv:V - 1 + dv, 1 + du:U - 1 + du] for dv, du in OFFSETS])  # (8, V-2, U-2)
+    centre = a[1:-1, 1:-1]
+    median = np.median(np.concatenate([ring, centre[None]]), axis=0)
+    spread = np.maximum(1.4826 * np.median(np.abs(ring - median), axis=0), floor * np.abs(median))
+    with np.errstate(invalid="ignore"):
+        inner = ~(np.abs(centre - median) <= factor * spread)  # NaN counts as a speck
+    if uniform is not None:
+        u = np.asarray(uniform, bool)
+        whole = np.logical_and.reduce([u[1 + dv:V - 1 + dv, 1 + du:U - 1 + du] for dv, du in OFFSETS]) & u[1:-1, 1:-1]
+        inner &= whole
+    out[1:-1, 1:-1] = inner
+    return out

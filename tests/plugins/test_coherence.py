@@ -1,0 +1,131 @@
+"""Spatial coherence of the Fit node: neighbours' solutions as restarts, outliers flagged (sbrdf_core.coherence)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sbrdf_core.coherence import neighbour
+from sbrdf_core.geometry import fibonacci_hemisphere, tile_directions
+from sbrdf_core.nodes.fit import EXTRA, OUTLIER, FitOptions, fit_tile
+
+GRID = (5, 5)
+SIZE = (10.0, 10.0)
+CENTRE = 12
+TRUTH = {"rho_d": [0.05, 0.06, 0.07], "rho_s_1": [0.6, 0.55, 0.5], "c_xy_1": [-1.0], "c_z_1": [1.0],
+         "exponent_1": [60.0]}
+
+
+def test_neighbour_moves_each_row_to_its_texel():
+    x = np.arange(12.0).reshape(12, 1)  # a 3 x 4 grid
+    right = neighbour(x, (3, 4), 0, 1).reshape(3, 4)
+    assert right[0, 0] == 1 and right[2, 2] == 11 and np.isnan(right[:, 3]).all()
+    up_left = neighbour(x, (3, 4), -1, -1).reshape(3, 4)
+    assert up_left[1, 1] == 0 and up_left[2, 3] == 6 and np.isnan(up_left[0]).all() and np.isnan(up_left[:, 0]).all()
+
+
+def _tile(model, params, noise=0.002, seed=0):
+    light = fibonacci_hemisphere(60, 75) * 400
+    camera = fibonacci_hemisphere(60, 60, offset=2.0) * 600
+    wi, _, wo = tile_directions(GRID, SIZE, (0, GRID[0]), (0, GRID[1]), light, camera)
+    f = model.eval(params, wi, wo)
+    f = f + noise * np.random.default_rng(seed).standard_normal(f.shape)
+    V, U = GRID
+    return f.reshape(V, U, -1, 3), np.ones((V, U, f.shape[1], 1), bool), light, camera
+
+
+class Trapped:
+    """``lm``, except that its own fit of the centre texel is a broad lobe: a texel caught in a worse minimum."""
+
+    def __init__(self, lm):
+        self.lm, self.model_name, self.model_config = lm, lm.model_name, lm.model_config
+        self.starts_given = 0
+
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None):
+        res = self.lm.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms, usable=usable, initial=initial)
+        if initial is None and f_r.shape[0] == GRID[0] * GRID[1]:
+            res.params["exponent_1"][CENTRE] = 3.0
+            res.params["rho_s_1"][CENTRE] = 0.05
+        else:
+            self.starts_given += f_r.shape[0]
+        return res
+
+
+def _fit(fitter, model, data, **options):
+    f, valid, light, camera = data
+    info = [{"array-location": [(0, GRID[0]), (0, GRID[1]), (0, f.shape[2]), (0, 3)]}]
+    out = fit_tile(f, valid, light, camera, GRID, SIZE, fitter, model, FitOptions(holdout=0.0, **options),
+                   block_info=info).reshape(GRID[0] * GRID[1], -1)
+    K = model.size
+    params = model.unpack(out[:, :K].astype(np.float64))
+    column = {name: out[:, K + i] for i, name in enumerate(EXTRA)}
+    return params, column
+
+
+@pytest.fixture
+def uniform(registry):
+    model = registry.create("brdf-model", "lafortune", {"lobes": 1})
+    T = GRID[0] * GRID[1]
+    truth = {k: np.tile(np.asarray(v, np.float64), (T, 1)) for k, v in TRUTH.items()}
+    lm = registry.create("fitter", "lm", {"model": "lafortune"})
+    return model, truth, lm
+
+
+def test_a_texel_in_a_worse_minimum_is_refitted_from_its_neighbours(uniform):
+    model, truth, lm = uniform
+    data = _tile(model, truth)
+    alone, col_alone = _fit(Trapped(lm), model, data, coherence="none")
+    assert alone["exponent_1"][CENTRE, 0] < 10  # the speck, left as the fitter made it
+    untrapped, col_untrapped = _fit(lm, model, data, coherence="none")
+    trapped = Trapped(lm)
+    params, column = _fit(trapped, model, data)
+    assert trapped.starts_given >= 1  # refined from a neighbour's solution, through the fitter's `initial`
+    assert column["from_neighbour"][CENTRE] == 1
+    assert column["rms"][CENTRE] < 0.5 * col_alone["rms"][CENTRE]
+    # as good a fit of its own samples as an untrapped start finds, within the noise ...
+    assert column["rms"][CENTRE] == pytest.approx(col_untrapped["rms"][CENTRE], rel=0.03)
+    # ... and, of the fits that good, the one like its neighbours': its own samples leave the exponent loose
+    # (an untrapped start finds about 44 where every neighbour has about 59)
+    others = np.delete(params["exponent_1"][:, 0], CENTRE)
+    assert untrapped["exponent_1"][CENTRE, 0] < 0.8 * np.median(others)
+    assert params["exponent_1"][CENTRE, 0] == pytest.approx(np.median(others), rel=0.05)
+    assert not (column["flags"].astype(int) & OUTLIER).any()
+
+
+def test_a_texel_of_another_material_is_kept_and_flagged_an_outlier(uniform):
+    model, truth, lm = uniform
+    other = {k: v.copy() for k, v in truth.items()}
+    other["exponent_1"][CENTRE], other["rho_s_1"][CENTRE] = 4.0, 0.08  # a single texel of a matte material
+    params, column = _fit(lm, model, _tile(model, other))
+    assert params["exponent_1"][CENTRE, 0] < 10  # its own samples say matte: no neighbour fits them better
+    assert column["from_neighbour"][CENTRE] == 0
+    flagged = np.flatnonzero(column["flags"].astype(int) & OUTLIER)
+    assert flagged.tolist() == [CENTRE]
+
+
+def test_training_error_never_rises(uniform):
+    """Coherence changes a texel only to a lower training cost (the node's own RMS), noise and all."""
+    model, truth, lm = uniform
+    rng = np.random.default_rng(4)
+    varied = {k: v * rng.uniform(0.7, 1.3, v.shape) if k in ("rho_s_1", "exponent_1") else v
+              for k, v in truth.items()}
+    data = _tile(model, varied, noise=0.01, seed=2)
+    _, alone = _fit(lm, model, data, coherence="none")
+    _, coherent = _fit(lm, model, data)
+    assert (coherent["rms"] <= alone["rms"] * (1 + 1e-5)).all()
+
+
+def test_specks_finds_a_lone_bright_texel_not_an_edge_or_noise():
+    from sbrdf_core.coherence import specks
+
+    rng = np.random.default_rng(0)
+    image = 1.0 + 0.002 * rng.standard_normal((12, 12))
+    image[:, 6:] = 3.0  # a second region: its edge is no speck
+    image[3, 3] = 1.5  # a speck
+    found = specks(image)
+    assert found[3, 3] and found.sum() == 1
+    region = np.zeros((12, 12), bool)
+    region[:, 6:] = True
+    assert not specks(image, uniform=region).any()  # only the second region judged
+    image[8, 8] = np.nan
+    assert specks(image, uniform=region)[8, 8]
