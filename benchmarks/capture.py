@@ -18,10 +18,11 @@ fsynced, as a real capture would), then finishes the manifest.  Two runs:
 
 Then the whole rig: the ``gonio`` capture source drives the three pty motor
 simulators (``port: sim``) through a plan of ``rig_poses`` explicit poses with
-a two-exposure bracket, into a capture folder, twice: with the virtual
-camera, and with the ``pylon`` driver on Basler's emulator (``PYLON_CAMEMU``)
-serving the virtual run's photographs as 16-bit RGB frames (skipped when
-``pypylon`` is not installed).  The gonio source's own clock splits each
+a two-exposure bracket, into a capture folder: with the virtual camera; with
+the ``pylon`` driver on Basler's emulator (``PYLON_CAMEMU``) serving the
+virtual run's photographs as 16-bit RGB frames (skipped when ``pypylon`` is
+not installed); and with the ``aravis`` driver on Aravis's fake GigE Vision
+camera over the loopback interface (skipped when it is not installed).  The gonio source's own clock splits each
 run into motion (move commands until every motor reports its position),
 settle (``settle_s``, 0 here), exposure (the frame camera's integration
 time), transfer (trigger to frame in memory, less the exposure; for the
@@ -43,9 +44,12 @@ on 2 cores).  Progress goes to stderr; the last line of stdout is::
 
     capture: poses=<int> all_effects_poses_per_s=<float> no_effects_poses_per_s=<float> rig_poses=<int>
     rig_virtual_poses_per_s=<float> rig_pylon_poses_per_s=<float> pylon_motion_s=<float> pylon_settle_s=<float>
-    pylon_exposure_s=<float> pylon_transfer_s=<float> pylon_write_s=<float> peak_rss_mb=<float>
+    pylon_exposure_s=<float> pylon_transfer_s=<float> pylon_write_s=<float> [rig_aravis_poses_per_s=<float>
+    aravis_motion_s=<float> ... aravis_write_s=<float>] peak_rss_mb=<float>
 
-(one line; the ``pylon_*_s`` figures are seconds per pose).
+(one line; the ``pylon_*_s`` and ``aravis_*_s`` figures are seconds per pose; the ``aravis`` figures
+appear where ``arv-fake-gv-camera-0.8`` and the Aravis bindings are installed: its frames are the
+simulator's test pattern, not the virtual rig's photographs).
 """
 
 from __future__ import annotations
@@ -121,20 +125,57 @@ def rigs(tmp: Path, poses: int) -> dict:
                           "sensitivity": 100.0, "effects": ["falloff", "saturation", "response", "noise"],
                           "response_curve": "gamma", "response_gamma": 1.0, "bit_depth": 16}}
     out = {"rig_virtual_poses_per_s": rig(tmp / "rig-virtual", poses, virtual)[0]}
+    m = json.loads((tmp / "rig-virtual" / "capture.json").read_text())
+    frame_params = {"sample": m["sample"], "light": m["light"],
+                    "intrinsics": {"K": m["camera"]["K"], "dist": m["camera"]["dist"]}}
     try:
         import pypylon.pylon  # noqa: F401
     except ImportError:
         log("  rig, pylon: skipped (pip install 'sbrdf[pylon]')")
-        return out
-    m = json.loads((tmp / "rig-virtual" / "capture.json").read_text())
-    frames = str(tmp / "rig-virtual" / "images" / "p{pose:05d}_e{exposure}.png")
-    camera = {"device": "pylon", "params": {"pixel_format": "RGB16Packed", "width": 320, "height": 240,
-                                            "emulation_frames": frames}}
-    rate, split = rig(tmp / "rig-pylon", poses, camera, sample=m["sample"], light=m["light"],
-                      intrinsics={"K": m["camera"]["K"], "dist": m["camera"]["dist"]})
-    out["rig_pylon_poses_per_s"] = rate
-    out.update({f"pylon_{k}_s": v for k, v in split.items()})
+    else:
+        frames = str(tmp / "rig-virtual" / "images" / "p{pose:05d}_e{exposure}.png")
+        camera = {"device": "pylon", "params": {"pixel_format": "RGB16Packed", "width": 320, "height": 240,
+                                                "emulation_frames": frames}}
+        rate, split = rig(tmp / "rig-pylon", poses, camera, **frame_params)
+        out["rig_pylon_poses_per_s"] = rate
+        out.update({f"pylon_{k}_s": v for k, v in split.items()})
+    out.update(aravis_rig(tmp, poses, frame_params))
     return out
+
+
+def aravis_rig(tmp: Path, poses: int, frame_params: dict) -> dict:
+    """The rig with the ``aravis`` driver on Aravis's fake GigE Vision camera (loopback), when both are installed."""
+    import shutil
+    import subprocess
+
+    fake = shutil.which("arv-fake-gv-camera-0.8")
+    try:
+        import gi
+
+        gi.require_version("Aravis", "0.8")
+        from gi.repository import Aravis
+    except (ImportError, ValueError):
+        Aravis = None
+    if fake is None or Aravis is None:
+        log("  rig, aravis: skipped (apt install aravis-tools gir1.2-aravis-0.8; pip install 'sbrdf[aravis]')")
+        return {}
+    serial = "SBRDF-BENCH"
+    proc = subprocess.Popen([fake, "-i", "127.0.0.1", "-s", serial], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            Aravis.update_device_list()
+            if any(Aravis.get_device_serial_nbr(i) == serial for i in range(Aravis.get_n_devices())):
+                break
+            time.sleep(0.1)
+        camera = {"device": "aravis", "params": {"serial": serial, "pixel_format": "Mono8", "width": 320,
+                                                 "height": 240}}
+        rate, split = rig(tmp / "rig-aravis", poses, camera, read={"response": "linear"}, **frame_params)
+    finally:
+        proc.terminate()
+        proc.wait(5)
+    return {"rig_aravis_poses_per_s": rate, **{f"aravis_{k}_s": v for k, v in split.items()}}
 
 
 def main(argv: list[str] | None = None) -> int:

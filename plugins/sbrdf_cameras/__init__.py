@@ -26,6 +26,8 @@ def sbrdf_devices():
         ),
         PluginSpec("pylon", "sbrdf_cameras.pylon:PylonCamera",
                    summary="Basler camera through pypylon (PYLON_CAMEMU=N emulates N cameras)"),
+        PluginSpec("aravis", "sbrdf_cameras.aravis:AravisCamera",
+                   summary="GigE Vision / USB3 Vision camera through Aravis (arv-fake-gv-camera-0.8 simulates one)"),
         PluginSpec("uvc", "sbrdf_cameras.uvc:UVCCamera",
                    summary="UVC webcam or capture card through OpenCV VideoCapture (a file stands in for one)"),
         PluginSpec("gphoto", "sbrdf_cameras.gphoto:GPhotoCamera",

@@ -39,7 +39,7 @@ halts every motor and stops the capture with :class:`GonioCaptureError`,
 naming the pose, the motor, its port and the command; the folder then holds
 exactly the completed poses and the CaptureSet stays incomplete.
 
-**Frame cameras** (``pylon``, ``genicam``, ``uvc``, ``gphoto``: any device with
+**Frame cameras** (``pylon``, ``aravis``, ``uvc``, ``gphoto``: any device with
 :class:`~sbrdf_core.contracts.FrameCamera`'s API) know nothing of the sample or
 the rig, so the source needs ``sample`` (the manifest's sample section: size
 and fiducials) and ``intrinsics`` (``K``, ``dist`` from a calibration) beside
