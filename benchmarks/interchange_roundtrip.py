@@ -30,7 +30,14 @@ its texels.  ``usd_roughness_p50``, ``usd_clearcoat_roughness_p50`` and
 ``usd_conv_err_p50``: the demo's USD export (``usd``, UsdPreviewSurface with
 its clearcoat, :mod:`sbrdf_lib.usd_preview`): the first lobe's and the
 clearcoat's median roughness and the median per-texel conversion error
-(``rough_usd_conv_err_p50`` the rough material's); ``nan`` without usd-core.  Without three.js, chromium or Mitsuba, those figures are ``nan``.
+(``rough_usd_conv_err_p50`` the rough material's); ``nan`` without usd-core.
+``*_gltf_from_samples_rel_err``: the same render round trip of a second glTF
+export, ``source: samples`` (glTF's GGX fitted to the reflectance samples the
+material was fitted to, not converted from the fit), against the same ``cpu``
+render of the fit; ``*_gltf_samples_err_p50`` and
+``*_gltf_from_samples_samples_err_p50``: the median per-texel error of each
+export's glTF BRDF against the samples themselves (cos θ_i cos θ_o weighted
+relative RMS, directions within 70°), what the material measured like.  Without three.js, chromium or Mitsuba, those figures are ``nan``.
 
     .venv/bin/python benchmarks/interchange_roundtrip.py --quick   # 32 x 32 texels, 160 x 120 pixels
     .venv/bin/python benchmarks/interchange_roundtrip.py           # 128 x 128 texels, 320 x 240 pixels
@@ -63,6 +70,33 @@ lights:
   - {{type: point, position: [0.3, 0.6, 1.0], intensity: 2}}
 antialias: 4
 """
+
+
+#: The node holding each material's reflectance samples (the Fit node's input).
+SAMPLES = {"glossy": "reflectance", "rough": "samples"}
+
+
+def sample_errors(store: Path, kind: str) -> dict:
+    """Median, over texels, of each glTF export's BRDF against the reflectance samples (:func:`sample_error`)."""
+    from sbrdf_core.geometry import tile_directions
+    from sbrdf_core.store import open_artifact
+    from sbrdf_lib.convert import GLTF_MAPS, VIEW_THETA_DEG, ggx_model, gltf_brdf, sample_error
+
+    smp = open_artifact(f"{store}/{SAMPLES[kind]}")
+    f, v = smp.read("f_r"), smp.read("valid")
+    V, U = f.shape[:2]
+    wi, _, wo = tile_directions(tuple(smp.attrs["texels"]), tuple(smp.attrs["size_mm"]), (0, V), (0, U),
+                                smp.read("light_pos"), smp.read("camera_pos"))
+    f, v = f.reshape(V * U, -1, 3).astype(np.float64), v.reshape(V * U, -1)
+    limit = np.cos(np.radians(VIEW_THETA_DEG))
+    v = v & np.isfinite(f).all(-1) & (wi[..., 2] >= limit) & (wo[..., 2] >= limit)
+    f = np.where(v[..., None], f, 0.0)
+    out = {}
+    for node in ("gltf", "gltf_samples"):
+        art = open_artifact(f"{store}/{node}")
+        maps = {k: art.read(f"maps/{k}").reshape(V * U, -1).astype(np.float64) for k in GLTF_MAPS}
+        out[node] = float(np.median(sample_error(gltf_brdf(ggx_model(), maps, wi, wo), f, v, wi, wo)))
+    return out
 
 
 def material_nodes(kind: str, texels: int) -> str:
@@ -131,6 +165,9 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
         "  gltf: {kind: Export, plugin: gltf, in: {material: fit}}\n"
         f"  mitsuba: {{kind: Export, plugin: mitsuba, in: {{material: fit}}, params: {{scene: {scene}}}}}\n"
         f"  cpu: {{kind: Render, plugin: cpu, in: {{material: fit}}, params: {{scene: {scene}}}}}\n")
+    samples = SAMPLES[kind]  # glTF's GGX fitted to the reflectance samples themselves (source: samples)
+    text += (f"  gltf_samples: {{kind: Export, plugin: gltf, in: {{material: fit, samples: {samples}}}, "
+             "params: {source: samples}}\n")
     if importlib.util.find_spec("pxr") is not None:
         text += "  usd: {kind: Export, plugin: usd, in: {material: fit}}\n"
     runner = Runner(registry=Registry(extra=["sbrdf_export", "sbrdf_gltf"]), progress=False)
@@ -150,8 +187,13 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
         out.update(usd_roughness_p50=float(np.median(usd.read("maps/roughness"))),
                    usd_clearcoat_roughness_p50=float(np.median(usd.read("maps/clearcoat_roughness"))),
                    usd_conv_err_p50=float(np.median(usd.read("error"))), export_usd_s=usd.attrs["run"]["wall_s"])
+    errs = sample_errors(store, kind)
+    fs = open_artifact(f"{store}/gltf_samples")
+    out.update(samples_err_p50=errs["gltf"], from_samples_err_p50=errs["gltf_samples"],
+               from_samples_roughness_p50=float(np.median(fs.read("maps/roughness"))),
+               export_gltf_samples_s=fs.attrs["run"]["wall_s"])
     cpu = open_artifact(f"{store}/cpu").read("image")
-    for r in ("gltf", "mitsuba"):
+    for r in ("gltf", "gltf_samples", "mitsuba"):
         out.update({f"{r}_rel_err": float("nan"), f"{r}_rms": float("nan"), f"{r}_peak_px": float("nan"),
                     f"{r}_fireflies": -1})
     from sbrdf_gltf.threejs import available, render_gltf
@@ -168,6 +210,11 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
         out["threejs_s"] = time.perf_counter() - t0
         out.update({f"gltf_{k}": v for k, v in compare(image, cpu).items()})
         out["images_gltf"] = image
+        image = render_gltf(str(store / "gltf_samples" / "material.gltf"),
+                            {"position": cam.position, "look_at": cam.look_at, "up": cam.up, "fov_deg": cam.fov_deg,
+                             "resolution": cam.resolution}, lights, plane_size=2.0, size_mm=gltf.attrs["size_mm"])
+        out.update({f"gltf_samples_{k}": v for k, v in compare(image, cpu).items()})
+        out["images_gltf_samples"] = image
     else:
         print(f"three.js render skipped: {why}", file=sys.stderr)
     if importlib.util.find_spec("mitsuba") is not None:
@@ -228,7 +275,14 @@ def main(argv=None) -> int:
           f"glossy_flagged={g['flagged']:.4g} rough_conversion_err={r['conversion_err_p50']:.4g} "
           f"rough_flagged={r['flagged']:.4g} usd_roughness_p50={g['usd_roughness_p50']:.4g} "
           f"usd_clearcoat_roughness_p50={g['usd_clearcoat_roughness_p50']:.4g} "
-          f"usd_conv_err_p50={g['usd_conv_err_p50']:.4g} rough_usd_conv_err_p50={r['usd_conv_err_p50']:.4g}")
+          f"usd_conv_err_p50={g['usd_conv_err_p50']:.4g} rough_usd_conv_err_p50={r['usd_conv_err_p50']:.4g} "
+          f"glossy_gltf_from_samples_rel_err={g['gltf_samples_rel_err']:.4g} "
+          f"rough_gltf_from_samples_rel_err={r['gltf_samples_rel_err']:.4g} "
+          f"glossy_gltf_samples_err_p50={g['samples_err_p50']:.4g} "
+          f"glossy_gltf_from_samples_samples_err_p50={g['from_samples_err_p50']:.4g} "
+          f"rough_gltf_samples_err_p50={r['samples_err_p50']:.4g} "
+          f"rough_gltf_from_samples_samples_err_p50={r['from_samples_err_p50']:.4g} "
+          f"glossy_gltf_from_samples_roughness_p50={g['from_samples_roughness_p50']:.4g}")
     return 0
 
 

@@ -217,6 +217,9 @@ class Material:
     encoded: dict | None = None
     #: MIP levels 1 … L (a Mip node's ``mip/<l>/<parameter>``): ``[{name: (V >> l, U >> l, C)}]``, lazy.
     levels: list = field(default_factory=list)
+    #: The SampledReflectance artifact the material was fitted to, where the node was given it (an Export node's
+    #: ``samples`` input: an exporter may fit its format's model to the samples instead of converting), else None.
+    samples: Any = None
 
 
 @dataclass

@@ -110,7 +110,11 @@ __all__ = [
     "gltf_brdf",
     "mapped_alpha",
     "pair_weight",
+    "ProjectedWeighted",
     "relative_error",
+    "sample_error",
+    "samples_to_gltf",
+    "samples_to_gltf_blocks",
     "to_ggx",
     "to_ggx_blocks",
     "to_gltf_pbr",
@@ -381,10 +385,27 @@ class CosineWeighted(BRDFModel):
         return self
 
 
+class ProjectedWeighted(CosineWeighted):
+    """:class:`CosineWeighted` with the weight cos θ_i cos θ_o alone: for measured samples, which come at
+    the capture's directions, not as a quadrature of the hemisphere.
+
+    Weighted so, a least-squares fit to samples counts each as a renderer's pixel sees it (lit at θ_i,
+    seen at θ_o), as the conversion does on its pairs.
+    """
+
+    @staticmethod
+    def weight(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """√(cos θ_i cos θ_o), 0 below the horizon; shaped like ``wi`` without its last axis."""
+        return np.sqrt(np.clip(wi[..., 2], 0.0, 1.0) * np.clip(wo[..., 2], 0.0, 1.0))
+
+
 def _eval(model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """``model.eval`` on pairs shared by every texel, ``(S, 3)``, or each texel's own, ``(T, S, 3)``."""
     T = next(iter(params.values())).shape[0]
+    if wi.ndim == 2:
+        wi, wo = np.broadcast_to(wi, (T,) + wi.shape), np.broadcast_to(wo, (T,) + wo.shape)
     with np.errstate(all="ignore"):
-        return model.eval(params, np.broadcast_to(wi, (T,) + wi.shape), np.broadcast_to(wo, (T,) + wo.shape))
+        return model.eval(params, wi, wo)
 
 
 def _cos_weight(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -543,19 +564,21 @@ def _shapes(target: SpecularGGX, T: int, source: dict):
                        "alpha_b": np.minimum(a / np.sqrt(ratio), MAX_ALPHA), "phi": phi}
 
 
-def _solve_magnitudes(target: SpecularGGX, shape: dict, f_src, valid, wi, wo, grazing: bool) -> dict:
+def _solve_magnitudes(target: SpecularGGX, shape: dict, f_src, valid, wi, wo, grazing: bool, weight=CosineWeighted) -> dict:
     """ρ_d, F0c and s for a fixed lobe shape: the cosine-weighted linear least squares in (ρ_d, s·F0c, s).
 
     f is affine in a = s·F0c (per channel) and s given the shape: f = ρ_d + (a (1 − S) + s S) D V.  Two
     candidates, each projected onto the target's box and scored exactly: the free solution (s raised to
     max a where it fell below: F0c ≤ 1), and the flat-Fresnel one (F = a, s = max a), which is where the
     box's edge lies for a source that does not brighten toward grazing.  With ``grazing`` False, s = 1.
+    ``weight``: the fit form whose ``weight(wi, wo)`` is √ of each pair's (:class:`CosineWeighted`, or
+    :class:`ProjectedWeighted` for measured samples).
     """
     T = f_src.shape[0]
     dv = target.lobe.eval(target._lobe(shape, T), wi, wo)[..., 0]
     S = _schlick(wi, wo)
     up = above_horizon(wi, wo).astype(float)
-    w = CosineWeighted.weight(wi, wo) ** 2 * valid
+    w = weight.weight(wi, wo) ** 2 * valid
     rho_bounds = target.parameters[0].bounds
 
     def solve(basis, rhs):
@@ -703,7 +726,7 @@ def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray, anisotropic=None)
 
     ``gltf``: the :data:`GLTF_MAPS` per texel (linear; ``specular_color`` is the
     factor × texture product, ``specular`` the specularFactor).  ``wi``, ``wo``:
-    shared ``(S, 3)`` pairs.  D·V comes from ``ggx`` (cook-torrance GGX with F0 = 1, ρ_d = 0),
+    shared ``(S, 3)`` pairs, or each texel's own ``(T, S, 3)`` (its samples' directions).  D·V comes from ``ggx`` (cook-torrance GGX with F0 = 1, ρ_d = 0),
     or, where ``anisotropic`` (the ``ggx-anisotropic`` model) is given and some texel's
     ``anisotropy`` strength is not 0, from it with ``KHR_materials_anisotropy``'s
     α_b = roughness², α_t = mix(roughness², 1, strength²) and the map's direction.
@@ -724,14 +747,12 @@ def gltf_brdf(ggx, gltf: dict, wi: np.ndarray, wo: np.ndarray, anisotropic=None)
         dv = _eval(anisotropic, lobe, wi, wo)[..., :1]
     else:
         dv = _eval(ggx, {**lobe, "alpha": alpha}, wi, wo)[..., :1]  # (T, S, 1)
-    h = wi + wo
-    h = h / np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
-    s5 = ((1.0 - np.clip(np.einsum("sk,sk->s", wi, h), 0.0, 1.0)) ** 5)[None, :, None]
+    s5 = _schlick(wi, wo)[..., None]  # (S, 1) or (T, S, 1)
     f0 = np.minimum(DIELECTRIC_F0 * spec_col, 1.0)[:, None, :]
     fr = f0 + (1.0 - f0) * s5
     dielectric = (1.0 - s * fr.max(axis=-1, keepdims=True)) * bc[:, None, :] / np.pi + s * fr * dv
     metal = dv * (bc[:, None, :] + (1.0 - bc[:, None, :]) * s5)
-    up = ((wi[:, 2] > 0) & (wo[:, 2] > 0))[None, :, None]
+    up = ((wi[..., 2] > 0) & (wo[..., 2] > 0))[..., None]
     return np.where(up, (1.0 - m) * dielectric + m * metal, 0.0)
 
 
@@ -872,3 +893,137 @@ def to_gltf_pbr_blocks(model, params: dict, ggx, **kw) -> dict:
         return {**g, "error": e[:, None]}
 
     return _blocks(fn, {**GLTF_MAPS, "error": 1}, model, params, **kw)
+
+
+#: Roughness values α the fit from samples starts among (per texel, magnitudes solved linearly for each).
+SAMPLE_START_ALPHAS = tuple(np.geomspace(0.01, MAX_ALPHA, 16))
+
+
+def sample_error(f: np.ndarray, f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """Per texel, ``sqrt(Σ w |f − f_r|²) / sqrt(Σ w |f_r|²)`` over its valid samples, w = cos θ_i cos θ_o, ``(T,)``.
+
+    ``f``, ``f_r``: ``(T, S, 3)``; ``valid``: ``(T, S)``; ``wi``, ``wo``: ``(T, S, 3)``.  The measure of
+    :func:`relative_error` on measured samples (no held-out split: the samples are the material itself).
+    A texel without valid samples, or whose samples are all 0 while ``f`` is not, gets 1.
+    """
+    w = (ProjectedWeighted.weight(wi, wo) ** 2 * valid)[..., None]
+    with np.errstate(all="ignore"):
+        num = np.sqrt(np.sum(w * (f - f_r) ** 2, axis=(1, 2)))
+        den = np.sqrt(np.sum(w * f_r**2, axis=(1, 2)))
+        err = num / den
+    tiny = den <= 1e-12
+    err = np.where(tiny, np.where((num <= 1e-12) & valid.any(axis=1), 0.0, 1.0), err)
+    return np.where(np.isfinite(err), err, 1.0)
+
+
+def samples_to_gltf(f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.ndarray, ggx, *, starts: int = 1,
+                    iterations: int = 8, max_theta_deg: float = VIEW_THETA_DEG) -> tuple[dict, np.ndarray]:
+    """Fit glTF's GGX (:class:`SpecularGGX`) to each texel's reflectance samples and read it as glTF.
+
+    What a user exporting a capture to glTF wants: the format's model fitted to what was measured, not to
+    another model's fit of it.  ``f_r`` ``(T, S, 3)`` sr⁻¹, ``valid`` ``(T, S)``, ``wi``, ``wo`` ``(T, S, 3)``
+    (the samples' directions, :func:`sbrdf_core.geometry.tile_directions`); samples beyond
+    ``max_theta_deg`` from the normal are left out, as the conversion leaves those directions out.  Per
+    texel: the best of :data:`SAMPLE_START_ALPHAS` with ρ_d, s·F0c and s solved linearly, refined by the
+    shared LM (:func:`sbrdf_lib.lm.fit_model`) on the cos θ_i cos θ_o weighted least squares
+    (:class:`ProjectedWeighted`), then read as glTF's dielectric or metal the way the conversion reads its
+    fit (step 4 of the module docstring).  Returns ``(gltf, error)``: the :data:`GLTF_MAPS` ``(T, C)`` and
+    :func:`sample_error` of glTF's BRDF against the samples, ``(T,)``.  A texel without valid samples gets
+    the defaults (black, roughness 1) and error 1.
+
+    >>> import numpy as np
+    >>> from sbrdf_lib.convert import ggx_model, samples_to_gltf
+    >>> ct = ggx_model()
+    >>> wi, wo = (np.broadcast_to(d, (1,) + d.shape) for d in direction_pairs())
+    >>> truth = {"rho_d": np.full((1, 3), 0.1), "f0": np.full((1, 3), 0.04), "alpha": np.array([[0.1]])}
+    >>> g, e = samples_to_gltf(ct.eval(truth, wi, wo), np.ones(wi.shape[:2], bool), wi, wo, ct)
+    >>> round(float(g["roughness"][0, 0]) ** 2, 3), bool(e[0] < 0.01)
+    (0.1, True)
+    """
+    from sbrdf_core.nodes.fit import usable
+    from sbrdf_lib.lm import fit_model
+
+    target = SpecularGGX(ggx)
+    wi, wo = np.asarray(wi, np.float64), np.asarray(wo, np.float64)
+    f_r, valid = usable(np.asarray(f_r), np.asarray(valid, bool), np.float64)
+    limit = np.cos(np.radians(max_theta_deg))
+    valid = valid & (wi[..., 2] >= limit) & (wo[..., 2] >= limit)
+    f_r = np.where(valid[..., None], f_r, 0.0)
+    T = f_r.shape[0]
+    pwi, pwo = direction_pairs(max_theta_deg=max_theta_deg)
+    gltf = {k: np.zeros((T, c)) for k, c in GLTF_MAPS.items()}
+    error = np.ones(T)
+    for b in range(0, T, BATCH):
+        sl = slice(b, min(b + BATCH, T))
+        f, v, a, o = f_r[sl], valid[sl], wi[sl], wo[sl]
+        n = f.shape[0]
+        w = ProjectedWeighted.weight(a, o)[..., None]
+        best, best_cost = None, np.full(n, np.inf)
+        for alpha in SAMPLE_START_ALPHAS:
+            guess = _solve_magnitudes(target, {"alpha": np.full((n, 1), alpha)}, f, v, a, o, True,
+                                      weight=ProjectedWeighted)
+            with np.errstate(all="ignore"):
+                cost = np.sum((w * v[..., None] * (target.eval(guess, a, o) - f)) ** 2, axis=(1, 2))
+            cost = np.where(np.isfinite(cost), cost, np.inf)
+            if best is None:
+                best, best_cost = guess, cost
+                continue
+            better = cost < best_cost
+            best = {k: np.where(better[:, None], guess[k], best[k]) for k in best}
+            best_cost = np.where(better, cost, best_cost)
+        assert best is not None
+        fitted = best
+        if iterations > 0:
+            form = target.fit_form()
+            fitted, _, _ = fit_model(ProjectedWeighted(form), f * w, v, a, o, initial=form.from_model(best),
+                                     starts=starts, iterations=iterations)
+        ok = v.any(axis=1)
+        defaults = target.defaults(n)
+        fit = {p.name: np.clip(np.where(ok[:, None], np.nan_to_num(np.asarray(fitted[p.name], np.float64)),
+                                        defaults[p.name]), *p.bounds) for p in target.parameters}
+        # the glTF reading that best reproduces the fitted lobe over the hemisphere (the conversion's pairs)
+        reading, _ = _readings(ggx, fit, None, _eval(target, fit, pwi, pwo), pwi, pwo)
+        default = {"base_color": np.zeros((n, 3)), "metallic": np.zeros((n, 1)), "roughness": np.ones((n, 1)),
+                   "specular": np.ones((n, 1)), "specular_color": np.ones((n, 3)),
+                   "anisotropy": np.broadcast_to(ISOTROPIC, (n, 3))}
+        black = ok & (np.abs(f).max(axis=(1, 2)) == 0.0)
+        for k in GLTF_MAPS:
+            gltf[k][sl] = np.where(ok[:, None], reading[k], default[k])
+        for k in ("base_color", "metallic", "specular"):
+            gltf[k][sl] = np.where(black[:, None], 0.0, gltf[k][sl])
+        e = sample_error(gltf_brdf(ggx, {k: gltf[k][sl] for k in GLTF_MAPS}, a, o), f, v, a, o)
+        error[sl] = np.where(ok, e, 1.0)
+    return gltf, error
+
+
+def samples_to_gltf_blocks(f_r, valid, light_pos: np.ndarray, camera_pos: np.ndarray, texels: tuple[int, int],
+                           size_mm: tuple[float, float], ggx, **kw) -> dict:
+    """Lazy :func:`samples_to_gltf` over a SampledReflectance's ``f_r`` ``(V, U, P, 3)`` and ``valid`` ``(V, U, P)``
+    dask arrays (all poses of a tile in one chunk): the :data:`GLTF_MAPS` and ``error`` ``(V, U, C)``, float32,
+    chunked as the samples' tiles.  Directions come from the poses' ``light_pos``, ``camera_pos`` ``(P, 3)``."""
+    import dask.array as da
+
+    from sbrdf_core.geometry import tile_directions
+
+    names = {**GLTF_MAPS, "error": 1}
+    K = sum(names.values())
+    light_pos, camera_pos = np.asarray(light_pos, np.float64), np.asarray(camera_pos, np.float64)
+
+    def block(f, v, block_info=None):
+        (v0, v1), (u0, u1) = block_info[0]["array-location"][:2]
+        wi, _, wo = tile_directions(tuple(texels), tuple(size_mm), (v0, v1), (u0, u1), light_pos, camera_pos)
+        V, U = f.shape[:2]
+        g, e = samples_to_gltf(f.reshape(V * U, -1, 3), v.reshape(V * U, -1), wi, wo, ggx, **kw)
+        return np.concatenate([np.asarray(g[k], np.float32).reshape(V, U, -1) for k in GLTF_MAPS]
+                              + [e.astype(np.float32).reshape(V, U, 1)], axis=-1)
+
+    f_r = da.asarray(f_r).rechunk({2: -1, 3: -1})
+    valid = da.asarray(valid).rechunk({2: -1})
+    stacked = da.map_blocks(block, f_r, valid[..., None], drop_axis=[3], chunks=f_r.chunks[:2] + ((K,),),
+                            dtype=np.float32)
+    out, k = {}, 0
+    for name, c in names.items():
+        out[name] = stacked[..., k:k + c]
+        k += c
+    return out
+

@@ -10,6 +10,12 @@ error is above ``flag_error`` are flagged: ``<name>_flagged.png`` (255 where
 flagged) and ``<name>_conversion_error.exr`` are written beside the glTF
 (not referenced by it), and the material's ``extras.sbrdf`` counts them.
 
+With ``source: samples`` and the Export node's ``samples`` input, glTF's GGX
+is fitted to each texel's measured reflectance samples instead
+(:func:`sbrdf_lib.convert.samples_to_gltf`, isotropic, the same LM and the
+same reading as glTF); ``error`` is then glTF's BRDF against the samples
+(cos θ_i cos θ_o weighted relative RMS).  ``extras.sbrdf.fitted_to`` says which.
+
 Files (``format: gltf``): ``<name>.gltf``, ``<name>.bin`` (geometry) and the
 PNG textures; ``format: glb``: one ``<name>.glb`` with everything embedded.
 
@@ -83,13 +89,19 @@ class GLTFExporter:
               "directions) is above this are flagged (<name>_flagged.png, extras.sbrdf.flagged)", bounds=(0.0, None)),
         Param("max_theta_deg", "float", 70.0, "largest light or view angle from the normal the conversion fits and "
               "scores (the directions a viewer meets)", bounds=(10.0, 89.0), unit="deg"),
+        Param("source", "str", "params", "what glTF's GGX is fitted to: 'params' = the material's fitted BRDF over the "
+              "hemisphere (the conversion); 'samples' = each texel's measured reflectance samples (the Export node's "
+              "samples input), fitted with the same LM; isotropic", choices=("params", "samples")),
     )
 
     def __init__(self, *, format: str = "gltf", name: str = "material", tile: int = 64, starts: int = 1,
                  iterations: int = 8, anisotropy: bool = True, flag_error: float = 0.25,
-                 max_theta_deg: float = 70.0):
+                 max_theta_deg: float = 70.0, source: str = "params"):
         if format not in ("gltf", "glb"):
             raise ValueError(f"gltf: format must be 'gltf' or 'glb', got {format!r}")
+        if source not in ("params", "samples"):
+            raise ValueError(f"gltf: source must be 'params' or 'samples', got {source!r}")
+        self.source = source
         self.format = format
         self.name = name
         self.tile = tile
@@ -109,11 +121,28 @@ class GLTFExporter:
     def convert(self, material):
         import dask.array as da
 
+        if self.source == "samples":
+            return self._fit_samples(material)
         params = {p.name: da.asarray(material.params[p.name]).rechunk((self.tile, self.tile, -1))
                   for p in material.model.parameters}
         aniso = anisotropic_model(self._registry) if self.anisotropy else None
         maps = to_gltf_pbr_blocks(material.model, params, self._ggx(), starts=self.starts, iterations=self.iterations,
                                   anisotropic=aniso, flag_error=self.flag_error, max_theta_deg=self.max_theta_deg)
+        return {**maps, "conversion_error": maps["error"], "flagged": (maps["error"] > self.flag_error).astype(np.float32)}
+
+    def _fit_samples(self, material):
+        """glTF's GGX fitted to the reflectance samples (:func:`sbrdf_lib.convert.samples_to_gltf_blocks`)."""
+        from sbrdf_core.errors import SbrdfError
+        from sbrdf_lib.convert import samples_to_gltf_blocks
+
+        samples = getattr(material, "samples", None)
+        if samples is None:
+            raise SbrdfError("gltf: source 'samples' fits glTF's GGX to the reflectance samples: give the Export node "
+                             "its samples input (in: {material: fit, samples: <the Fit node's samples>})")
+        maps = samples_to_gltf_blocks(samples.array("f_r"), samples.array("valid"), samples.read("light_pos"),
+                                      samples.read("camera_pos"), tuple(samples.attrs["texels"]),
+                                      tuple(samples.attrs["size_mm"]), self._ggx(), starts=self.starts,
+                                      iterations=self.iterations, max_theta_deg=self.max_theta_deg)
         return {**maps, "conversion_error": maps["error"], "flagged": (maps["error"] > self.flag_error).astype(np.float32)}
 
     def write(self, directory, maps, material):
@@ -132,7 +161,7 @@ class GLTFExporter:
                            "error_p95": float(np.percentile(e, 95)), "error_max": float(e.max()),
                            "flag_error": float(self.flag_error), "flagged": int(flagged.sum())}
         extras = {"model": material.model.name, "source": material.source, "texels": [int(x) for x in material.texels],
-                  "size_mm": [float(x) for x in material.size_mm], **summary}
+                  "size_mm": [float(x) for x in material.size_mm], "fitted_to": self.source, **summary}
         files, info = write_gltf(d, self.name, {k: np.asarray(maps[k]) for k in GLTF_MAPS if k in maps}, material.size_mm,
                                  binary=self.format == "glb", alpha=alpha, extras=extras)
         if error is not None:  # beside the glTF, not in it: the per-texel error a viewer cannot show
@@ -142,7 +171,7 @@ class GLTFExporter:
             write_exr(os.path.join(d, f"{self.name}_conversion_error.exr"), np.repeat(e, 3, axis=-1))
             write_png(os.path.join(d, f"{self.name}_flagged.png"), ((e[..., 0] > self.flag_error) * 255).astype(np.uint8))
             files += [f"{self.name}_conversion_error.exr", f"{self.name}_flagged.png"]
-        return {"files": files, "format": "glb" if self.format == "glb" else "gltf", **info,
+        return {"files": files, "format": "glb" if self.format == "glb" else "gltf", "fitted_to": self.source, **info,
                 **{k: summary[k] for k in ("flag_error", "flagged") if k in summary}}
 
 

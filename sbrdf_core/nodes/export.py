@@ -11,6 +11,11 @@ Exporter protocol (:class:`sbrdf_core.contracts.Exporter`):
   local disk (the node refuses a remote store before computing); writes the
   files beside the arrays and returns attributes, at least ``{"files": [...]}``.
 
+With the optional ``samples`` input (the SampledReflectance the material
+was fitted to, on the same texel grid), ``material.samples`` is that artifact:
+an exporter that can fits its format's model to the measured samples instead
+of converting the fitted parameters (``gltf``'s ``source: samples``).
+
 The arrays are stored (``maps/<name>``, ``error``) so that an export resumes
 like any node and its error can be inspected per texel (``sbrdf info``); the
 files are what a user hands on.
@@ -18,12 +23,13 @@ files are what a user hands on.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any
 
 import numpy as np
 
-from ..artifacts import Exported, ParamMaps, TextureSet
+from ..artifacts import Exported, ParamMaps, SampledReflectance, TextureSet
 from ..contracts import Exporter
 from ..errors import SbrdfError
 from .base import BuildContext, NodeKind, Output, Port
@@ -33,7 +39,9 @@ from .render import load_material
 class Export(NodeKind):
     name = "Export"
     doc = "Write a material in another tool's format (files beside the arrays) with the conversion's error per texel."
-    inputs = (Port("material", (ParamMaps, TextureSet), "fitted or quantized material"),)
+    inputs = (Port("material", (ParamMaps, TextureSet), "fitted or quantized material"),
+              Port("samples", (SampledReflectance,), "the reflectance samples the material was fitted to, for an "
+                   "exporter that fits its format's model to them (gltf's source: samples)", optional=True))
     output = Exported
     plugin_category = "exporter"
 
@@ -42,6 +50,12 @@ class Export(NodeKind):
         directory = _local_directory(ctx.url)  # refused before anything computes, not after the conversion
         art = ctx.inputs["material"]
         material = load_material(ctx.registry, art)
+        samples = ctx.inputs.get("samples")
+        if samples is not None:
+            if list(samples.attrs["texels"]) != list(material.texels):
+                raise SbrdfError(f"node {ctx.node!r}: its samples have {list(samples.attrs['texels'])} texels and its "
+                                 f"material {list(material.texels)}: give it the samples the material was fitted to")
+            material = dataclasses.replace(material, samples=samples)
         exporter: Exporter = ctx.plugin
         maps: dict[str, Any] = dict(exporter.convert(material))
         error = maps.pop("error", None)
