@@ -429,6 +429,13 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
             x_in = project(x_in, everyone)
         keep_better(best, x_in, total_cost(objective, x_in), small_converged.copy(), 0.0)
         keep_better(best, *descend(x_in), 0.0)
+        if limits is not None and limits.albedo is not None:
+            # The energy bound is held after the fit (the Fit node scales magnitudes down): both compete as they
+            # will leave the node, else the larger model's scaled-down solution could end above the smaller one's.
+            best[0] = within_energy(model, form, best[0], limits.albedo, lo, hi)
+            best[1] = total_cost(objective, best[0])
+            x_in = within_energy(model, form, x_in, limits.albedo, lo, hi)
+            keep_better(best, x_in, total_cost(objective, x_in), small_converged.copy(), 0.0)
         if weighting != "absolute" or loss != "linear":
             # The objective is weighted, the training error users read is not: where the smaller model's solution
             # has the lower plain error, it is kept, so the reported error never grows with the model either.
@@ -444,6 +451,20 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     if stats is not None:
         stats["restarted"] = restarted
     return form.to_model(form.unpack(x)), converged, cost
+
+
+def within_energy(model, form, x: np.ndarray, albedo: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Packed fit-form rows ``x`` with the magnitudes scaled so the directional albedo is ≤ ``albedo``
+    (:func:`~sbrdf_core.constraints.enforce_energy`, as the Fit node holds it)."""
+    from sbrdf_core.constraints import enforce_energy
+
+    params, changed = enforce_energy(model, form.to_model(form.unpack(x)), albedo)
+    if not changed.any():
+        return x
+    out = x.copy()
+    rows = np.flatnonzero(changed)
+    out[rows] = np.clip(form.pack(form.from_model({k: v[rows] for k, v in params.items()})), lo, hi)
+    return out
 
 
 def starting_points(form, objective, f_r, valid, wi, wo, starts: int, seed: int = 0, initial=None, free=None,

@@ -43,7 +43,7 @@ INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
 EXPONENT_BOUNDS = (0.1, 20000.0)
 #: A lobe whose ρ_s (every channel) is below this, sr⁻¹, contributes nothing measurable: see to_model.
 DEAD_LOBE = 1e-9
-#: A lobe whose peak is below this fraction of the texel's peak budget contributes nothing visible.
+#: A lobe whose peak is below this fraction of the texel's peak budget and of its ρ_d contributes nothing visible.
 NEGLIGIBLE = 1e-3
 #: The neutral shape a dead lobe is reset to: a mirror cosine lobe, n = 1 (bounded under interpolation).
 NEUTRAL_EXPONENT = 1.0
@@ -424,8 +424,8 @@ def bound_lobes(rho_d, lobes, limits):
     budget of ``limits.peak − max ρ_d``: ρ_s scaled down if it alone exceeds
     it, |C| shrunk toward 1 until ρ_s·m^n fits (the grazing growth is what the
     samples did not see), and all ρ_s scaled together if the lobes' peaks add
-    up to more.  A lobe left below :data:`NEGLIGIBLE` of the budget is
-    ``dead``: callers reset it to a neutral shape, because an invisible lobe
+    up to more.  A lobe left below :data:`NEGLIGIBLE` of the budget and of the
+    diffuse term is ``dead``: callers reset it to a neutral shape, because an invisible lobe
     parked at |C| = 10 or n = 0.1 turns into a real one when a renderer
     interpolates it with its neighbour's.
     """
@@ -457,9 +457,12 @@ def bound_lobes(rho_d, lobes, limits):
         total = np.sum(peaks, axis=0)
         share = np.where(total > budget, budget / np.where(total > 0, total, 1.0), 1.0)
     changed |= share[:, 0] < 1 - 1e-9
+    # Dead: negligible against the budget *and* against the diffuse term.  Why both: a broad weak lobe under a
+    # sharp one (peak 0.06 against a budget of 60) is far below the budget yet carries a twentieth of the albedo.
+    floor = NEGLIGIBLE * np.minimum(budget, rho_d.max(axis=1, keepdims=True))
     for lobe, peak in zip(out, peaks):
         lobe[0] = lobe[0] * share
-        lobe.append(((peak * share) < NEGLIGIBLE * budget) & np.isfinite(budget))
+        lobe.append(((peak * share) < floor) & np.isfinite(budget))
     return out, changed
 
 

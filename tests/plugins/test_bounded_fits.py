@@ -481,3 +481,21 @@ def test_angular_resolution_is_the_kth_smallest_angle(seed, samples, dropped, ne
         numpy_pass = -np.where(valid, np.clip(cos_a, -1.0, 1.0), 0.0)
     # The compiled pass it takes where numba is loaded gives NumPy's bits, −0 for invalid samples included.
     assert _compiled_negated_cosines()(wi, wo, valid).tobytes() == numpy_pass.tobytes()
+
+
+def test_a_broad_weak_lobe_under_a_sharp_one_is_not_reset(registry):
+    """A lobe is reset as dead only when negligible against the peak budget *and* the diffuse term: a broad
+    lobe carrying a twentieth of the albedo under a sharp one whose peak sets a budget of 60 stays as fitted."""
+    from sbrdf_core.types import Limits
+
+    model = registry.create("brdf-model", "lafortune", {"lobes": 2})
+    p = {"rho_d": np.array([[0.012, 0.058, 0.15]]), "rho_s_1": np.array([[0.057, 0.052, 0.035]]),
+         "c_xy_1": np.array([[-1.09]]), "c_z_1": np.ones((1, 1)), "exponent_1": np.array([[4.6]]),
+         "rho_s_2": np.array([[3.35, 2.82, 4.76]]), "c_xy_2": np.array([[-1.017]]), "c_z_2": np.ones((1, 1)),
+         "exponent_2": np.array([[76.3]])}
+    out, changed = model.constrain(p, Limits(peak=np.array([60.0]), albedo=None))
+    assert not changed[0]
+    np.testing.assert_allclose(out["rho_s_1"], p["rho_s_1"], rtol=1e-9)
+    faint = dict(p, rho_s_1=p["rho_s_1"] * 1e-4)  # now invisible: reset to the neutral shape
+    out, _ = model.constrain(faint, Limits(peak=np.array([60.0]), albedo=None))
+    assert (out["rho_s_1"] == 0).all()
