@@ -925,7 +925,8 @@ def samples_to_gltf(f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.n
     (the samples' directions, :func:`sbrdf_core.geometry.tile_directions`); samples beyond
     ``max_theta_deg`` from the normal are left out, as the conversion leaves those directions out.  Per
     texel: the best of :data:`SAMPLE_START_ALPHAS` with ρ_d, s·F0c and s solved linearly, refined by the
-    shared LM (:func:`sbrdf_lib.lm.fit_model`) on the cos θ_i cos θ_o weighted least squares
+    shared LM, α kept at or above what the samples resolve (``Limits.min_roughness``, the Fit node's sharpness
+    bound) (:func:`sbrdf_lib.lm.fit_model`) on the cos θ_i cos θ_o weighted least squares
     (:class:`ProjectedWeighted`), then read as glTF's dielectric or metal the way the conversion reads its
     fit (step 4 of the module docstring).  Returns ``(gltf, error)``: the :data:`GLTF_MAPS` ``(T, C)`` and
     :func:`sample_error` of glTF's BRDF against the samples, ``(T,)``.  A texel without valid samples gets
@@ -940,7 +941,9 @@ def samples_to_gltf(f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.n
     >>> round(float(g["roughness"][0, 0]) ** 2, 3), bool(e[0] < 0.01)
     (0.1, True)
     """
+    from sbrdf_core.constraints import angular_resolution
     from sbrdf_core.nodes.fit import usable
+    from sbrdf_core.types import Limits
     from sbrdf_lib.lm import fit_model
 
     target = SpecularGGX(ggx)
@@ -958,9 +961,13 @@ def samples_to_gltf(f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.n
         f, v, a, o = f_r[sl], valid[sl], wi[sl], wo[sl]
         n = f.shape[0]
         w = ProjectedWeighted.weight(a, o)[..., None]
+        # no lobe sharper than the samples resolve (the Fit node's sharpness bound): between the samples a
+        # sharper one is unmeasured, and renders as sparkling texels
+        floor = np.clip(np.asarray(Limits(resolution=angular_resolution(a, o, v)).min_roughness(), np.float64)
+                        .reshape(n, 1), SAMPLE_START_ALPHAS[0], MAX_ALPHA)
         best, best_cost = None, np.full(n, np.inf)
         for alpha in SAMPLE_START_ALPHAS:
-            guess = _solve_magnitudes(target, {"alpha": np.full((n, 1), alpha)}, f, v, a, o, True,
+            guess = _solve_magnitudes(target, {"alpha": np.maximum(alpha, floor)}, f, v, a, o, True,
                                       weight=ProjectedWeighted)
             with np.errstate(all="ignore"):
                 cost = np.sum((w * v[..., None] * (target.eval(guess, a, o) - f)) ** 2, axis=(1, 2))
@@ -977,6 +984,11 @@ def samples_to_gltf(f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.n
             form = target.fit_form()
             fitted, _, _ = fit_model(ProjectedWeighted(form), f * w, v, a, o, initial=form.from_model(best),
                                      starts=starts, iterations=iterations)
+            sharp = np.asarray(fitted["alpha"]) < floor
+            if sharp.any():  # the LM went past the bound: the magnitudes again at the bound
+                bounded = _solve_magnitudes(target, {"alpha": np.maximum(fitted["alpha"], floor)}, f, v, a, o, True,
+                                            weight=ProjectedWeighted)
+                fitted = {k: np.where(sharp, bounded[k], fitted[k]) for k in fitted}
         ok = v.any(axis=1)
         defaults = target.defaults(n)
         fit = {p.name: np.clip(np.where(ok[:, None], np.nan_to_num(np.asarray(fitted[p.name], np.float64)),
