@@ -12,7 +12,8 @@ Runs the four measurements, each a script of its own that can also be run alone:
 Last line: ``interchange: gltf_conversion_rel_err=... mitsuba_vs_cpu_rel_err=... viewer_vs_gl_rel_err=...
 merl_fit_rel_err=... glossy_gltf_rel_err=... glossy_mitsuba_rel_err=... rough_gltf_rel_err=...
 rough_mitsuba_rel_err=... gltf_roughness_p50=... gltf_roughness_p99=... usd_roughness_p50=...
-usd_clearcoat_roughness_p50=... usd_conv_err_p50=...`` plus each script's other figures
+usd_clearcoat_roughness_p50=... usd_conv_err_p50=... glossy_gltf_from_samples_rel_err=...
+rough_gltf_from_samples_rel_err=...`` plus each script's other figures
 (prefixed by the script's name).  ``--quick`` passes on.
 """
 
@@ -30,7 +31,7 @@ SCRIPTS = {"gltf": "interchange_gltf.py", "export": "interchange_export.py", "vi
 HEADLINE = ("gltf_conversion_rel_err", "mitsuba_vs_cpu_rel_err", "viewer_vs_gl_rel_err", "merl_fit_rel_err",
             "glossy_gltf_rel_err", "glossy_mitsuba_rel_err", "rough_gltf_rel_err", "rough_mitsuba_rel_err",
             "gltf_roughness_p50", "gltf_roughness_p99", "usd_roughness_p50", "usd_clearcoat_roughness_p50",
-            "usd_conv_err_p50")
+            "usd_conv_err_p50", "glossy_gltf_from_samples_rel_err", "rough_gltf_from_samples_rel_err")
 
 
 def figures(line: str) -> dict[str, str]:
