@@ -34,7 +34,8 @@ import numpy as np
 from sbrdf_core.channels import abs_channel_mean
 from sbrdf_core.contracts import optional
 from sbrdf_core.nodes.fit import usable
-from sbrdf_core.params import Param
+
+from .lm_params import WEIGHTINGS
 
 __all__ = [
     "EXACT",
@@ -288,17 +289,8 @@ def robust_weights(form, x, f_r, valid, wi, wo, loss: str, scale: float) -> np.n
 
 
 LOSSES = ("linear", "huber", "soft-l1")
-#: What the least squares weighs, as the power p of each residual's weight 1 / (|f_r| + floor)^p
-#: (:func:`sample_weights`): residuals in sr⁻¹, for shot noise (σ ∝ √f_r), or relative to the value.
-WEIGHTINGS = {"absolute": 0.0, "shot-noise": 0.5, "relative": 1.0}
 #: The weights' floor, as a fraction of the texel's median sample (RGB mean).
 WEIGHT_FLOOR = 0.5
-#: The ``weighting`` parameter of the fitters that minimise :func:`fit_model`'s objective (``lm``, ``lm-gl``).
-WEIGHTING = Param("weighting", "str", "shot-noise", "what the least squares weighs: absolute = residuals in sr^-1, "
-                  "ruled by a lobe's peak samples; shot-noise = divided by sqrt(f_r + a floor), the "
-                  "maximum-likelihood weighting of photographed values; relative = divided by f_r + a floor, the "
-                  "shape in ratio (floor: half the texel's median sample; docs/fitting.md)",
-                  choices=tuple(WEIGHTINGS))
 
 
 def sample_weights(f_r: np.ndarray, valid: np.ndarray, power: float, floor: float = WEIGHT_FLOOR) -> np.ndarray:

@@ -1,10 +1,13 @@
 """Built-in fitters (generic batched LM, McAllister's procedure, his line search), the SampleModel node and the
 Select node (the model with the lowest held-out error).
 
-Each implementation declares its parameters on its class (``params``); the shared solver is :mod:`sbrdf_lib.lm`.
+Each fitter's parameters are declared in :mod:`.declarations`, which imports no fitter; the shared solver is
+:mod:`sbrdf_lib.lm`.
 """
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
+
+from . import declarations
 
 
 @hookimpl
@@ -18,10 +21,10 @@ def sbrdf_node_kinds():
 @hookimpl
 def sbrdf_fitters():
     return [
-        PluginSpec("lm", "sbrdf_fitters.lm:LevenbergMarquardtFitter",
+        PluginSpec("lm", "sbrdf_fitters.lm:LevenbergMarquardtFitter", params=declarations.LM,
                    summary="Batched Levenberg-Marquardt fit of any BRDF model, vectorised over texels"),
-        PluginSpec("mcallister", "sbrdf_fitters.mcallister:McAllisterFitter",
+        PluginSpec("mcallister", "sbrdf_fitters.mcallister:McAllisterFitter", params=declarations.MCALLISTER,
                    summary="McAllister's procedure: percentile rho_d, lobes fitted to luminance, rho_s by Eq 4.10"),
-        PluginSpec("line-search", "sbrdf_fitters.mcallister:LineSearchFitter",
+        PluginSpec("line-search", "sbrdf_fitters.mcallister:LineSearchFitter", params=declarations.LINE_SEARCH,
                    summary="McAllister's fast single-lobe fit: Brent search over n, least squares for C"),
     ]

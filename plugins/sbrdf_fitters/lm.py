@@ -13,40 +13,17 @@ import warnings
 import numpy as np
 
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, usable_mask
-from sbrdf_core.params import Param
-from sbrdf_lib.lm import WEIGHTING, fit_model
+from sbrdf_lib.lm import fit_model
+
+from .declarations import LM
 
 logger = logging.getLogger(__name__)
-
-MODEL = Param("model", "str", "lambert", "BRDF model to fit", extra={"plugin_category": "brdf-model"})
-MODEL_PARAMS = Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"})
-ITERATIONS = Param("iterations", "int", 200, "Levenberg-Marquardt iterations at most, per texel (a texel stops when "
-                   "it converges: most need under 20; sharp lobes on grazing data take more)", bounds=(1, 10000))
-TOLERANCE = Param("tolerance", "float", 1e-4, "stop a texel when its cost improves by less than this fraction",
-                  bounds=(0.0, 1.0))
 
 
 class LevenbergMarquardtFitter:
     """The ``lm`` fitter: batched Levenberg-Marquardt of any BRDF model, vectorised over texels."""
 
-    params = (
-        MODEL,
-        MODEL_PARAMS,
-        ITERATIONS,
-        TOLERANCE,
-        Param("damping", "float", 1e-3, "initial Marquardt damping λ", bounds=(0.0, None)),
-        Param("starts", "int", 0, "LM runs per texel, from its best-scoring starting points (the model's guess and "
-              "a Sobol set over typical shapes, magnitudes solved); the texel keeps its best. 0 = the model's "
-              "suggestion (2 for Cook-Torrance, Phong, Ward and 3+ Lafortune lobes: 4); 1 = the guess alone",
-              bounds=(0, 64)),
-        Param("fixed", "list", [], "fit-form parameter names held at their initial value", item="str"),
-        Param("seed", "int", 0, "seed of the Sobol starting points"),
-        Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1: outliers such as dust spikes "
-              "are down-weighted (iteratively reweighted)", choices=["linear", "huber", "soft-l1"]),
-        Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns from quadratic to linear; "
-              "0 = 1.4826 x the texel's median absolute residual", bounds=(0.0, None)),
-        WEIGHTING,
-    )
+    params = LM
 
     def __init__(self, *, model: str = "lambert", model_params: dict = {}, iterations: int = 200,  # noqa: B006
                  tolerance: float = 1e-4, damping: float = 1e-3, starts: int = 0, fixed: tuple = (),

@@ -25,29 +25,12 @@ from sbrdf_core.brdf import above_horizon, luminance_weights
 from sbrdf_core.errors import ParameterError
 from sbrdf_core.nodes.fit import NONFINITE_INPUT, NONFINITE_RESULT, NOT_CONVERGED, FitResult, rms_error
 from sbrdf_core.nodes.fit import usable as usable_samples
-from sbrdf_core.params import Param
 from sbrdf_lib.lm import diffuse_percentile, fit_model
 
+from .declarations import LINE_SEARCH, MCALLISTER
 from .line_search import line_search_lobe
-from .lm import ITERATIONS, MODEL_PARAMS, TOLERANCE
 
 logger = logging.getLogger(__name__)
-
-ROOT_FLOOR = Param("root_floor", "float", 0.01, "line search: drop samples whose luminance residual is below this "
-                   "fraction of the texel's peak (0 = as written, which fails at any noise: the n-th root of a "
-                   "near-zero noisy residual is near 1)", bounds=(0.0, 1.0))
-#: The parameters McAllister's procedure and its line-search variant share.
-SHARED = (
-    Param("model", "str", "lafortune", "BRDF model (McAllister's procedure fits Lafortune lobes)",
-          choices=["lafortune"], extra={"plugin_category": "brdf-model"}),
-    MODEL_PARAMS,
-    Param("diffuse", "str", "percentile", "rho_d estimate per channel", choices=["percentile", "min", "weighted-mean"]),
-    Param("percentile", "float", 10.0, "percentile of the samples taken as rho_d", bounds=(0.0, 100.0)),
-    Param("colour_space", "str", "mcallister", "luminance weights of the working RGB space",
-          choices=["mcallister", "rec709", "rec2020"]),
-    Param("rho_s_guard", "float", 0.05, "Eq 4.10 uses samples whose luminance residual is at least this fraction "
-          "of the texel's largest", bounds=(0.0, 1.0)),
-)
 
 
 def diffuse_estimate(f_r, valid, wi, wo, method: str, percentile: float) -> np.ndarray:
@@ -70,19 +53,7 @@ class McAllisterFitter:
     model_name = "lafortune"
     model_config: dict
 
-    params = SHARED + (
-        Param("lobe_fit", "str", "lm", "how the lobe shape is fitted to the luminance residual",
-              choices=["lm", "line-search"]),
-        Param("lobe_2_start", "str", "text", "lobe 2 starts from the text's guess C=(1,1,1), n=5, or from the "
-              "1-lobe fit", choices=["text", "one-lobe"]),
-        ITERATIONS,
-        TOLERANCE,
-        Param("starts", "int", 1, "starting points of the lobe fit: 1 = the procedure's own, more adds Sobol starts "
-              "and keeps the best", bounds=(1, 64)),
-        Param("objective", "str", "root", "line search residual: in n-th-root space (as written) or BRDF space",
-              choices=["root", "brdf"]),
-        ROOT_FLOOR,
-    )
+    params = MCALLISTER
 
     def __init__(self, *, model: str = "lafortune", model_params: dict = {}, diffuse: str = "percentile",  # noqa: B006
                  percentile: float = 10.0, colour_space: str = "mcallister", rho_s_guard: float = 0.05,
@@ -217,11 +188,7 @@ class McAllisterFitter:
 class LineSearchFitter(McAllisterFitter):
     """McAllister's fast single-lobe fit: his procedure with the lobe shape from the line search (§4.3.2)."""
 
-    params = SHARED + (
-        Param("objective", "str", "root", "residual in n-th-root space (as written, Eq 4.9) or BRDF space",
-              choices=["root", "brdf"]),
-        ROOT_FLOOR,
-    )
+    params = LINE_SEARCH
 
     def __init__(self, *, model: str = "lafortune", model_params: dict = {}, diffuse: str = "percentile",  # noqa: B006
                  percentile: float = 10.0, colour_space: str = "mcallister", rho_s_guard: float = 0.05,

@@ -3,15 +3,19 @@
 It runs wherever moderngl reaches an EGL driver with compute shaders (NVIDIA
 drivers, Mesa llvmpipe in CI), with nothing larger to install than the
 renderer already needs.  The model supplies its value and gradient in GLSL
-(the optional ``glsl_fit_gradient`` member); see :mod:`.fitter`.
+(the optional ``glsl_fit_gradient`` member); see :mod:`.fitter`.  Its
+parameters are declared in :mod:`.declarations`, which imports neither
+moderngl nor the solver.
 """
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
+
+from .declarations import LM_GL
 
 
 @hookimpl
 def sbrdf_fitters():
     return [
-        PluginSpec("lm-gl", "sbrdf_lmgl.fitter:GLLevenbergMarquardtFitter",
+        PluginSpec("lm-gl", "sbrdf_lmgl.fitter:GLLevenbergMarquardtFitter", params=LM_GL,
                    summary="The lm fitter's batched Levenberg-Marquardt in OpenGL compute shaders (GL 4.3, EGL)"),
     ]
