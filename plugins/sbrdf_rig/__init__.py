@@ -15,8 +15,9 @@ and one ``capture`` source:
     device through a pose plan, writing an ``sbrdf-capture/1`` folder pose by
     pose (resumable), and hands the poses to the Capture node.
 
-Each implementation declares its parameters on its class (``params``, right
-above ``__init__``); this manifest only names them.  The simulators
+Each contribution's parameters are declared in :mod:`.declarations`, which
+imports neither pyserial nor NumPy; this manifest hands them to the registry
+and the implementations take the same tuples as their ``params``.  The simulators
 (:mod:`sbrdf_rig.sim`) and the pose planner (:mod:`sbrdf_rig.planning`) are
 this package's own; what other packages share with it (the serial link,
 motor-controller base and pty simulator base, the rig kinematics, the capture
@@ -27,13 +28,15 @@ imports nothing heavy.
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from . import declarations
+
 
 @hookimpl
 def sbrdf_devices():
     return [
-        PluginSpec("ptu", "sbrdf_rig.ptu:PanTiltUnit",
+        PluginSpec("ptu", "sbrdf_rig.ptu:PanTiltUnit", params=declarations.PTU,
                    summary="Pan-tilt unit over serial, Directed Perception PTU command set (PP/TP, A, H)"),
-        PluginSpec("indexer", "sbrdf_rig.indexer:Indexer",
+        PluginSpec("indexer", "sbrdf_rig.indexer:Indexer", params=declarations.INDEXER,
                    summary="Rotary indexer over serial, Compumotor 6000-series language (D, GO, TPE, LS)"),
     ]
 
@@ -41,7 +44,7 @@ def sbrdf_devices():
 @hookimpl
 def sbrdf_captures():
     return [
-        PluginSpec("gonio", "sbrdf_rig.gonio:GonioCapture",
+        PluginSpec("gonio", "sbrdf_rig.gonio:GonioCapture", params=declarations.GONIO,
                    summary="Drive the gonioreflectometer (motors + camera) through a pose plan into an "
                            "sbrdf-capture/1 folder, resumably"),
     ]

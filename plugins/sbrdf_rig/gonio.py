@@ -85,7 +85,6 @@ import numpy as np
 from sbrdf_core.contracts import optional
 from sbrdf_core.errors import ParameterError, SbrdfError
 from sbrdf_core.nodes.capture import CaptureDescription
-from sbrdf_core.params import REQUIRED, Param, plugin_reference
 from sbrdf_lib.camera import CameraError, CameraLost, ExposureRefused, FrameTimeout, saturated_fraction
 from sbrdf_lib.capture_folder import (
     MANIFEST,
@@ -97,6 +96,8 @@ from sbrdf_lib.capture_folder import (
 )
 from sbrdf_lib.rig_geometry import RigGeometry, forward
 from sbrdf_lib.serial.errors import DeviceError, LinkLost, SoftLimitError
+
+from .declarations import GONIO
 
 log = logging.getLogger(__name__)
 
@@ -114,51 +115,6 @@ EXPOSURE_PLANNER_KEYS = {"diffuse_time_s", "highlight_time_s", "highlight_halfwi
                          "stops_per_exposure", "max_exposures", "min_time_s", "max_time_s"}
 #: ``folder`` parameters the gonio source sets itself (everything else may be given under ``read``).
 READ_RESERVED = {"path", "allow_incomplete", "dark_frame", "dark_time_s"}
-
-# -- declared sub-schemas of the nested parameters (validated with paths like ``motors.arm.device``) -------------
-
-#: One entry of ``motors``.
-MOTOR_SCHEMA = (
-    Param("device", "str", REQUIRED, "device plugin: ptu, indexer or any device with MotorController's API",
-          extra={"plugin_category": "device"}),
-    Param("params", "dict", {}, "the device's parameters ({port: /dev/ttyUSB0 | sim, ...})", nullable=True),
-    Param("axes", "dict", None, "joint -> driver axis; default ptu {pan: pan_deg, tilt: tilt_deg}, indexer "
-          "{light: angle_deg}", nullable=True),
-)
-#: ``camera``: a device and its parameters.
-CAMERA_SCHEMA = plugin_reference("device", "camera")
-#: ``geometry``: the fields of :class:`~sbrdf_lib.rig_geometry.RigGeometry` (defaults: the thesis rig).
-GEOMETRY_SCHEMA = (
-    Param("camera_distance_mm", "float", 1084.0, "camera distance from the pan axis", unit="mm"),
-    Param("light_distance_mm", "float", 1000.0, "light arm radius", unit="mm"),
-    Param("camera_height_mm", "float", 0.0, "camera height above the tilt axis", unit="mm"),
-    Param("light_height_mm", "float", 0.0, "light height above the tilt axis", unit="mm"),
-    Param("tilt_axis_offset_mm", "list", [0.0, 0.0, 0.0], "tilt axis offset from the pan axis (pan frame)",
-          length=3, item="float", unit="mm"),
-    Param("sample_standoff_mm", "float", 25.4, "sample surface in front of the tilt axis", unit="mm"),
-    Param("sample_center_offset_mm", "list", [0.0, 0.0], "sample centre offset from the roll axis", length=2,
-          item="float", unit="mm"),
-    Param("pan_zero_deg", "float", 0.0, "pan encoder zero", unit="deg"),
-    Param("tilt_zero_deg", "float", 0.0, "tilt encoder zero", unit="deg"),
-    Param("roll_zero_deg", "float", 0.0, "roll encoder zero", unit="deg"),
-    Param("light_zero_deg", "float", 0.0, "light arm encoder zero", unit="deg"),
-    Param("pan_limits_deg", "list", [-170.0, 170.0], "pan range [low, high]", length=2, item="float", unit="deg"),
-    Param("tilt_limits_deg", "list", [-80.0, 80.0], "tilt range [low, high]", length=2, item="float", unit="deg"),
-    Param("roll_limits_deg", "list", [-180.0, 180.0], "roll range [low, high]", length=2, item="float", unit="deg"),
-    Param("light_limits_deg", "list", [10.0, 175.0], "light arm range [low, high]", length=2, item="float",
-          unit="deg"),
-)
-#: ``plan``: explicit motor angles, or the pose planner's settings (one or the other; checked by the source).
-PLAN_SCHEMA = (
-    Param("angles_deg", "list", None, "explicit poses [[pan, tilt, roll, light], ...]", nullable=True, unit="deg"),
-    Param("theta_d_deg", "float", None, "planner: angular sampling density", nullable=True, unit="deg"),
-    Param("isotropic", "bool", True, "planner: the material is isotropic (drop azimuth-equivalent poses)"),
-    Param("source", "str", "directions", "planner: plan over direction pairs or scan the motors",
-          choices=("directions", "motors")),
-    Param("step_deg", "float", None, "planner, source motors: motor step", nullable=True, unit="deg"),
-    Param("max_theta_i_deg", "float", 75.0, "planner: largest light elevation from the normal", unit="deg"),
-    Param("max_theta_r_deg", "float", 65.0, "planner: largest view elevation from the normal", unit="deg"),
-)
 
 
 class GonioCaptureError(DeviceError):
@@ -237,38 +193,7 @@ class GonioCapture:
     #: Hardware: the runner takes poses one at a time, in plan order, in this process.
     sequential = True
 
-    params = (
-        Param("path", "str", REQUIRED, "capture folder written pose by pose (resumed if a run was interrupted), "
-              "relative to the graph file", extra={"path": True}),
-        Param("motors", "dict", REQUIRED, "motor name -> {device, params, axes}; joints pan, tilt, roll, light; "
-              "port: sim in params starts the device's pty simulator in-process", values=MOTOR_SCHEMA),
-        Param("camera", "dict", {"device": "virtual-camera", "params": {}}, "camera device {device, params}",
-              schema=CAMERA_SCHEMA),
-        Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera device's "
-              "light_info()", nullable=True),
-        Param("geometry", "dict", {}, "rig geometry (RigGeometry fields; the *_limits_deg are also the planner's "
-              "limits)", schema=GEOMETRY_SCHEMA),
-        Param("plan", "dict", {"theta_d_deg": 20.0, "isotropic": True},
-              "poses: {angles_deg: [[pan, tilt, roll, light], ...]} or the pose planner's settings", schema=PLAN_SCHEMA),
-        Param("exposures", "dict", {"times_s": [1.0]}, "exposure brackets: {times_s: [t, ...] (all poses) or "
-              "[[...], ...] (per pose)} or the exposure planner {diffuse_time_s, highlight_time_s, ...}"),
-        Param("read", "dict", {}, "parameters of the folder plugin that reads poses back (response, "
-              "response_method, response_poses, saturation, underexposure, colour_matrix)"),
-        Param("settle_s", "float", 0.0, "wait after the motors stop before photographing (arm vibration)",
-              bounds=(0.0, 600.0), unit="s"),
-        Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
-              choices=("png", "tif")),
-        Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
-        Param("sample", "dict", None, "frame cameras: the manifest's sample section {size_mm, fiducials, ...} "
-              "(the virtual camera supplies its own)", nullable=True),
-        Param("intrinsics", "dict", None, "frame cameras: {K: 3x3, dist: [k1, k2, p1, p2, k3]} from a calibration",
-              nullable=True),
-        Param("frame_retries", "int", 1, "frame cameras: re-triggers after a frame timeout before the capture stops",
-              bounds=(0, 10)),
-        Param("max_saturated_fraction", "float", None, "frame cameras: stop when the shortest exposure of a pose "
-              "has more than this share of pixels saturated (default: record it and mask them)", nullable=True,
-              bounds=(0.0, 1.0)),
-    )
+    params = GONIO
 
     @staticmethod
     def check_params(params, registry=None) -> list[tuple[str, str]]:

@@ -50,10 +50,11 @@ import re
 import time
 from collections.abc import Sequence
 
-from sbrdf_core.params import Param
-from sbrdf_lib.serial.controller import LINK_PARAMS, MotorController
+from sbrdf_lib.serial.controller import MotorController
 from sbrdf_lib.serial.errors import DeviceRefused, GarbledReply, ImplausibleReply, ReplyTimeout
 from sbrdf_lib.serial.link import SerialLink
+
+from .declarations import INDEXER
 
 logger = logging.getLogger(__name__)
 
@@ -81,17 +82,7 @@ class Indexer(MotorController):
     #: The simulator the ``gonio`` capture source starts for ``port: sim``.
     simulator = "sbrdf_rig.sim.indexer:SimulatedIndexer"
 
-    params = (
-        *LINK_PARAMS,
-        Param("axis", "int", 1, "controller axis number", bounds=(1, 4)),
-        Param("gear_ratio", "float", 90.0, "motor revolutions per output revolution", bounds=(1e-3, None)),
-        Param("limits_deg", "list", [10.0, 175.0], "soft limits [low, high] of the output shaft (light arm: 10-175 deg)",
-              length=2, item="float", bounds=(-3600.0, 3600.0), unit="deg"),
-        Param("speed_deg_s", "float", 20.0, "output-shaft speed", bounds=(0.01, 1000.0), unit="deg/s"),
-        Param("acceleration_deg_s2", "float", 40.0, "output-shaft acceleration", bounds=(0.01, 10000.0),
-              unit="deg/s^2"),
-        Param("poll_s", "float", 0.01, "status polling interval while a move runs", bounds=(0.0, 1.0), unit="s"),
-    )
+    params = INDEXER
 
     def __init__(self, *, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
                  tolerance_deg: float = 0.05, axis: int = 1, gear_ratio: float = 90.0,

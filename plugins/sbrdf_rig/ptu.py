@@ -52,10 +52,11 @@ import logging
 import re
 from collections.abc import Sequence
 
-from sbrdf_core.params import Param
-from sbrdf_lib.serial.controller import LINK_PARAMS, MotorController
+from sbrdf_lib.serial.controller import MotorController
 from sbrdf_lib.serial.errors import DeviceRefused, GarbledReply, ImplausibleReply
 from sbrdf_lib.serial.link import SerialLink
+
+from .declarations import PTU, PTU46_RESOLUTIONS_ARCSEC
 
 logger = logging.getLogger(__name__)
 
@@ -63,9 +64,6 @@ _AXIS = {"pan_deg": ("P", "Pan"), "tilt_deg": ("T", "Tilt")}
 _ACK = re.compile(r"^\*\s*$")
 _NUMBER_REPLY = r"^\*\s*(?:{phrase}\s+)?(?P<value>[-+]?\d+)\s*$"
 _RESOLUTION = re.compile(r"^\*\s*(?P<value>\d*\.?\d+)\s+seconds arc per position\s*$")
-#: Arc-seconds per position of the Directed Perception / FLIR PTU-46 family: a PTU-46-17.5 at full step
-#: (185.1428) down to a PTU-46-70 at eighth step; a unit always reports one of these.
-PTU46_RESOLUTIONS_ARCSEC = tuple(round(185.1428 / 2 ** k, 4) for k in range(6))
 #: Relative tolerance when matching a reported resolution (the unit prints four decimals).
 RESOLUTION_RTOL = 2e-4
 
@@ -88,18 +86,7 @@ class PanTiltUnit(MotorController):
     #: The simulator the ``gonio`` capture source starts for ``port: sim``.
     simulator = "sbrdf_rig.sim.ptu:SimulatedPTU"
 
-    params = (
-        *LINK_PARAMS,
-        Param("pan_limits_deg", "list", [-159.0, 159.0], "pan soft limits [low, high], intersected with the unit's",
-              length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
-        Param("tilt_limits_deg", "list", [-47.0, 31.0], "tilt soft limits [low, high], intersected with the unit's",
-              length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
-        Param("speed_deg_s", "float", 20.0, "pan and tilt speed", bounds=(0.01, 1000.0), unit="deg/s"),
-        Param("resolutions_arcsec", "list", list(PTU46_RESOLUTIONS_ARCSEC),
-              "resolutions the controller model can report (PTU-46 family by default); a PR/TR reading must be one of "
-              "them and read the same twice; [] checks agreement only", item="float", bounds=(1e-6, None),
-              unit="arcsec"),
-    )
+    params = PTU
 
     def __init__(self, *, port: str, baudrate: int = 9600, timeout_s: float = 1.0, retries: int = 3,
                  tolerance_deg: float = 0.05, pan_limits_deg: Sequence[float] = (-159.0, 159.0),

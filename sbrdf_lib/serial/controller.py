@@ -39,24 +39,11 @@ import logging
 from collections.abc import Callable, Mapping
 from typing import TypeVar
 
-from sbrdf_core.params import REQUIRED, Param
-
+from ..serial_params import LINK_PARAMS
 from .errors import DeviceClosed, DeviceError, ImplausibleReply, LinkLost, PositionError, SoftLimitError
 from .link import SerialLink, _head
 
 __all__ = ["LINK_PARAMS", "MotorController"]
-
-#: Parameters every serial motor controller takes (its link and its verified moves); a driver declares
-#: ``params = (*LINK_PARAMS, <its own>)`` and passes them on to :class:`SerialLink` and :class:`MotorController`.
-LINK_PARAMS = (
-    Param("port", "str", REQUIRED, "serial device path, e.g. /dev/ttyUSB0 or a simulator's pty"),
-    Param("baudrate", "int", 9600, "line speed", choices=(1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)),
-    Param("timeout_s", "float", 1.0, "how long to wait for a complete reply", bounds=(0.001, 60.0), unit="s"),
-    Param("retries", "int", 3, "extra attempts after a dropped/garbled reply or a missed position", bounds=(0, 20)),
-    Param("tolerance_deg", "float", 0.05, "largest accepted difference between target and read-back position",
-          bounds=(0.0, 10.0), unit="deg"),
-    Param("move_timeout_s", "float", 60.0, "longest a single move may take", bounds=(0.01, 3600.0), unit="s"),
-)
 
 logger = logging.getLogger(__name__)
 
