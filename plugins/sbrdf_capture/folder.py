@@ -55,7 +55,6 @@ from struct import error as struct_error
 
 import numpy as np
 
-from sbrdf_core.params import REQUIRED, Param
 from sbrdf_core.types import CaptureDescription
 from sbrdf_lib.calibration import correct, flat_usable
 from sbrdf_lib.capture_folder import (
@@ -73,6 +72,7 @@ from sbrdf_lib.capture_folder import (
 )
 from sbrdf_lib.response import ResponseCurve, ResponseError
 
+from .declarations import FOLDER
 from .hdr import merge_exposures, subtract_dark
 from .response import bracket_samples, cubic_curve, recover_cubic_loglog, recover_debevec
 
@@ -86,28 +86,7 @@ log = logging.getLogger("sbrdf.capture.folder")
 class FolderCapture:
     """Capture source reading an ``sbrdf-capture/1`` folder (see module docstring)."""
 
-    params = (
-        Param("path", "str", REQUIRED, "the capture folder (holding capture.json and images/), relative to the graph file",
-              extra={"path": True}),
-        Param("response", "str", "auto", "auto: the manifest's curve, else recover it from brackets; manifest: require it; "
-              "recover: always recover; linear: treat pixel values as linear", choices=("auto", "manifest", "recover", "linear")),
-        Param("response_method", "str", "cubic", "recovery method: McAllister's cubic in log-log space or OpenCV's Debevec (8-bit)",
-              choices=("cubic", "debevec")),
-        Param("response_poses", "int", 8, "bracketed poses sampled for response recovery", bounds=(1, 10000)),
-        Param("saturation", "float", 0.98, "normalised level at or above which a pixel is saturated (invalid)", bounds=(0.0, 1.0)),
-        Param("underexposure", "float", 0.02, "normalised level at or below which a pixel is under-exposed (invalid)",
-              bounds=(0.0, 1.0)),
-        Param("dark_frame", "str", None, "image inside the folder taken with no light, subtracted after linearising", nullable=True),
-        Param("dark_time_s", "float", None, "exposure time of the dark frame (scaled to each exposure)", nullable=True,
-              bounds=(1e-9, None), unit="s"),
-        Param("colour_matrix", "list", None, "3x3 camera RGB -> working RGB matrix (row-major, 9 numbers)", nullable=True,
-              length=9, item="float"),
-        Param("allow_incomplete", "bool", False, "read the poses recorded so far of an interrupted capture"),
-        Param("negative_tolerance", "float", 0.01, "noise tolerance for negative radiance, a fraction of full scale: a "
-              "pixel below -tolerance is invalid and counted (docs/capture-folders.md)", bounds=(0.0, 1.0)),
-        Param("negative_max_fraction", "float", 0.5, "a pose with more than this fraction of its pixels negative beyond "
-              "the tolerance, or of its pixels above the noise floor, is an error, not noise", bounds=(0.0, 1.0)),
-    )
+    params = FOLDER
 
     def __init__(self, *, path: str, response: str = "auto", response_method: str = "cubic", response_poses: int = 8,
                  saturation: float = 0.98, underexposure: float = 0.02, dark_frame: str | None = None,

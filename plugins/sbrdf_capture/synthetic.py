@@ -18,30 +18,16 @@ from collections.abc import Sequence
 import numpy as np
 
 from sbrdf_core.geometry import directions_to, fibonacci_hemisphere, look_at, texel_centres
-from sbrdf_core.params import Param
 from sbrdf_core.types import CaptureDescription
 from sbrdf_lib.patterns import pattern  # re-exported: sbrdf_capture.synthetic.pattern is its old home
+
+from .declarations import SYNTHETIC
 
 
 class SyntheticCapture:
     """Simulated gonioreflectometer capture of a procedural material."""
 
-    params = (
-        Param("texels", "list", [64, 64], "texel grid [U, V]", length=2, item="int", bounds=(1, 16384)),
-        Param("size_mm", "list", [100.0, 100.0], "sample size [x, y]", length=2, item="float", bounds=(1e-3, None), unit="mm"),
-        Param("poses", "int", 48, "number of light/camera poses", bounds=(1, 100000)),
-        Param("model", "str", "lambert", "BRDF model the synthetic material follows", extra={"plugin_category": "brdf-model"}),
-        Param("model_params", "dict", {}, "configuration of that model (e.g. lobes)", extra={"params_of": "model"}),
-        Param("light_distance_mm", "float", 600.0, "light distance from the sample centre", bounds=(1.0, None), unit="mm"),
-        Param("camera_distance_mm", "float", 800.0, "camera distance from the sample centre", bounds=(1.0, None), unit="mm"),
-        Param("max_theta_deg", "float", 75.0, "largest light/view elevation from the normal", bounds=(0.0, 89.9), unit="deg"),
-        Param("intensity", "float", None, "light radiant intensity I; default light_distance² (unit irradiance at the centre)",
-              bounds=(0.0, None), nullable=True),
-        Param("noise", "float", 0.0, "relative Gaussian noise on radiance (σ / L)", bounds=(0.0, None)),
-        Param("saturation", "float", None, "radiance above which a pixel saturates (marked invalid)", nullable=True, bounds=(0.0, None)),
-        Param("seed", "int", 0, "random seed of the noise (per pose, so resumed captures are identical)"),
-        Param("pose_delay_s", "float", 0.0, "simulated exposure and motor time per pose", bounds=(0.0, 60.0), unit="s"),
-    )
+    params = SYNTHETIC
 
     def __init__(self, *, texels: Sequence[int] = (64, 64), size_mm: Sequence[float] = (100.0, 100.0), poses: int = 48,
                  model: str = "lambert", model_params: dict = {}, light_distance_mm: float = 600.0,  # noqa: B006
