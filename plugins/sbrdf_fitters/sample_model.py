@@ -26,7 +26,6 @@ from sbrdf_core.geometry import fibonacci_hemisphere, tile_directions
 from sbrdf_core.nodes.base import BuildContext, NodeKind, Output
 from sbrdf_core.params import Param
 from sbrdf_core.store import texel_tile
-from sbrdf_lib.patterns import pattern
 
 
 def sample_tile(index, maps, light_pos, camera_pos, texels, size_mm, model, noise, seed, min_cos, tile, block_info=None):
@@ -45,6 +44,8 @@ def sample_tile(index, maps, light_pos, camera_pos, texels, size_mm, model, nois
 
 def material_maps(model, texels, params=None) -> dict[str, np.ndarray]:
     """Ground-truth maps ``name -> (V, U, C)``: procedural over ``typical`` ranges, or ``params`` everywhere."""
+    from sbrdf_lib.patterns import pattern
+
     n_u, n_v = texels
     out = {}
     for k, p in enumerate(model.parameters):

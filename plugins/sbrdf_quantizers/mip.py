@@ -41,8 +41,6 @@ from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.base import BuildContext, NodeKind, Output, Port
 from sbrdf_core.params import Param
 
-from . import interpolate
-
 log = logging.getLogger(__name__)
 
 
@@ -57,6 +55,8 @@ def build_levels(model, params: dict, method: str = "refit", levels: int | None 
 
     ``samples`` (method ``samples``): ``{f_r (V, U, P, 3), valid (V, U, P), size_mm, light_pos, camera_pos}``.
     """
+    from . import interpolate
+
     V, U = next(iter(params.values())).shape[:2]
     L = max_levels(V, U) if levels is None else min(int(levels), max_levels(V, U))
     out, current = [], {k: np.asarray(v, np.float64) for k, v in params.items()}
@@ -79,6 +79,8 @@ def build_levels(model, params: dict, method: str = "refit", levels: int | None 
 
 def level_errors(model, params: dict, levels: list[dict], n_dirs: int = 16) -> list[float]:
     """Mean RMS (sr⁻¹) of each level against the BRDF-space average of the children in the level above."""
+    from . import interpolate
+
     errs, parent = [], params
     for lv in levels:
         ref = interpolate.brdf_average(model, {k: np.asarray(v, np.float64) for k, v in parent.items()}, n_dirs)

@@ -23,8 +23,6 @@ from sbrdf_core.artifacts import SampledReflectance
 from sbrdf_core.nodes.base import BuildContext, NodeKind, Output
 from sbrdf_core.params import Param
 
-from .table import TableError, read_table
-
 
 def table_arrays(table, distance_mm: float = 1e6) -> dict[str, np.ndarray]:
     """``f_r (1, 1, P, 3)``, ``valid (1, 1, P)``, ``light_pos``, ``camera_pos`` ``(P, 3)`` of a table."""
@@ -49,6 +47,8 @@ class MeasuredTableNode(NodeKind):
     @staticmethod
     def check_params(params) -> list[tuple[str, str]]:
         """The table file is read when the graph is validated, so a bad row is reported before anything runs."""
+        from .table import TableError, read_table
+
         if params.get("path") is None:
             return [("path", "a MeasuredTable needs 'path': the table file")]
         try:
@@ -62,6 +62,8 @@ class MeasuredTableNode(NodeKind):
     @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
+
+        from .table import read_table
 
         table = read_table(ctx.params["path"])
         arrays = table_arrays(table, ctx.params["distance_mm"])

@@ -27,7 +27,6 @@ from ..artifacts import RegisteredStack, SampledReflectance
 from ..channels import all_finite
 from ..geometry import directions_to, texel_centres
 from ..params import Param
-from ..store import texel_tile
 from .base import BuildContext, NodeKind, Output, Port, shared
 
 
@@ -155,6 +154,8 @@ class Reflectance(NodeKind):
         intensity = float(stack.attrs.get("light", {}).get("intensity", 1.0))
         light_pos, camera_pos = stack.read("light_pos"), stack.read("camera_pos")
         P, V, U = stack.zarr_array("valid").shape
+        from ..store import texel_tile
+
         t = texel_tile((V, U), P, channels=4, tile=ctx.params["tile"])
         # One graph key each (O(poses)), not a copy in every tile's task.
         grid = da.zeros((V, U), chunks=t, dtype=np.uint8)

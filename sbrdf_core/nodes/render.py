@@ -24,8 +24,6 @@ import numpy as np
 
 from .. import contracts
 from ..artifacts import KINDS, Images, ParamMaps, TextureSet
-from ..io import linear_to_srgb8, write_exr, write_png
-from ..store import join
 from ..types import InputArtifact, Material
 from .base import BuildContext, NodeKind, Output, Port
 
@@ -90,6 +88,8 @@ def display_exposure(image: np.ndarray) -> float:
 def to_display(image: np.ndarray, exposure: float, gamma: str = "srgb") -> np.ndarray:
     """Linear radiance -> 8-bit display values (sRGB curve, or a plain 1/2.2 power)."""
     if gamma == "srgb":
+        from ..io import linear_to_srgb8
+
         return linear_to_srgb8(image, exposure)
     x = np.clip(np.nan_to_num(image * exposure, nan=0.0), 0.0, 1.0)
     return np.round(255.0 * x ** (1 / 2.2)).astype(np.uint8)
@@ -120,6 +120,9 @@ class Render(NodeKind):
             result = renderer.render(material)
 
         def finalize(art):
+            from ..io import write_exr, write_png
+            from ..store import join
+
             t0 = time.perf_counter()
             image = art.read("image")
             exposure = result.exposure if result.exposure is not None else display_exposure(image)
