@@ -11,10 +11,12 @@ data they make themselves.  See ``docs/interchange.md``.
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from .declarations import MERL
+
 
 @hookimpl
 def sbrdf_brdf_models():
-    return [PluginSpec("merl", "sbrdf_measured.model:MerlModel",
+    return [PluginSpec("merl", "sbrdf_measured.model:MerlModel", params=MERL,
                        summary="Tabulated isotropic BRDF from a MERL binary file (90x90x180 half/difference-angle "
                                "table), trilinear or nearest lookup, RGB scale per texel")]
 

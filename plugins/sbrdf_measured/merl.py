@@ -41,8 +41,8 @@ import numpy as np
 
 from sbrdf_core import input_files
 
-#: The MERL database's table dimensions (θh, θd, φd).
-MERL_DIMS = (90, 90, 180)
+from .declarations import MERL_DIMS
+
 #: f_r = stored · SCALE[c] (BRDFRead.cpp's RED_SCALE, GREEN_SCALE, BLUE_SCALE).
 SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 HALF_PI = 0.5 * np.pi

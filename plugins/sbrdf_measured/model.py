@@ -30,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter
-from sbrdf_core.params import Param
 
+from .declarations import MERL
 from .merl import MerlTable, load_cached
 
 INV_PI = 1.0 / np.pi
@@ -46,12 +46,7 @@ class MerlModel(BRDFModel):
                        doc="RGB multiplier of the measured table (1 = the material as measured)"),
     )
 
-    params = (
-        Param("path", "str", None, "MERL .binary file (relative to the graph file; null: no table, f_r = scale/pi)",
-              nullable=True, extra={"path": True}),
-        Param("interpolation", "str", "trilinear", "table lookup: trilinear between the bins' start nodes, or "
-              "nearest (MERL's BRDFRead.cpp lookup)", choices=("trilinear", "nearest")),
-    )
+    params = MERL
 
     def __init__(self, *, path: str | None = None, interpolation: str = "trilinear"):
         self.path, self.interpolation = path, interpolation

@@ -37,9 +37,7 @@ from sbrdf_core.geometry import fibonacci_hemisphere
 from sbrdf_core.nodes.base import BuildContext, NodeKind, Output, Port
 from sbrdf_core.params import Param
 
-from .astm import AstmError, read_astm
-from .merl import MERL_DIMS, MerlError, read_merl, tabulate, write_merl
-from .utia import UtiaError, read_utia
+from .declarations import MERL_DIMS
 
 MERL_FILE = ArtifactKind(
     "MerlFile",
@@ -81,6 +79,8 @@ class MerlFromModel(NodeKind):
             values[name] = np.broadcast_to(np.asarray(v, np.float64).reshape(-1), values[name].shape[1:])[None].copy()
         dims = tuple(int(n) for n in p["dims"])
         rows = max(1, min(dims[0], 10))
+
+        from .merl import tabulate, write_merl
 
         def block(index, block_info=None):
             lo, hi = block_info[0]["array-location"][0]
@@ -133,6 +133,10 @@ class MeasuredBRDF(NodeKind):
     @staticmethod
     def check_params(params) -> list[tuple[str, str]]:
         """A file given by path is opened when the graph is validated, so a bad file fails before anything runs."""
+        from .astm import AstmError
+        from .merl import MerlError
+        from .utia import UtiaError
+
         path = params.get("path")
         if path is None:
             return []
@@ -196,6 +200,10 @@ class MeasuredBRDF(NodeKind):
 
 def _read(path, fmt: str):
     """``(table, format)`` of a MERL, ASTM or UTIA file."""
+    from .astm import read_astm
+    from .merl import read_merl
+    from .utia import read_utia
+
     if fmt == "auto":
         fmt = {".astm": "astm", ".bin": "utia"}.get(Path(path).suffix.lower(), "merl")
     return {"astm": read_astm, "utia": read_utia}.get(fmt, read_merl)(path), fmt
