@@ -22,6 +22,10 @@ parameters varying smoothly inside each band (``sbrdf_capture.synthetic.pattern`
     band 0 broad: n₁ 4–15; band 1 off-specular (C_z = 0.97 |C_xy|: the lobe grows toward grazing): n₁ 20–80;
     band 2 **near-mirror**: n₁ 800–2500; lobe 2 C = (0.9, 0.9, 1), n₂ 2–6, ρ_s,₂ 0.05–0.2 everywhere.
 
+``regions`` truth: ggx-anisotropic, four **uniform** quadrants (:data:`REGIONS`): plastic, gold, matte and
+    brushed metal; fitted (orbit scan) by every model a user would pick (:data:`REGION_FITS`) for the
+    spatial figures below.
+
 Scans (each a ``virtual-camera`` capture folder -> ``folder`` Capture -> ``aruco``
 Register -> Reflectance, exactly the path of ``graphs/virtual-scan.yaml``;
 effects falloff, blur, motor_error, noise; one linear EXR exposure per pose):
@@ -69,6 +73,17 @@ independently uniform in solid angle over θ ≤ 85°, plus ``PAIRS_MIRROR`` mir
   (Fit node) is 0.
 - ``render_max``: maximum pixel (any channel, linear) of a ``cpu`` Render of the ``laf2`` fit
   (orbit scan) in ``scenes/objects.yaml`` at a small resolution.
+
+- ``X_spatial_cv`` (``regions`` fits): per quadrant, the median over the scoring pairs of the coefficient of
+  variation of the fitted luminance f_r across the quadrant's texels (those at least :data:`REGION_MARGIN`
+  from its edge); the largest over the quadrants.  ``noise_cv``: the same for the noise floor, the generating
+  model fitted through the Fit node's own tile kernel (its held-out split and bounds) started from the truth.
+  ``spatial_cv_max``: the largest over the fits.
+- ``X_specks``: texels of a quadrant whose value in one of :data:`SPECK_RENDERS` departs from its 3×3
+  neighbourhood's median by more than 4× the neighbourhood's spread (:func:`sbrdf_core.coherence.specks`);
+  ``noise_specks`` for the floor; ``specks``: their sum over the fits.  ``X_regions_median``: the median
+  relative error at the scoring pairs.
+- ``--coherence none`` runs every Fit node with ``coherence: none``: the paired comparison.
 
 Sizes: full = 64×64 texels, 640×480 images, 90 orbit + 60 grazing poses (a few minutes on
 2 cores); ``--quick`` = 32×32 texels, 480×360 images, 40 + 30 poses (about a minute).
@@ -129,7 +144,22 @@ FITS = {
 #: Fit node parameters of a fit beyond the defaults: ``ct_fr`` is ``ct`` with its peak bound on f_r itself
 #: (``microfacet_peak: f_r``), the trade-off of fireflies against accuracy.  Extra keys only.
 NODE_PARAMS = {"ct_fr": {"microfacet_peak": "f_r"}}
-TRUTH = {"ct": ("cook-torrance", {"distribution": "ggx"}), "laf": ("lafortune", {"lobes": 2})}
+TRUTH = {"ct": ("cook-torrance", {"distribution": "ggx"}), "laf": ("lafortune", {"lobes": 2}),
+         "regions": ("ggx-anisotropic", {})}
+#: Fits of the ``regions`` material (orbit scan), every model a user would pick: name -> (model, model_params).
+REGION_FITS = {"laf1": ("lafortune", {"lobes": 1}), "laf2": ("lafortune", {"lobes": 2}), "ward": ("ward", {}),
+               "ct": ("cook-torrance", {"distribution": "ggx"}), "ggxa": ("ggx-anisotropic", {})}
+#: The ``regions`` material's quadrants (v half, u half): plastic, gold, matte, brushed metal (ggx-anisotropic).
+REGIONS = {(0, 0): {"rho_d": (0.25, 0.08, 0.05), "f0": (0.04,) * 3, "alpha_t": 0.12, "alpha_b": 0.12, "phi": 0.0},
+           (0, 1): {"rho_d": (0.01,) * 3, "f0": (0.95, 0.7, 0.3), "alpha_t": 0.2, "alpha_b": 0.2, "phi": 0.0},
+           (1, 0): {"rho_d": (0.2, 0.25, 0.3), "f0": (0.03,) * 3, "alpha_t": 0.6, "alpha_b": 0.6, "phi": 0.0},
+           (1, 1): {"rho_d": (0.02,) * 3, "f0": (0.9,) * 3, "alpha_t": 0.08, "alpha_b": 0.35, "phi": 0.5}}
+#: Texels from a quadrant's edge that its spatial figures leave out: the camera's blur and registration mix
+#: the two materials of a boundary over about a texel.
+REGION_MARGIN = 2
+#: The "renders" specks are counted in, (θ_i, θ_o) in degrees on the plane φ_i = 0, φ_o = 180°: the view from
+#: above with the light at 15–60° (the ``preview`` renderer's set-up), and two mirror pairs.
+SPECK_RENDERS = ((15, 0), (30, 0), (45, 0), (60, 0), (30, 30), (45, 45))
 
 
 def log(msg: str) -> None:
@@ -160,6 +190,15 @@ def truth_maps(kind: str, n: int) -> dict[str, np.ndarray]:
     def one(k, ranges):
         return _bands(n, k, 0, ranges)[..., None]
 
+    if kind == "regions":
+        half = (np.arange(n) * 2) // n
+        maps = {}
+        for name in REGIONS[(0, 0)]:
+            stack = [np.broadcast_to(np.atleast_1d(np.asarray(REGIONS[(a, b)][name], np.float64)), (n, n, 3 if name in
+                     ("rho_d", "f0") else 1)) for a in (0, 1) for b in (0, 1)]
+            which = (half[:, None] * 2 + half[None, :])[..., None]
+            maps[name] = np.choose(np.broadcast_to(which, stack[0].shape), stack)
+        return maps
     if kind == "ct":
         return {"rho_d": rgb(0, [(0.05, 0.25), (0.01, 0.04), (0.02, 0.08)]),
                 "f0": rgb(1, [(0.02, 0.08), (0.5, 0.95), (0.6, 0.95)]),
@@ -233,7 +272,9 @@ def capture(folder: Path, truth_url: str, scan: str, size: dict, seed: int) -> N
 # ---------------------------------------------------------------------------
 
 
-def graph_text(scans: dict[str, Path], texels: int, scene: Path) -> str:
+def graph_text(scans: dict[str, Path], texels: int, scene: Path, common: dict | None = None) -> str:
+    """The benchmark's graph; ``common``: Fit node parameters of every fit (``--coherence``)."""
+    common = common or {}
     lines = ["name: fidelity-benchmark", "store: ./store", "nodes:"]
     for key, folder in scans.items():
         lines += [f"  cap_{key}: {{kind: Capture, plugin: folder, params: {{path: {json.dumps(str(folder))}}}}}",
@@ -242,9 +283,12 @@ def graph_text(scans: dict[str, Path], texels: int, scene: Path) -> str:
                   f"  refl_{key}: {{kind: Reflectance, in: {{stack: reg_{key}}}}}"]
     for name, (truth, scan_list, model, mp) in FITS.items():
         for scan in scan_list:
-            params = {"model": model, "model_params": mp, **NODE_PARAMS.get(name, {})}
+            params = {"model": model, "model_params": mp, **NODE_PARAMS.get(name, {}), **common}
             lines.append(f"  {name}_{scan}: {{kind: Fit, plugin: lm, in: {{samples: refl_{truth}_{scan}}}, "
                          f"params: {json.dumps(params)}}}")
+    for name, (model, mp) in REGION_FITS.items():
+        lines.append(f"  regions_{name}: {{kind: Fit, plugin: lm, in: {{samples: refl_regions_orbit}}, "
+                     f"params: {json.dumps({'model': model, 'model_params': mp, **common})}}}")
     lines.append(f"  render: {{kind: Render, plugin: cpu, in: {{material: laf2_orbit}}, "
                  f"params: {{scene: {json.dumps(str(scene))}}}}}")
     return "\n".join(lines) + "\n"
@@ -458,6 +502,100 @@ def ideal_fit(truth_url: str, model_name: str, model_params: dict, node_params: 
     return score_params(model, fit_params, truth_model, truth_params)
 
 
+def region_interiors(n: int) -> np.ndarray:
+    """``(V, U)`` region index of the ``regions`` material's texels, −1 within :data:`REGION_MARGIN` of an edge."""
+    half = (np.arange(n) * 2) // n
+    edge = np.minimum(np.arange(n) % (n // 2), (n // 2 - 1) - np.arange(n) % (n // 2))  # texels to the quadrant edge
+    inside = (edge[:, None] >= REGION_MARGIN) & (edge[None, :] >= REGION_MARGIN)
+    return np.where(inside, half[:, None] * 2 + half[None, :], -1)
+
+
+def spatial_cv(model, params: dict, region: np.ndarray) -> tuple[float, int]:
+    """``(cv, specks)`` of parameter maps ``{name: (V, U, C)}``: the largest over regions of the median over
+    :func:`scoring_pairs` (128 pairs, unseen) of the coefficient of variation of luminance f_r across the
+    region's texels, and the texels that are specks (:func:`sbrdf_core.coherence.specks`) in any of
+    :data:`SPECK_RENDERS`."""
+    from sbrdf_core.coherence import specks
+
+    V, U = region.shape
+    T = V * U
+    flat = {k: v.reshape(T, -1) for k, v in params.items()}
+
+    def look(wi, wo):
+        return _lum(model, flat, np.broadcast_to(wi, (T,) + wi.shape[1:]),
+                    np.broadcast_to(wo, (T,) + wo.shape[1:])).reshape(V, U, -1)
+
+    y = look(*scoring_pairs(1, seed=30))
+    cvs = []
+    for r in range(4):
+        vals = y[region == r]  # (texels, pairs)
+        cvs.append(float(np.median(vals.std(axis=0) / np.maximum(np.abs(vals.mean(axis=0)), 1e-12))))
+    t_i, t_o = np.radians(np.array(SPECK_RENDERS, np.float64)).T
+    wi = np.stack([np.sin(t_i), np.zeros_like(t_i), np.cos(t_i)], axis=-1)[None]
+    wo = np.stack([-np.sin(t_o), np.zeros_like(t_o), np.cos(t_o)], axis=-1)[None]
+    renders = look(wi, wo)
+    speck = np.zeros((V, U), bool)
+    for j in range(renders.shape[-1]):
+        for r in range(4):
+            speck |= specks(renders[..., j], uniform=region == r)
+    return max(cvs), int(speck.sum())
+
+
+def noise_floor_fit(graph, truth_url: str) -> dict:
+    """The generating model (``ggx-anisotropic``) fitted to the ``regions`` capture's samples by the Fit node's
+    own tile kernel (the same held-out split and bounds, ``coherence: none``), ``lm`` started from the truth
+    itself: what the capture's noise and the node's bounds alone leave, no local minimum on the way."""
+    from sbrdf_core.nodes.fit import FitOptions, fit_tile
+    from sbrdf_core.registry import default_registry
+    from sbrdf_core.store import open_artifact
+
+    reg = default_registry()
+    model, truth, _ = _load(truth_url, reg)
+    refl = open_artifact(graph.url("refl_regions_orbit"))
+    f_r, valid = np.asarray(refl.read("f_r"), np.float64), np.asarray(refl.read("valid"), bool)
+    V, U = f_r.shape[:2]
+    start = {k: v.reshape(V * U, -1) for k, v in truth.items()}
+    lm = reg.create("fitter", "lm", {"model": model.name})
+
+    class FromTruth:  # lm, started from the truth wherever it fits the whole grid
+        model_name, model_config = model.name, {}
+
+        def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None):
+            if initial is None and f_r.shape[0] == V * U:
+                initial = start
+            return lm.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms, usable=usable, initial=initial)
+
+    out = fit_tile(f_r, valid[..., None], refl.read("light_pos"), refl.read("camera_pos"),
+                   tuple(refl.attrs["texels"]), tuple(refl.attrs["size_mm"]), FromTruth(), model,
+                   FitOptions(coherence="none"), block_info=[{"array-location": [(0, V), (0, U)]}])
+    params = model.unpack(out[..., :model.size].reshape(V * U, -1).astype(np.float64))
+    return {k: np.asarray(v).reshape(V, U, -1) for k, v in params.items()}
+
+
+def spatial_figures(graph, report, truth_url: str) -> dict:
+    """Per ``regions`` fit: ``X_spatial_cv``, ``X_specks``, ``X_regions_median`` (median relative error at unseen
+    pairs); and ``noise_cv``, ``noise_specks`` of :func:`noise_floor_fit`."""
+    from sbrdf_core.registry import default_registry
+
+    reg = default_registry()
+    truth_model, _, _ = _load(truth_url, reg)
+    out: dict = {}
+    region = None
+    for name in REGION_FITS:
+        node = f"regions_{name}"
+        model, params, art = _load(graph.url(node), reg)
+        region = region_interiors(params[next(iter(params))].shape[0]) if region is None else region
+        out[f"{name}_spatial_cv"], out[f"{name}_specks"] = spatial_cv(model, params, region)
+        out[f"{name}_regions_median"] = float(np.median(score(graph.url(node), truth_url)["rel"]))
+        log(f"{node}: {report[node].wall_s:.1f} s, spatial cv {out[f'{name}_spatial_cv']:.4f}, "
+            f"specks {out[f'{name}_specks']}, median {out[f'{name}_regions_median']:.4f}, "
+            f"summary {art.attrs.get('summary', {}).get('texels_flagged', {})}")
+    assert region is not None
+    out["noise_cv"], out["noise_specks"] = spatial_cv(truth_model, noise_floor_fit(graph, truth_url), region)
+    log(f"noise floor (ggx-anisotropic from the truth): spatial cv {out['noise_cv']:.4f}, specks {out['noise_specks']}")
+    return out
+
+
 def warm(workdir: Path) -> None:
     """Fit each model once on a tiny ``SampleModel`` grid, so JIT compilation is not charged to the first fit."""
     from sbrdf_core.graph import load_graph
@@ -484,6 +622,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="32x32 texels, fewer poses and pixels (about a minute)")
     ap.add_argument("--keep", metavar="DIR", default=None, help="write materials, captures and fits here and keep them")
     ap.add_argument("--docs", action="store_true", help="rewrite the fidelity section of docs/accuracy-vs-time.md")
+    ap.add_argument("--coherence", choices=("neighbours", "none"), default=None,
+                    help="the Fit nodes' coherence (default: the node's own default), for a paired comparison")
     args = ap.parse_args(argv)
     size = QUICK if args.quick else FULL
     n = size["texels"]
@@ -506,7 +646,8 @@ def main(argv=None) -> int:
             write_param_maps(url, reg0.create("brdf-model", model_name, mp), mp, truth_maps(kind, n))
             truth_urls[kind] = url
         scans = {}
-        for k, (truth, scan) in enumerate((("ct", "orbit"), ("ct", "grazing"), ("laf", "orbit"))):
+        for k, (truth, scan) in enumerate((("ct", "orbit"), ("ct", "grazing"), ("laf", "orbit"),
+                                           ("regions", "orbit"))):
             folder = workdir / f"capture_{truth}_{scan}"
             t0 = time.perf_counter()
             if not (folder / "capture.json").exists() or args.keep is None:
@@ -516,7 +657,7 @@ def main(argv=None) -> int:
         scene = workdir / "scene.yaml"
         write_scene(scene, size["render"])
         gpath = workdir / "graph.yaml"
-        gpath.write_text(graph_text(scans, n, scene))
+        gpath.write_text(graph_text(scans, n, scene, {"coherence": args.coherence} if args.coherence else None))
         warm(workdir / "warm")  # import and JIT-compile the fitters' kernels off the clock
         reg = Registry()
         graph = load_graph(gpath, reg)
@@ -576,6 +717,8 @@ def main(argv=None) -> int:
             log(f"ideal {name}: median {figures[f'{name}_median_ideal']:.4f}, p90 {figures[f'{name}_p90_ideal']:.4f}, "
                 f"mirror median {np.median(fl['rel'][:, PAIRS_RANDOM:]):.4f}, "
                 f"fireflies {figures[f'{name}_fireflies_ideal']} ({time.perf_counter() - t0:.1f} s)")
+        spatial = spatial_figures(graph, report, truth_urls["regions"])
+        figures.update(spatial)
         img = np.asarray(open_artifact(graph.url("render")).read("image"), np.float64)
         render_max = float(np.nanmax(img)) if np.isfinite(img).any() else float("inf")
         log(f"render: {report['render'].wall_s:.1f} s, max {render_max:.4g}, pixels > 1e6: {int((img > 1e6).any(-1).sum())}")
@@ -595,7 +738,14 @@ def main(argv=None) -> int:
                          + [f"{k}_s={seconds[k]:.2f}" for k in FITS]
                          + [f"{k}_{m}_ideal={g(figures[f'{k}_{m}_ideal'])}" for k in (*FITS, *IDEAL_EXTRA)
                             for m in ("median", "p90", "fireflies")])
-        line = f"fidelity: {head} fireflies={fireflies} unsampled={g(max(unsampled))} render_max={g(render_max)} {extra}"
+        cv = " ".join(f"{k}_spatial_cv={g(spatial[f'{k}_spatial_cv'])}" for k in REGION_FITS)
+        spatial_line = (f"spatial_cv_max={g(max(spatial[f'{k}_spatial_cv'] for k in REGION_FITS))} "
+                        f"noise_cv={g(spatial['noise_cv'])} specks={sum(spatial[f'{k}_specks'] for k in REGION_FITS)} "
+                        f"noise_specks={spatial['noise_specks']} {cv} "
+                        + " ".join(f"{k}_specks={spatial[f'{k}_specks']} {k}_regions_median={g(spatial[f'{k}_regions_median'])}"
+                                   for k in REGION_FITS))
+        line = (f"fidelity: {head} fireflies={fireflies} unsampled={g(max(unsampled))} render_max={g(render_max)} "
+                f"{spatial_line} {extra}")
         if args.docs:
             write_docs(rows, line, size, time.perf_counter() - t_start, figures)
         print(line, flush=True)

@@ -118,8 +118,9 @@ ParamMaps = ArtifactKind(
                   "attrs bounded_by_bits: 1 peak, 2 sharpness, 4 energy)", required=False),
         ArraySpec("fit_time_s", "VU", "float32", "fitting time per texel (its tile's time shared out), s",
                   timing=True),
-        ArraySpec("from_neighbour", "VU", "uint8", "1 where the texel's solution came from a neighbour's, which fits "
-                  "its samples better than its own fit did (coherence: neighbours)", required=False),
+        ArraySpec("from_neighbour", "VU", "uint8", "1 where the texel's solution came from a neighbour's (or, with "
+                  "coherence: pyramid, its parent's): one that fits its samples better, or as well within the "
+                  "noise and more like its neighbourhood", required=False),
         ArraySpec("mip/*", "VUC", "float32", "MIP level l >= 1 of each parameter, mip/<l>/<parameter>, "
                   "(V >> l) x (U >> l) (a Mip node; attrs mip: levels, method, shapes)", required=False),
     ),

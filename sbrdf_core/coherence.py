@@ -125,7 +125,9 @@ def consensus(look: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
 
 def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray,
            grid: tuple[int, int], refit: Callable[[np.ndarray, dict, np.ndarray], np.ndarray], outlier_distance: float,
-           sweeps: int = SWEEPS, margin: float = MARGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           sweeps: int = SWEEPS, margin: float = MARGIN, parent: np.ndarray | None = None,
+           project: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(x, from_neighbour, outlier)`` for a tile's packed solutions ``x`` ``(T, K)`` on a ``grid`` of texels.
 
     ``refit(rows, initial, prior)`` fits texels ``rows`` from ``initial`` (model-form parameters) and returns
@@ -134,14 +136,19 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
     texel toward its neighbours only where its own samples leave it free.  ``from_neighbour``: texels whose solution now comes from a neighbour's (as it is or
     refined); ``outlier``: texels whose appearance stays farther than ``outlier_distance`` from their
     neighbourhood's (0: no ambiguous-texel step, none flagged).  ``f_r`` and ``train`` are
-    :func:`~sbrdf_core.nodes.fit.usable`'s.
+    :func:`~sbrdf_core.nodes.fit.usable`'s.  ``parent`` ``(T, K)`` (:func:`pyramid`): each texel's parent's
+    solution, compared as a neighbour's is.  ``project(rows, x)``: packed solutions of texels ``rows`` onto
+    their bounds (the node's :func:`~sbrdf_core.constraints.enforce`), so that a solution is taken for the cost
+    it will have, not for one its bounds will take away.
     """
     x = np.array(x, np.float64)
     T, K = x.shape
     has = np.asarray(train.any(axis=1), bool)
     cost = np.where(has, _cost(_predict(model, x, wi, wo), f_r, train), np.inf)
-    cost = np.where(np.isfinite(cost), cost, np.inf)
     dof = np.maximum(train.sum(axis=1) * f_r.shape[-1] - K, 1)
+    cost = np.where(np.isfinite(cost), cost, np.inf)
+    # the noise allowance is the texel's own fit's, once: sweeps must not add it up
+    allowed = cost + NOISE_TOLERANCE * K * cost / dof
     moved = np.zeros(T, bool)
     look = appearance(model, x)
     dev = np.zeros(T)
@@ -151,6 +158,11 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
         odd = _odd(dev, has, grid, outlier_distance)
         best_cost, best_x = cost * (1 - margin), x.copy()
         near, near_x = np.full(T, np.inf), np.full_like(x, np.nan)
+        if parent is not None and sweep == 0:  # the coarse-to-fine start: one more candidate, as a neighbour is
+            rows = np.flatnonzero(has & np.isfinite(parent).all(axis=1))
+            c = _cost(_predict(model, parent[rows], wi[rows], wo[rows]), f_r[rows], train[rows])
+            better = c < best_cost[rows]
+            best_cost[rows[better]], best_x[rows[better]] = c[better], parent[rows[better]]
         for dv, du in OFFSETS:
             xn = neighbour(x, grid, dv, du)
             rows = np.flatnonzero(has & np.isfinite(xn).all(axis=1))
@@ -170,15 +182,16 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
         start = np.where(better[cand, None], best_x[cand], near_x[cand])
         prior = np.where(better[cand, None, None], np.nan, middle[cand])
         refined = np.asarray(refit(cand, model.unpack(start), prior), np.float64)
-        c_r = _cost(_predict(model, refined, wi[cand], wo[cand]), f_r[cand], train[cand])
-        c_r = np.where(np.isfinite(c_r), c_r, np.inf)
+        if project is not None:  # judged as they will leave the node: inside the texel's own bounds
+            start, refined = project(cand, start), project(cand, refined)
+        c_r, c_s = (_cost(_predict(model, v, wi[cand], wo[cand]), f_r[cand], train[cand]) for v in (refined, start))
+        c_r, c_s = (np.where(np.isfinite(v), v, np.inf) for v in (c_r, c_s))
         b = better[cand]
-        # a worse minimum: the lower of the refit and the neighbour's solution as it is
-        take_refit = b & (c_r < best_cost[cand])
-        take_start = b & ~take_refit
+        # a worse minimum: the lower of the refit and the neighbour's solution, if lower than the texel's own
+        take_refit = b & (c_r <= c_s) & (c_r < cost[cand])
+        take_start = b & ~take_refit & (c_s < cost[cand])
         # an ambiguous texel: whichever of the two fits within the noise and looks most like its neighbourhood
-        limit = cost[cand] + NOISE_TOLERANCE * K * cost[cand] / dof[cand]
-        c_s = np.where(b, best_cost[cand], _cost(_predict(model, start, wi[cand], wo[cand]), f_r[cand], train[cand]))
+        limit = allowed[cand]
         d_r = np.where(c_r <= limit, distance(appearance(model, refined), middle[cand]), np.inf)
         d_s = np.where(c_s <= limit, near[cand], np.inf)
         take_refit |= ~b & (d_r < dev[cand]) & (d_r <= d_s)
@@ -204,6 +217,44 @@ def _odd(dev: np.ndarray, has: np.ndarray, grid: tuple[int, int], threshold: flo
         warnings.simplefilter("ignore", RuntimeWarning)  # no finite neighbour: NaN, not odd
         typical = np.nanmedian(np.stack([neighbour(finite, grid, dv, du) for dv, du in OFFSETS]), axis=0)
     return has & (dev > threshold) & (dev > ODD_FACTOR * typical)
+
+
+def _halve(f_r, train, wi, wo, grid):
+    """The next MIP level of a tile's samples: each 2×2 block's valid samples averaged per pose (its directions
+    the children's mean), and each texel's block index."""
+    V, U = grid
+    V2, U2 = (V + 1) // 2, (U + 1) // 2
+    v, u = np.divmod(np.arange(V * U), U)
+    block = (v // 2) * U2 + u // 2
+    T2, S = V2 * U2, f_r.shape[1]
+    w = train.astype(np.float64)
+    count = np.zeros((T2, S))
+    np.add.at(count, block, w)
+    total = np.zeros((T2, S, f_r.shape[2]))
+    np.add.at(total, block, f_r * w[..., None])
+    dirs = []
+    for d in (wi, wo):
+        mean = np.zeros((T2, S, 3))
+        np.add.at(mean, block, d)
+        dirs.append(mean / np.maximum(np.linalg.norm(mean, axis=-1, keepdims=True), 1e-12))
+    return total / np.maximum(count, 1.0)[..., None], count > 0, dirs[0], dirs[1], (V2, U2), block
+
+
+def pyramid(fit: Callable, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray,
+            grid: tuple[int, int], limits) -> np.ndarray | None:
+    """Each texel's parent's solution ``(T, K)`` from the MIP pyramid of a tile's samples, fitted coarse to
+    fine: the top (one texel: the tile's average) with the fitter's own starts, each finer level from its
+    parent's solution.  ``fit(f_r, train, wi, wo, limits, initial)`` returns packed solutions (``initial``
+    packed, or None).  None for a single texel.  Why: a texel's own starts can miss the basin its region's
+    average finds at once, and the pyramid costs about a third of a fit (a level has a quarter of the texels
+    of the one below, one start each).  Each coarse texel takes the limits of its first child.
+    """
+    if grid[0] * grid[1] <= 1:
+        return None
+    f2, w2, a2, b2, grid2, block = _halve(f_r, train, wi, wo, grid)
+    lim2 = None if limits is None else limits.take(np.unique(block, return_index=True)[1])
+    above = pyramid(fit, f2, w2, a2, b2, grid2, lim2)
+    return np.asarray(fit(f2, w2, a2, b2, lim2, above), np.float64)[block]
 
 
 def specks(image: np.ndarray, uniform: np.ndarray | None = None, factor: float = 4.0,

@@ -69,6 +69,15 @@ def neighbourhood_max(support: np.ndarray) -> np.ndarray:
     return maximum_filter(np.asarray(support), size=3, mode="nearest")
 
 
+def neighbourhood_min(resolution: np.ndarray) -> np.ndarray:
+    """3×3 minimum of a ``(V, U)`` map: a texel may be as sharp as its neighbours' samples resolve.  Why: each
+    texel's own training samples (a random held-out draw removed) resolve a slightly different angle, and a
+    sharpness bound that follows those draws widens random texels of one material: specks."""
+    from scipy.ndimage import minimum_filter
+
+    return minimum_filter(np.asarray(resolution), size=3, mode="nearest")
+
+
 def angular_resolution(wi: np.ndarray, wo: np.ndarray, valid: np.ndarray, nearest: int = NEAREST) -> np.ndarray:
     """How close each texel's samples come to the mirror configuration, radians, ``(T,)``.
 

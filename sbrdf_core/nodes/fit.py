@@ -36,8 +36,16 @@ import numpy as np
 from ..artifacts import ParamMaps, SampledReflectance
 from ..brdf import evaluate
 from ..channels import all_finite
-from ..coherence import APPEARANCE_PAIRS, cohere
-from ..constraints import REASONS, Limits, angular_resolution, enforce, neighbourhood_max, sample_support
+from ..coherence import APPEARANCE_PAIRS, cohere, pyramid
+from ..constraints import (
+    REASONS,
+    Limits,
+    angular_resolution,
+    enforce,
+    neighbourhood_max,
+    neighbourhood_min,
+    sample_support,
+)
 from ..contracts import optional
 from ..geometry import tile_directions
 from ..params import Param
@@ -101,8 +109,9 @@ FIT_PARAMS = (
     Param("coherence", "str", "neighbours", "'neighbours': a texel whose own solution fits its training samples "
           "clearly worse than a neighbour's solution is refitted from it (repeated, so a good solution spreads "
           "across a uniform region; removes the specks of texels caught in a worse local minimum, at the cost of "
-          "refitting those texels); 'none': every texel alone, as the fitter leaves it",
-          choices=("neighbours", "none")),
+          "refitting those texels); 'pyramid': the same, and each texel also tries its parent's solution "
+          "from a coarse-to-fine fit of the tile's MIP pyramid of samples (about a third of a fit more); "
+          "'none': every texel alone, as the fitter leaves it", choices=("neighbours", "pyramid", "none")),
     Param("outlier_distance", "float", 0.05, "with coherence: neighbours, a texel whose appearance (f_r at fixed "
           "direction pairs) departs from its 3x3 neighbourhood's median by more than this relative RMS is refitted "
           "from the neighbour nearest that median, and takes that fit if it fits its own samples within the noise; "
@@ -286,6 +295,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
     if sparse.size:  # fitted to the pooled samples: bounded by what the pool resolves
         pf, pw, pi, po = _neighbour_pool(grid, sparse, f_r, train, wi, wo)
         resolution[sparse] = angular_resolution(pi, po, pw)
+    resolution = neighbourhood_min(resolution.reshape(grid)).ravel()
     support_cosine = None
     if options.microfacet_peak == "cosine" and optional(model, "reads_peak_cosine", "brdf-model"):
         cosines = np.clip(wi[..., 2], 0, 1) * np.clip(wo[..., 2], 0, 1)
@@ -310,7 +320,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
         rflags[sparse[helped]] = 0 if pooled.flags is None else pooled.flags[helped]
         flags[sparse[helped]] |= BORROWED
     from_neighbour = np.zeros(T, bool)
-    if options.coherence == "neighbours" and T > 1:
+    if options.coherence != "none" and T > 1:
         def refit(rows, initial, prior):
             # the prior's samples (the neighbourhood's median appearance) ride along where given
             pw, po = (np.broadcast_to(w, (rows.size,) + w.shape[1:]) for w in APPEARANCE_PAIRS)
@@ -321,8 +331,16 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
             rflags[rows] = 0 if out.flags is None else out.flags
             return model.pack({k: np.asarray(v, np.float64) for k, v in out.params.items()})
 
+        def coarse(f, w, a, b, lim, initial):
+            out = run(f, w, a, b, lim, None if initial is None else model.unpack(initial))
+            return model.pack({k: np.asarray(v, np.float64) for k, v in out.params.items()})
+
+        parent = pyramid(coarse, f_r, train, wi, wo, grid, limits) if options.coherence == "pyramid" else None
+        def project(rows, x):
+            return model.pack(enforce(model, model.unpack(x), limits.take(rows))[0])
+
         x, from_neighbour, outlier = cohere(model, model.pack(params), f_r, train, wi, wo, grid, refit,
-                                            options.outlier_distance)
+                                            options.outlier_distance, parent=parent, project=project)
         params = model.unpack(x)
         flags |= np.where(outlier, OUTLIER, 0).astype(np.uint16)
     params, changed, bounded_by = enforce(model, params, limits, why=True)

@@ -59,7 +59,7 @@ def test_maps_flags_time_and_summary(fitted):
     store, _ = fitted
     for node in ("lm", "mc", "ls"):
         art = open_artifact(f"{store}/{node}")
-        assert art.read("flags").dtype == np.uint8 and art.read("flags").shape == (10, 12)
+        assert art.read("flags").dtype == np.uint16 and art.read("flags").shape == (10, 12)
         assert (art.read("fit_time_s") > 0).all()
         s = art.attrs["summary"]
         assert s["rms_mean"] > 0 and s["rms_max"] >= s["rms_mean"] and s["fit_time_s"] > 0
