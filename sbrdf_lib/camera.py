@@ -36,8 +36,9 @@ from typing import Any
 
 import numpy as np
 
-from sbrdf_core.params import Param
 from sbrdf_lib.serial.errors import DeviceError
+
+from .camera_params import COMMON_PARAMS
 
 __all__ = ["COMMON_PARAMS", "CameraError", "CameraLost", "ExposureRefused", "FrameCameraBase", "FrameTimeout",
            "msb_align", "saturated_fraction", "to_rgb"]
@@ -59,23 +60,6 @@ class FrameTimeout(CameraError):
 
 class ExposureRefused(CameraError):
     """The camera cannot take this exposure time (outside its range, or it has no exposure control)."""
-
-
-#: Settings every frame-camera driver declares (each driver adds its own after these).
-COMMON_PARAMS = (
-    Param("serial", "str", None, "serial number of the camera to open; default the first one found", nullable=True),
-    Param("pixel_format", "str", None, "sensor pixel format (Mono8, Mono12, RGB8, ...); default the camera's own",
-          nullable=True),
-    Param("gain_db", "float", 0.0, "analogue gain (auto gain is switched off)", bounds=(0.0, None), unit="dB"),
-    Param("black_level", "float", None, "black level (pedestal) in camera units; default the camera's own",
-          nullable=True),
-    Param("trigger", "str", "software", "software: the capture triggers each frame; hardware: the camera waits "
-          "for a pulse on its trigger line (from the motion controller)", choices=("software", "hardware")),
-    Param("timeout_s", "float", 5.0, "frame timeout after the trigger, on top of the exposure time",
-          bounds=(1e-3, 3600.0), unit="s"),
-    Param("nominal_exposure_s", "float", None, "for a camera without exposure control: the exposure it has; only "
-          "this time is then accepted", nullable=True, bounds=(1e-9, None), unit="s"),
-)
 
 
 def to_rgb(frame: np.ndarray) -> np.ndarray:

@@ -5,15 +5,16 @@ Devices are not graph nodes: capture sources (a ``gonio`` rig, the
 with ``registry.create("device", name, params)``.  ``virtual-folder``
 (:mod:`sbrdf_cameras.capture`) is a Capture plugin: it photographs a camera
 device into an ``sbrdf-capture/1`` folder and reads it back as ``folder``
-does, so a graph can make its own simulated scan.  Each implementation
-declares its parameters on its class (``params``, above ``__init__``);
-implementation modules are imported only when a device or source is created
-(or its parameters are asked for).  The calibration captures are node kinds
+does, so a graph can make its own simulated scan.  Each contribution's
+parameters are declared in :mod:`.declarations`, which imports no driver;
+implementation modules are imported only when a device or source is created.  The calibration captures are node kinds
 of their own (``DarkFrame``, ``FlatField``: :mod:`sbrdf_cameras.calibration`),
 whose artifacts the Capture node's ``dark`` and ``flat`` inputs take.
 """
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
+
+from . import declarations
 
 
 @hookimpl
@@ -22,15 +23,16 @@ def sbrdf_devices():
         PluginSpec(
             "virtual-camera",
             "sbrdf_cameras.virtual:VirtualCamera",
+            params=declarations.VIRTUAL,
             summary="Simulated camera photographing a known SBRDF on an ArUco carrier under a point light",
         ),
-        PluginSpec("pylon", "sbrdf_cameras.pylon:PylonCamera",
+        PluginSpec("pylon", "sbrdf_cameras.pylon:PylonCamera", params=declarations.PYLON,
                    summary="Basler camera through pypylon (PYLON_CAMEMU=N emulates N cameras)"),
-        PluginSpec("aravis", "sbrdf_cameras.aravis:AravisCamera",
+        PluginSpec("aravis", "sbrdf_cameras.aravis:AravisCamera", params=declarations.ARAVIS,
                    summary="GigE Vision / USB3 Vision camera through Aravis (arv-fake-gv-camera-0.8 simulates one)"),
-        PluginSpec("uvc", "sbrdf_cameras.uvc:UVCCamera",
+        PluginSpec("uvc", "sbrdf_cameras.uvc:UVCCamera", params=declarations.UVC,
                    summary="UVC webcam or capture card through OpenCV VideoCapture (a file stands in for one)"),
-        PluginSpec("gphoto", "sbrdf_cameras.gphoto:GPhotoCamera",
+        PluginSpec("gphoto", "sbrdf_cameras.gphoto:GPhotoCamera", params=declarations.GPHOTO,
                    summary="DSLR or mirrorless camera over USB (PTP) through python-gphoto2"),
     ]
 
@@ -41,6 +43,7 @@ def sbrdf_captures():
         PluginSpec(
             "virtual-folder",
             "sbrdf_cameras.capture:VirtualFolderCapture",
+            params=declarations.VIRTUAL_FOLDER,
             summary="Photograph a camera device (the virtual camera) into an sbrdf-capture/1 folder, then read it as "
                     "folder does: a graph that makes its own simulated scan",
         ),

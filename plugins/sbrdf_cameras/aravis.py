@@ -47,8 +47,9 @@ from typing import Any
 import numpy as np
 
 from sbrdf_core.extras import require
-from sbrdf_core.params import Param
-from sbrdf_lib.camera import COMMON_PARAMS, CameraError, CameraLost, FrameCameraBase, FrameTimeout
+from sbrdf_lib.camera import CameraError, CameraLost, FrameCameraBase, FrameTimeout
+
+from .declarations import ARAVIS
 
 #: Bits per code of the pixel formats the driver reads, and channels in the buffer (0: a Bayer mosaic).
 FORMATS = {"Mono8": (8, 1), "Mono10": (10, 1), "Mono12": (12, 1), "Mono16": (16, 1), "RGB8": (8, 3),
@@ -75,13 +76,7 @@ class AravisCamera(FrameCameraBase):
 
     name = "aravis"
 
-    params = COMMON_PARAMS + (
-        Param("width", "int", None, "region of interest width from the left edge", nullable=True, bounds=(1, 65536),
-              unit="px"),
-        Param("height", "int", None, "region of interest height from the top edge", nullable=True,
-              bounds=(1, 65536), unit="px"),
-        Param("buffers", "int", 4, "stream buffers queued for the camera", bounds=(1, 256)),
-    )
+    params = ARAVIS
 
     def __init__(self, *, serial: str | None = None, pixel_format: str | None = None, gain_db: float = 0.0,
                  black_level: float | None = None, trigger: str = "software", timeout_s: float = 5.0,

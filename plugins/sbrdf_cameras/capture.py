@@ -51,7 +51,8 @@ import numpy as np
 from sbrdf_core.contracts import optional
 from sbrdf_core.errors import ParameterError
 from sbrdf_core.nodes.capture import CaptureDescription
-from sbrdf_core.params import REQUIRED, Param, plugin_reference
+
+from .declarations import VIRTUAL_FOLDER
 
 log = logging.getLogger(__name__)
 
@@ -59,17 +60,6 @@ SOURCE = "virtual-folder"
 ORBIT_KEYS = ("camera_distance_mm", "light_distance_mm", "max_camera_theta_deg", "max_light_theta_deg")
 #: ``folder`` parameters this source sets itself (everything else may be given under ``read``).
 READ_RESERVED = {"path", "allow_incomplete"}
-#: ``camera``: a device and its parameters.
-CAMERA_SCHEMA = plugin_reference("device", "camera")
-#: ``orbit``: :func:`~sbrdf_cameras.virtual.orbit_poses`'s settings.
-ORBIT_SCHEMA = (
-    Param("camera_distance_mm", "float", 350.0, "camera distance from the sample centre", unit="mm"),
-    Param("light_distance_mm", "float", 450.0, "light distance from the sample centre", unit="mm"),
-    Param("max_camera_theta_deg", "float", 50.0, "largest camera elevation from the normal", unit="deg"),
-    Param("max_light_theta_deg", "float", 65.0, "largest light elevation from the normal", unit="deg"),
-)
-
-
 def _jsonable(value: Any) -> Any:
     return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
@@ -77,26 +67,7 @@ def _jsonable(value: Any) -> Any:
 class VirtualFolderCapture:
     """Capture source: render a camera device's photographs into a capture folder, read it back (module docstring)."""
 
-    params = (
-        Param("path", "str", REQUIRED, "capture folder to write (resumed if a run was interrupted, re-rendered if this source "
-              "wrote it with other parameters), relative to the graph file", extra={"path": True}),
-        Param("camera", "dict", {"device": "virtual-camera", "params": {}},
-              "camera device {device, params}: the virtual-camera's parameters (size, focal_px, model, texels, effects, ...)",
-              schema=CAMERA_SCHEMA),
-        Param("poses", "int", 60, "number of poses: camera and light on two Fibonacci spirals over the hemisphere "
-              "(sbrdf_cameras.virtual.orbit_poses)", bounds=(1, 100000)),
-        Param("orbit", "dict", {}, "orbit_poses settings: camera_distance_mm (350), light_distance_mm (450), "
-              "max_camera_theta_deg (50), max_light_theta_deg (65)", schema=ORBIT_SCHEMA),
-        Param("exposures", "list", [1.0], "exposure times in s: one bracket of 1-3 times for every pose, e.g. [0.25, 1.0], "
-              "or one bracket per pose [[...], ...]"),
-        Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera's light_info()",
-              nullable=True),
-        Param("read", "dict", {}, "parameters of the folder plugin that reads the folder back (response, saturation, "
-              "underexposure, colour_matrix, ...)"),
-        Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
-              choices=("png", "tif")),
-        Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
-    )
+    params = VIRTUAL_FOLDER
 
     def __init__(self, *, path: str, camera: dict = {"device": "virtual-camera", "params": {}},  # noqa: B006
                  poses: int = 60, orbit: dict = {}, exposures: list = [1.0], light: dict | None = None,  # noqa: B006

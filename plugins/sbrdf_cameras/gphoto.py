@@ -48,8 +48,9 @@ import numpy as np
 
 from sbrdf_core.errors import ParameterError
 from sbrdf_core.extras import require
-from sbrdf_core.params import Param
-from sbrdf_lib.camera import COMMON_PARAMS, CameraError, CameraLost, ExposureRefused, FrameCameraBase, FrameTimeout
+from sbrdf_lib.camera import CameraError, CameraLost, ExposureRefused, FrameCameraBase, FrameTimeout
+
+from .declarations import GPHOTO
 
 #: libgphoto2 result codes (gphoto2/gphoto2-port-result.h) meaning the camera is gone.
 LOST_CODES = {-7, -52, -53, -105}  # GP_ERROR_IO, _IO_USB_FIND, _IO_USB_CLAIM, GP_ERROR_MODEL_NOT_FOUND
@@ -73,12 +74,7 @@ class GPhotoCamera(FrameCameraBase):
 
     name = "gphoto"
 
-    params = COMMON_PARAMS[:5] + (
-        Param("timeout_s", "float", 30.0, "frame timeout after the exposure", bounds=(1e-3, 3600.0), unit="s"),
-        COMMON_PARAMS[6],
-        Param("iso", "str", None, "ISO setting, one of the camera's choices", nullable=True),
-        Param("keep_on_camera", "bool", False, "leave each file on the card after downloading it"),
-    )
+    params = GPHOTO
 
     def __init__(self, *, serial: str | None = None, pixel_format: str | None = None, gain_db: float = 0.0,
                  black_level: float | None = None, trigger: str = "software", timeout_s: float = 30.0,

@@ -39,8 +39,9 @@ from typing import Any
 import numpy as np
 
 from sbrdf_core.errors import ParameterError
-from sbrdf_core.params import Param
-from sbrdf_lib.camera import COMMON_PARAMS, CameraError, CameraLost, FrameCameraBase, FrameTimeout
+from sbrdf_lib.camera import CameraError, CameraLost, FrameCameraBase, FrameTimeout
+
+from .declarations import UVC
 
 #: V4L2 exposure_time_absolute step, s.
 V4L2_EXPOSURE_UNIT_S = 1e-4
@@ -51,16 +52,7 @@ class UVCCamera(FrameCameraBase):
 
     name = "uvc"
 
-    params = COMMON_PARAMS + (
-        Param("source", "str", "0", "device index, device path, or a video file / image sequence pattern"),
-        Param("exposure_range_s", "list", [1e-4, 1.0], "[shortest, longest] exposure the device accepts", length=2,
-              item="float", unit="s"),
-        Param("width", "int", None, "capture width asked of the device", nullable=True, bounds=(1, 16384), unit="px"),
-        Param("height", "int", None, "capture height asked of the device", nullable=True, bounds=(1, 16384),
-              unit="px"),
-        Param("flush_frames", "int", 2, "frames discarded before the one kept (a free-running camera's queue)",
-              bounds=(0, 100)),
-    )
+    params = UVC
 
     def __init__(self, *, serial: str | None = None, pixel_format: str | None = None, gain_db: float = 0.0,
                  black_level: float | None = None, trigger: str = "software", timeout_s: float = 5.0,

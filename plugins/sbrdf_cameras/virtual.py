@@ -60,25 +60,15 @@ from typing import Any
 import numpy as np
 
 from sbrdf_core.errors import ParameterError
-from sbrdf_core.params import Param
+
+from .declarations import EFFECTS, VIRTUAL
 
 logger = logging.getLogger(__name__)
 
-EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "black_level", "noise", "saturation",
-           "response", "shadowing", "masking")
 #: Effects that need a mesostructure to act on.
 MESOSTRUCTURE_EFFECTS = ("shadowing", "masking")
 WHITE_ALBEDO = 0.80
 BLACK_ALBEDO = 0.04
-
-#: ``mesostructure``'s keys (:class:`sbrdf_lib.mesostructure.Mesostructure`).
-MESOSTRUCTURE_SCHEMA = (
-    Param("height_mm", "any", 0.0, "height field: a number, a .npy path (V, U) or {procedural: bumps|ridges|noise, ...}",
-          unit="mm"),
-    Param("albedo", "any", 0.8, "per-texel albedo: a number, [r, g, b], a .npy path (V, U[, 3]) or {procedural: ...}"),
-    Param("facet", "str", "lambert", "each facet reflects Lambertian, or with the camera's BRDF model",
-          choices=("lambert", "model")),
-)
 
 
 def _rotation(axis_angle: np.ndarray) -> np.ndarray:
@@ -96,52 +86,7 @@ class VirtualCamera:
     simulator adds :meth:`true_pose`, :meth:`sensor_radiance`, :meth:`dark_frame`.
     """
 
-    params = (
-        Param("width", "int", 1024, "image width", bounds=(8, 16384), unit="px"),
-        Param("height", "int", 768, "image height", bounds=(8, 16384), unit="px"),
-        Param("focal_px", "float", 1400.0, "focal length in pixels (fx = fy)", bounds=(1.0, None), unit="px"),
-        Param("principal_point", "list", None, "[cx, cy]; default the image centre", length=2, item="float", nullable=True, unit="px"),
-        Param("dist", "list", [-0.08, 0.02, 0.0, 0.0, 0.0], "OpenCV distortion coefficients [k1, k2, p1, p2, k3]",
-              length=5, item="float"),
-        Param("sample_size_mm", "list", [100.0, 100.0], "sample area [x, y] inside the fiducial border", length=2, item="float",
-              bounds=(1e-3, None), unit="mm"),
-        Param("texels", "list", [256, 256], "texel grid [U, V] of the procedural material", length=2, item="int", bounds=(1, 16384)),
-        Param("model", "str", "lambert", "BRDF model of the procedural material", extra={"plugin_category": "brdf-model"}),
-        Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
-        Param("param_maps", "str", None, "path of a ParamMaps artifact to photograph instead (its model and maps)", nullable=True),
-        Param("carrier_margin_mm", "float", 20.0, "width of the printed border band around the sample", bounds=(1.0, None), unit="mm"),
-        Param("marker_size_mm", "float", 14.0, "ArUco marker side", bounds=(1.0, None), unit="mm"),
-        Param("markers_per_side", "int", 3, "markers per side of the border (4x this in all)", bounds=(1, 64)),
-        Param("dictionary", "str", "DICT_4X4_50", "cv2.aruco predefined dictionary of the markers"),
-        Param("intensity", "float", 250000.0, "point-light radiant intensity I (relative W/sr)", bounds=(0.0, None)),
-        Param("sensitivity", "float", 1.0, "signal per unit radiance and second; signal 1 saturates", bounds=(1e-12, None)),
-        Param("effects", "list", [], f"effects to simulate, any of {list(EFFECTS)}; none are computed unless listed",
-              item="str"),
-        Param("response_curve", "str", "srgb", "response effect: camera curve", choices=("gamma", "srgb", "cubic")),
-        Param("response_gamma", "float", 2.2, "response_curve gamma: g(z) = z^gamma", bounds=(0.1, 10.0)),
-        Param("response_coefficients", "list", [2.0, -0.05, -0.01], "response_curve cubic: log X = a1 y + a2 y² + a3 y³, y = log z",
-              length=3, item="float"),
-        Param("bit_depth", "int", 8, "response effect: bits per channel", choices=(8, 16)),
-        Param("record_response", "bool", True, "write the response table into capture.json (else readers recover it from brackets)"),
-        Param("full_well", "float", 20000.0, "noise effect: electrons at saturation (shot noise)", bounds=(1.0, None)),
-        Param("read_noise", "float", 0.001, "noise effect: read noise σ as a fraction of saturation", bounds=(0.0, None)),
-        Param("dark_current", "float", 0.002, "dark_current effect: mean dark signal per second (fraction of saturation)",
-              bounds=(0.0, None), unit="1/s"),
-        Param("black_level", "float", 0.02, "black_level effect: mean pedestal of every frame (fraction of saturation)",
-              bounds=(0.0, 0.5)),
-        Param("vignetting_power", "float", 4.0, "vignetting effect: factor cos^p of the off-axis angle", bounds=(0.0, 16.0)),
-        Param("motor_rotation_deg", "float", 0.786, "motor_error effect: σ of the sample rotation (PTU-46-70 repeatability)",
-              bounds=(0.0, 45.0), unit="deg"),
-        Param("motor_light_mm", "float", 2.462, "motor_error effect: σ of the light position offset", bounds=(0.0, None), unit="mm"),
-        Param("blur_px", "float", 0.7, "blur effect: Gaussian lens-blur σ", bounds=(0.0, 50.0), unit="px"),
-        Param("seed", "int", 0, "seed of every random effect (per pose and exposure)"),
-        Param("row_chunk", "int", 128, "image rows rendered at once (bounds memory)", bounds=(1, 16384)),
-        Param("carrier_supersample", "int", 4, "rays per pixel side over the printed carrier (pixel-area integration of the "
-              "fiducials; 1 = point sampling)", bounds=(1, 16)),
-        Param("mesostructure", "dict", None, "photograph a height field with per-texel albedo instead of a flat sample: "
-              "{height_mm, albedo, facet} (sbrdf_lib.mesostructure); effects shadowing/masking act on it",
-              nullable=True, schema=MESOSTRUCTURE_SCHEMA),
-    )
+    params = VIRTUAL
 
     def __init__(self, *, width: int = 1024, height: int = 768, focal_px: float = 1400.0,
                  principal_point: Sequence[float] | None = None, dist: Sequence[float] = (-0.08, 0.02, 0.0, 0.0, 0.0),
