@@ -22,7 +22,7 @@ def sbrdf_exporters():
         PluginSpec("materialx", "sbrdf_export.materialx:MaterialXExporter", params=declarations.MATERIALX,
                    summary="MaterialX document (standard_surface with image nodes) of the GGX metallic-roughness "
                            "conversion"),
-        PluginSpec("usd", "sbrdf_export.usd:USDExporter",
+        PluginSpec("usd", "sbrdf_export.usd:USDExporter", params=declarations.USD,
                    summary="USD stage with a UsdShade material (UsdPreviewSurface + UsdUVTexture) bound to a plane, "
                            "from the GGX metallic-roughness conversion"),
         PluginSpec("mitsuba", "sbrdf_export.mitsuba:MitsubaExporter", params=declarations.MITSUBA,

@@ -44,3 +44,13 @@ MITSUBA = (
     FLAG_ERROR,
     MAX_THETA,
 )
+
+USD = (
+    Param("name", "str", "Material", "the material prim's name"),
+    Param("clearcoat", "bool", True, "carry the gloss in UsdPreviewSurface's clearcoat lobe, whose Fresnel can stay "
+          "dim at grazing (false: the specular workflow's one lobe, which brightens to white there)"),
+    STARTS,
+    ITERATIONS,
+    FLAG_ERROR,
+    MAX_THETA,
+)

@@ -36,10 +36,8 @@ import os
 
 import numpy as np
 
-from sbrdf_core.params import Param
-
 from .common import model_config, texel_grid, write_json, write_png
-from .declarations import FLAG_ERROR, ITERATIONS, MAX_THETA, STARTS
+from .declarations import USD
 from .ggx import GGXConverting, with_flags, write_error_files
 
 #: UsdPreviewSurface input <- (texture file, type, colour space, channels).
@@ -60,15 +58,7 @@ class USDExporter(GGXConverting):
     #: Optional modules ``write`` imports: ``sbrdf validate`` reports a missing one with its extra.
     requires = ("pxr",)
 
-    params = (
-        Param("name", "str", "Material", "the material prim's name"),
-        Param("clearcoat", "bool", True, "carry the gloss in UsdPreviewSurface's clearcoat lobe, whose Fresnel can stay "
-              "dim at grazing (false: the specular workflow's one lobe, which brightens to white there)"),
-        STARTS,
-        ITERATIONS,
-        FLAG_ERROR,
-        MAX_THETA,
-    )
+    params = USD
 
     def __init__(self, *, name: str = "Material", clearcoat: bool = True, starts: int = 1, iterations: int = 8,
                  flag_error: float = 0.25, max_theta_deg: float = 70.0):

@@ -10,11 +10,13 @@ glTF/GLB writer and reader (no third-party dependency: PNGs go through
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from .declarations import GLTF
+
 
 @hookimpl
 def sbrdf_exporters():
     return [
-        PluginSpec("gltf", "sbrdf_gltf.exporter:GLTFExporter",
+        PluginSpec("gltf", "sbrdf_gltf.exporter:GLTFExporter", params=GLTF,
                    summary="glTF 2.0 (.gltf + .bin + PNGs, or .glb): a textured quad with metallic-roughness PBR "
                            "(+ KHR_materials_specular) from a per-texel GGX conversion fit, error per texel"),
     ]

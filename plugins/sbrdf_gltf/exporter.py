@@ -59,8 +59,9 @@ import struct
 
 import numpy as np
 
-from sbrdf_core.params import Param
 from sbrdf_lib.convert import DIELECTRIC_F0, GLTF_MAPS, anisotropic_model, ggx_model, to_gltf_pbr_blocks
+
+from .declarations import GLTF
 
 #: Texels whose specular colour or factor differ from the default dielectric by more than this need the extension.
 SPECULAR_TOLERANCE = 0.02
@@ -74,25 +75,7 @@ _LINEAR, _LINEAR_MIPMAP, _CLAMP = 9729, 9987, 33071
 class GLTFExporter:
     """glTF 2.0 metallic-roughness textures of a GGX conversion fit, on a quad the sample's size."""
 
-    params = (
-        Param("format", "str", "gltf", "gltf: .gltf + .bin + PNG files; glb: one binary file with everything embedded",
-              choices=("gltf", "glb")),
-        Param("name", "str", "material", "base name of the files written"),
-        Param("tile", "int", 64, "texels per side of a conversion tile (one dask block)", bounds=(1, None)),
-        Param("starts", "int", 1, "LM starts per texel of the GGX conversion fit (the start is already the best of a "
-              "40-value roughness grid)", bounds=(1, None)),
-        Param("iterations", "int", 8, "LM iterations refining the GGX conversion fit (0: the grid start alone)",
-              bounds=(0, None)),
-        Param("anisotropy", "bool", True, "also fit KHR_materials_anisotropy's lobe to a source that may be anisotropic "
-              "(written only where some texel gains from it)"),
-        Param("flag_error", "float", 0.25, "texels whose conversion error (cosine-weighted relative RMS on held-out "
-              "directions) is above this are flagged (<name>_flagged.png, extras.sbrdf.flagged)", bounds=(0.0, None)),
-        Param("max_theta_deg", "float", 70.0, "largest light or view angle from the normal the conversion fits and "
-              "scores (the directions a viewer meets)", bounds=(10.0, 89.0), unit="deg"),
-        Param("source", "str", "params", "what glTF's GGX is fitted to: 'params' = the material's fitted BRDF over the "
-              "hemisphere (the conversion); 'samples' = each texel's measured reflectance samples (the Export node's "
-              "samples input), fitted with the same LM; isotropic", choices=("params", "samples")),
-    )
+    params = GLTF
 
     def __init__(self, *, format: str = "gltf", name: str = "material", tile: int = 64, starts: int = 1,
                  iterations: int = 8, anisotropy: bool = True, flag_error: float = 0.25,

@@ -8,17 +8,20 @@ the ``velvet`` model (a deep-microgeometry test BRDF), and the ``svd`` and
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from . import declarations
+
 
 @hookimpl
 def sbrdf_parameterizations():
     m = "sbrdf_separable.parameterizations"
     return [
-        PluginSpec("standard", f"{m}:Standard", summary="incident/view: (theta_i, phi_i) x (theta_o, phi_o)"),
-        PluginSpec("elevation-azimuth", f"{m}:ElevationAzimuth",
+        PluginSpec("standard", f"{m}:Standard", params=declarations.PARAMETERIZATION,
+                   summary="incident/view: (theta_i, phi_i) x (theta_o, phi_o)"),
+        PluginSpec("elevation-azimuth", f"{m}:ElevationAzimuth", params=declarations.PARAMETERIZATION,
                    summary="(theta_i, theta_o) x (phi_i, phi_o), angles on the texture, phi periodic"),
-        PluginSpec("rusinkiewicz", f"{m}:Rusinkiewicz",
+        PluginSpec("rusinkiewicz", f"{m}:Rusinkiewicz", params=declarations.PARAMETERIZATION,
                    summary="halfway h x difference d in a frame from the normal (unstable at h = n)"),
-        PluginSpec("gram-schmidt", f"{m}:GramSchmidt",
+        PluginSpec("gram-schmidt", f"{m}:GramSchmidt", params=declarations.PARAMETERIZATION,
                    summary="halfway h x difference d in a frame from the tangent (Eq 4, 6)"),
     ]
 
@@ -26,9 +29,9 @@ def sbrdf_parameterizations():
 @hookimpl
 def sbrdf_brdf_models():
     return [
-        PluginSpec("separable", "sbrdf_separable.model:SeparableModel",
+        PluginSpec("separable", "sbrdf_separable.model:SeparableModel", params=declarations.SEPARABLE,
                    summary="sum of products of 2D factor textures (SVD or normalized decomposition)"),
-        PluginSpec("velvet", "sbrdf_separable.velvet:VelvetModel",
+        PluginSpec("velvet", "sbrdf_separable.velvet:VelvetModel", params=(),
                    summary="Ashikhmin-Premoze distribution-based velvet (inverted-Gaussian fibre slopes)"),
     ]
 
@@ -36,8 +39,8 @@ def sbrdf_brdf_models():
 @hookimpl
 def sbrdf_fitters():
     return [
-        PluginSpec("svd", "sbrdf_separable.fitters:SVDFitter",
+        PluginSpec("svd", "sbrdf_separable.fitters:SVDFitter", params=declarations.SVD,
                    summary="separable BRDF by truncated SVD of the sampled K^2 x K^2 matrix (one material)"),
-        PluginSpec("nd", "sbrdf_separable.fitters:NDFitter",
+        PluginSpec("nd", "sbrdf_separable.fitters:NDFitter", params=declarations.ND,
                    summary="separable BRDF by normalized decomposition, streamed (one material)"),
     ]

@@ -21,34 +21,13 @@ import os
 import numpy as np
 
 from sbrdf_core.nodes.fit import FitResult, rms_error
-from sbrdf_core.params import REQUIRED, Param
 
+from .declarations import ND, SVD
 from .decompose import nd, parameterization, svd
 from .factors import ENCODINGS, check_target, save
-from .parameterizations import MAP_PARAM
 from .sources import ScatteredBRDF
 
 logger = logging.getLogger(__name__)
-
-#: Parameters both decompositions take.
-COMMON = (
-    Param("factors", "str", REQUIRED, "path of the SeparableFactors store to write, inside the graph's store beside "
-          "the artifacts (e.g. <store>/nd.zarr; relative to the graph file); the fitted model reads it from there. "
-          "Only a SeparableFactors store there is ever replaced", extra={"path": True, "output": True}),
-    Param("parameterization", "str", "gram-schmidt", "change of variables (a parameterization plugin)",
-          extra={"plugin_category": "parameterization"}),
-    MAP_PARAM,
-    Param("size", "int", 32, "factor texture size K (K x K texels per factor)", bounds=(2, 1024)),
-    Param("terms", "int", 1, "number of terms N", bounds=(1, 64)),
-    Param("clamp_max", "float", None, "limit the BRDF to [0, clamp_max] before decomposing (the text uses 5)",
-          bounds=(0.0, None), nullable=True, unit="sr^-1"),
-    Param("encoding", "str", "float32", "factor storage: float textures, or 8-bit with per-factor scale/bias "
-          "(signed factors biased, seed 001 §6.1)", choices=("float32", "float16", "unorm8")),
-    Param("neighbours", "int", 4, "samples blended (inverse distance) per factor-grid point", bounds=(1, 64)),
-    Param("impute", "int", 1, "passes that fill grid points below the horizon with the current estimate",
-          bounds=(0, 100)),
-)
-
 
 class SeparableFitter:
     """Shared by ``svd`` and ``nd``; ``method`` picks the decomposition."""
@@ -107,18 +86,11 @@ class SVDFitter(SeparableFitter):
     """Separable BRDF by truncated SVD of the sampled K² × K² matrix (one material)."""
 
     method = "svd"
-    params = COMMON + (
-        Param("solver", "str", "arpack", "ARPACK (the first N singular triples) or a dense LAPACK SVD of the whole matrix",
-              choices=("dense", "arpack")),
-    )
+    params = SVD
 
 
 class NDFitter(SeparableFitter):
     """Separable BRDF by normalized decomposition, streamed (one material)."""
 
     method = "nd"
-    params = COMMON + (
-        Param("p", "float", 2.0, "exponent of the p-norm normalizing each row", bounds=(1e-3, None)),
-        Param("refine", "int", 1, "power-iteration passes per residual term (signs the rows; 0 = the text's ND)",
-              bounds=(0, 100)),
-    )
+    params = ND

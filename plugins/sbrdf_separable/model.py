@@ -32,8 +32,8 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
-from sbrdf_core.params import Param
 
+from .declarations import SEPARABLE
 from .factors import Factors, bilinear, load
 
 INV_PI = 1.0 / np.pi
@@ -46,11 +46,7 @@ class SeparableModel(BRDFModel):
                        doc="RGB multiplier of the material-global factor product"),
     )
 
-    params = (
-        Param("factors", "str", None, "path of the SeparableFactors store (null: one constant term, scale/pi)",
-              nullable=True),
-        Param("terms", "int", None, "use the first N terms only (null: all stored)", bounds=(1, None), nullable=True),
-    )
+    params = SEPARABLE
 
     def __init__(self, *, factors: str | None = None, terms: int | None = None):
         self.factors_url, self.terms = factors, terms

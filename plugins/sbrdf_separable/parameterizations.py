@@ -35,10 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sbrdf_core.params import Param
-
-MAP_PARAM = Param("map", "str", "xy", "how a unit vector becomes texture coordinates: XY hemisphere map or parabolic "
-                  "map (Eq 5)", choices=("xy", "parabolic"))
+from .declarations import PARAMETERIZATION
 
 #: Largest radius of a hemisphere-map point the inverse maps back (texture corners lie outside the disc):
 #: points beyond it are pulled onto this circle, i.e. onto directions just above the horizon.
@@ -93,7 +90,7 @@ class Parameterization:
     #: Per factor (x, y), per texture axis (u, v): periodic?
     wrap = ((False, False), (False, False))
 
-    params = (MAP_PARAM,)
+    params = PARAMETERIZATION
 
     def __init__(self, *, map: str = "xy"):  # noqa: A002 - the declared parameter's name
         if map not in ("xy", "parabolic"):

@@ -14,6 +14,7 @@ rendered with any BRDF model by looking the map up with
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from . import declarations
 from .artifacts import KINDS
 
 
@@ -47,8 +48,9 @@ def sbrdf_node_kinds():
 @hookimpl
 def sbrdf_captures():
     return [
-        PluginSpec("light-arc", "sbrdf_shading.arc:LightArcCapture",
+        PluginSpec("light-arc", "sbrdf_shading.arc:LightArcCapture", params=declarations.LIGHT_ARC,
                    summary="The gonio rig with a fixed orthogonal view and the light on an arc (shading maps)"),
         PluginSpec("mesostructure-arc", "sbrdf_shading.arc:MesostructureArcCapture",
+                   params=declarations.MESOSTRUCTURE_ARC,
                    summary="Texel-aligned simulated light-arc images of a height field with per-texel albedo"),
     ]

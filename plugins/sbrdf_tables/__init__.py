@@ -6,6 +6,8 @@ The MeasuredTable node kind (table file -> 1x1 SampledReflectance), the
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
+from . import declarations
+
 
 @hookimpl
 def sbrdf_node_kinds():
@@ -16,7 +18,7 @@ def sbrdf_node_kinds():
 
 @hookimpl
 def sbrdf_brdf_models():
-    return [PluginSpec("kurt-transmissive", "sbrdf_tables.kurt:KurtTransmissiveModel",
+    return [PluginSpec("kurt-transmissive", "sbrdf_tables.kurt:KurtTransmissiveModel", params=declarations.KURT,
                        summary="Kurt et al. anisotropic Beckmann lobes, Schlick F, alpha term, + thin-slab "
                                "transmission lobes (Muehlbacher)")]
 
@@ -24,5 +26,6 @@ def sbrdf_brdf_models():
 @hookimpl
 def sbrdf_fitters():
     return [PluginSpec("grid-search", "sbrdf_tables.grid_search:GridSearchFitter",
+                       params=declarations.GRID_SEARCH,
                        summary="Muehlbacher's hierarchical grid search under the weighted L1 metric (Eq 3.7), "
                                "k_d from a histogram, alternating lobes; optional LM refinement")]

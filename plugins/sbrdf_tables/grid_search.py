@@ -35,8 +35,8 @@ import numpy as np
 
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult, rms_error
 from sbrdf_core.nodes.fit import usable as usable_samples
-from sbrdf_core.params import Param
 
+from .declarations import GRID_SEARCH
 from .kurt import beckmann, lobe, lobe_geometry
 
 logger = logging.getLogger(__name__)
@@ -294,22 +294,7 @@ class GridSearchFitter:
     model_name: str
     model_config: dict
 
-    params = (
-        Param("model", "str", "kurt-transmissive", "BRDF model (the grid search fits kurt-transmissive lobes)",
-              choices=["kurt-transmissive"], extra={"plugin_category": "brdf-model"}),
-        Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
-        Param("n", "int", 9, "values per parameter and level (n^P candidates per level)", bounds=(2, 64)),
-        Param("iterations", "int", 4, "grid levels: the first over the search box, each further one ± one step "
-              "around the best", bounds=(1, 50)),
-        Param("alternations", "int", 2, "passes over the lobes of one hemisphere when there are several",
-              bounds=(1, 20)),
-        Param("search", "dict", {}, "search box per model parameter, e.g. {m_x_1: [0.01, 0.3]}"),
-        Param("fixed", "dict", {}, "model parameters held at a value, e.g. {alpha_1: 0.5, k_d: 0.003}"),
-        Param("histogram_bins", "int", 64, "bins of the k_d histogram (linear over [0, 2 x median])",
-              bounds=(4, 10000)),
-        Param("lm_refine", "bool", False, "refine the grid result by Levenberg-Marquardt (same weights, squared)"),
-        Param("lm_iterations", "int", 100, "LM iterations at most", bounds=(1, 10000)),
-    )
+    params = GRID_SEARCH
 
     # The dict defaults equal the declaration (the registry checks); they are copied, never changed.
     def __init__(self, *, model: str = "kurt-transmissive", model_params: dict = {}, n: int = 9,  # noqa: B006

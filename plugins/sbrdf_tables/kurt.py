@@ -36,7 +36,8 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter
-from sbrdf_core.params import Param
+
+from .declarations import KURT
 
 #: Floor on cosines and on ω_o·h: keeps 1/(ω_o·h) and (cos θ_i cos θ_o)^-α finite at the horizon.
 COS_FLOOR = 1e-6
@@ -98,10 +99,7 @@ def lobe(g, m_x, m_y, r_0, alpha, transmission: bool):
 class KurtTransmissiveModel(BRDFModel):
     name = "kurt-transmissive"
 
-    params = (
-        Param("lobes", "int", 1, "reflection lobes", bounds=(0, 16)),
-        Param("transmission_lobes", "int", 0, "transmission lobes (thin slab, ω_t = −ω_i)", bounds=(0, 16)),
-    )
+    params = KURT
 
     def __init__(self, *, lobes: int = 1, transmission_lobes: int = 0):
         if lobes < 0 or transmission_lobes < 0:

@@ -85,6 +85,9 @@ def test_every_installed_plugin_meets_its_contract(category, name):
     impl = REGISTRY.load(spec)
     problems = signature_problems(impl, spec.params)
     assert problems == [], problems
+    on_class = getattr(impl, "params", None)
+    if on_class is not None and not callable(on_class):  # a spec that carries its parameters names the class's tuple
+        assert tuple(on_class) == tuple(spec.params or ()), f"{spec.impl}.params differs from its spec's params"
 
 
 SCENE = str(Path(__file__).resolve().parents[2] / "scenes" / "demo.yaml")
