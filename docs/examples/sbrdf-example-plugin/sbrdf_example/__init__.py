@@ -3,15 +3,18 @@
 sbrdf imports this module (the ``sbrdf`` entry point in ``pyproject.toml``)
 when its registry loads, and calls each hook below once.  The hooks return
 :class:`~sbrdf_core.plugin.PluginSpec` s: a registry name, the import path of
-the implementation (imported only when a graph uses it) and a summary.  The
-parameters are declared on each implementation class, right above its
-``__init__`` (``Turntable.params``, ``AmbientEffect.params``); the registry reads them the first time a
-graph or ``sbrdf plugins`` asks, so the graph validator, ``sbrdf plugins`` and
-the graph reference (docs/reference/graph.md) all read that one declaration.
+the implementation (imported only when a graph uses it), its parameters and a
+summary.  The parameters are declared once, in :mod:`.declarations`, which
+imports only ``sbrdf_core.params``; the specs carry them and the classes take
+the same tuples (``Turntable.params = TURNTABLE``), so the graph validator,
+``sbrdf plugins`` and the graph reference (docs/reference/graph.md) all read
+that one declaration without importing the driver, the effect or pyserial.
 The package imports only ``sbrdf_core`` and ``sbrdf_lib``, sbrdf's public layers.
 """
 
 from sbrdf_core.plugin import PluginSpec, hookimpl
+
+from . import declarations
 
 __version__ = "0.2.0"
 
@@ -19,7 +22,7 @@ __version__ = "0.2.0"
 @hookimpl
 def sbrdf_brdf_models():
     return [
-        PluginSpec("minnaert", "sbrdf_example.minnaert:MinnaertModel",
+        PluginSpec("minnaert", "sbrdf_example.minnaert:MinnaertModel", params=(),
                    summary="Minnaert's limb-darkening diffuse model, f_r = rho_d (cos θi cos θo)^(k-1)"),
     ]
 
@@ -27,7 +30,7 @@ def sbrdf_brdf_models():
 @hookimpl
 def sbrdf_devices():
     return [
-        PluginSpec("turntable", "sbrdf_example.turntable:Turntable",
+        PluginSpec("turntable", "sbrdf_example.turntable:Turntable", params=declarations.TURNTABLE,
                    summary="Rotary stage over serial, three-command ASCII protocol (G, Q, S); pty simulator included"),
     ]
 
@@ -35,6 +38,6 @@ def sbrdf_devices():
 @hookimpl
 def sbrdf_scene_effects():
     return [
-        PluginSpec("ambient", "sbrdf_example.ambient:AmbientEffect",
+        PluginSpec("ambient", "sbrdf_example.ambient:AmbientEffect", params=declarations.AMBIENT,
                    summary="Uniform sky fill light, L += pi A f_r(n, wo); scenes ask with effects: {ambient: {...}}"),
     ]

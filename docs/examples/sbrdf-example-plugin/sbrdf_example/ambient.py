@@ -18,8 +18,9 @@ import math
 
 import numpy as np
 
-from sbrdf_core.params import Param
 from sbrdf_lib.surface import local_frame
+
+from .declarations import AMBIENT
 
 NAME = "ambient"
 
@@ -29,10 +30,7 @@ class AmbientEffect:
 
     name = NAME
 
-    params = (
-        Param("radiance", "list", [0.1, 0.1, 0.1], "sky radiance (RGB) arriving from every direction above the surface",
-              length=3, item="float", bounds=(0.0, None)),
-    )
+    params = AMBIENT
 
     def __init__(self, *, radiance=[0.1, 0.1, 0.1]):  # noqa: B006 (read only)
         self.radiance = np.asarray(radiance, dtype=np.float64)

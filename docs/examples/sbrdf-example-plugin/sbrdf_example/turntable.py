@@ -32,8 +32,9 @@ import re
 import time
 from collections.abc import Sequence
 
-from sbrdf_core.params import REQUIRED, Param
 from sbrdf_lib.serial import DeviceRefused, GarbledReply, MotorController, ReplyTimeout, SerialLink
+
+from .declarations import TURNTABLE
 
 __all__ = ["Turntable"]
 
@@ -53,18 +54,7 @@ class Turntable(MotorController):
     #: The simulator the ``gonio`` capture source starts for ``port: sim``.
     simulator = "sbrdf_example.turntable_sim:SimulatedTurntable"
 
-    params = (
-        Param("port", "str", REQUIRED, "serial device path (/dev/ttyUSB0, a simulator's pty); `sim` in a gonio graph"),
-        Param("baudrate", "int", 19200, "line speed", choices=(9600, 19200, 38400, 115200)),
-        Param("timeout_s", "float", 1.0, "how long to wait for a complete reply", bounds=(0.001, 60.0), unit="s"),
-        Param("retries", "int", 3, "extra attempts after a dropped/garbled reply or a missed position", bounds=(0, 20)),
-        Param("tolerance_deg", "float", 0.01, "largest accepted difference between target and read-back angle",
-              bounds=(0.0, 10.0), unit="deg"),
-        Param("limits_deg", "list", [-180.0, 180.0], "soft limits [low, high]; moves outside are refused unsent",
-              length=2, item="float", bounds=(-720.0, 720.0), unit="deg"),
-        Param("move_timeout_s", "float", 60.0, "longest a single move may take", bounds=(0.01, 3600.0), unit="s"),
-        Param("poll_s", "float", 0.005, "status polling interval while the stage moves", bounds=(0.0, 1.0), unit="s"),
-    )
+    params = TURNTABLE
 
     def __init__(self, *, port: str, baudrate: int = 19200, timeout_s: float = 1.0, retries: int = 3,
                  tolerance_deg: float = 0.01, limits_deg: Sequence[float] = (-180.0, 180.0),
