@@ -36,7 +36,6 @@ import numpy as np
 from ..artifacts import ParamMaps, SampledReflectance
 from ..brdf import evaluate
 from ..channels import all_finite
-from ..coherence import APPEARANCE_PAIRS, cohere, pyramid
 from ..constraints import (
     REASONS,
     Limits,
@@ -321,6 +320,8 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
         flags[sparse[helped]] |= BORROWED
     from_neighbour = np.zeros(T, bool)
     if options.coherence != "none" and T > 1:
+        from ..coherence import APPEARANCE_PAIRS, cohere, pyramid  # the kernel's work, not the node's listing
+
         def refit(rows, initial, prior):
             # the prior's samples (the neighbourhood's median appearance) ride along where given
             pw, po = (np.broadcast_to(w, (rows.size,) + w.shape[1:]) for w in APPEARANCE_PAIRS)
