@@ -253,14 +253,14 @@ class BRDFModelTests(PluginTests):
             fbo.release()
             ctx.release()
 
-    def _compute_models(self, member: str):
-        """The models providing the optional GLSL ``member`` and an EGL context with compute shaders (GL 4.3), or
-        a skip saying which is missing."""
+    def _compute_models(self, member: str, has=None):
+        """The models providing the optional GLSL ``member`` (``has(model)`` where given) and an EGL context with
+        compute shaders (GL 4.3), or a skip saying which is missing."""
         import pytest
 
         from .contracts import optional
 
-        models = [m for m in self.models() if optional(m, member, "brdf-model") is not None]
+        models = [m for m in self.models() if (has(m) if has else optional(m, member, "brdf-model") is not None)]
         if not models:
             pytest.skip(f"the model has no {member} (optional)")
         moderngl = pytest.importorskip("moderngl")
@@ -270,13 +270,14 @@ class BRDFModelTests(PluginTests):
             pytest.skip(f"no EGL context with compute shaders: {e}")
 
     def test_glsl_fit_gradient_matches_numpy(self):
-        """The optional ``glsl_fit_gradient`` (value and ∂f/∂x in the fit form) against the fit form's ``eval`` and
-        ``jacobian``, in a compute shader (float32: 0.5 % of each value and 0.1 % of the column's largest, as log of a
+        """The GLSL translated from the fit form's ``fit_kernel`` (:mod:`sbrdf_core.engine_glsl`: value and ∂f/∂x in
+        the fit form, what ``lm-gl`` runs) against the fit form's ``eval`` and ``jacobian``, in a compute shader (float32: 0.5 % of each value and 0.1 % of the column's largest, as log of a
         near-1 dot product loses digits): random parameters, random directions with a few below the horizon, and
         for shape parameters that are exponents, sharp lobes (n up to 10⁴) probed near their peak."""
         from .brdf_checks import hemisphere_directions
+        from .engine_glsl import fit_gradient_glsl
 
-        models, ctx = self._compute_models("glsl_fit_gradient")
+        models, ctx = self._compute_models("fit_kernel", lambda m: fit_gradient_glsl(m) is not None)
 
         try:
             for model in models:
@@ -435,14 +436,16 @@ def glsl_eval(ctx, model, params: dict, wi: np.ndarray, wo: np.ndarray) -> np.nd
 
 
 def glsl_fit_gradient_eval(ctx, model, x: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``model.glsl_fit_gradient()`` on ``(S, 3)`` pairs at packed fit-form ``x`` ``(K,)`` in a GL 4.3 compute shader:
-    ``f (S, 3)`` and ``J (S, 3, K)``."""
+    """The ``brdf_fit_gradient`` translated from ``model``'s fit kernel (:func:`~sbrdf_core.engine_glsl.fit_gradient_glsl`)
+    on ``(S, 3)`` pairs at packed fit-form ``x`` ``(K,)`` in a GL 4.3 compute shader: ``f (S, 3)`` and ``J (S, 3, K)``."""
+    from .engine_glsl import fit_gradient_glsl
+
     K, S = x.shape[0], wi.shape[0]
     cs = ctx.compute_shader(
         "#version 430\nlayout(local_size_x = 64) in;\n"
         "layout(std430, binding = 0) readonly buffer Dirs { float dirs[]; };\n"
         "layout(std430, binding = 1) writeonly buffer Out { float outv[]; };\n"
-        f"uniform float u_x[{K}];\nuniform int u_count;\n{model.glsl_fit_gradient()}\n"
+        f"uniform float u_x[{K}];\nuniform int u_count;\n{fit_gradient_glsl(model)}\n"
         "void main() {\n"
         "    int s = int(gl_GlobalInvocationID.x);\n"
         "    if (s >= u_count) return;\n"
