@@ -329,8 +329,10 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
         "fit_kernel": OptionalMember("`fit_kernel(x, cfg, wi, wo, f, J)` (a module-level function, on the fit form): "
                                      "f_r (nc,) and ∂f_r/∂x (nc, K) at one direction pair, in plain Python on "
                                      "scalars and `math`; the fitting engine (`sbrdf_core.engine`) compiles it into "
-                                     "its Levenberg–Marquardt loop. Without it: the NumPy path (`eval`, `jacobian`), "
-                                     "far slower.", None),
+                                     "its Levenberg–Marquardt loop, and `sbrdf_core.engine_glsl` translates it into "
+                                     "the GLSL `brdf_fit_gradient` the GPU fitter `lm-gl` runs (so it must keep to "
+                                     "the Python subset listed there). Without it: the NumPy path (`eval`, "
+                                     "`jacobian`), far slower, and `lm-gl` refuses the model, naming it.", None),
         "kernel_config": OptionalMember("`kernel_config() -> (n,) float64`: the options `fit_kernel` reads (flags, "
                                         "choices as numbers).", None),
         "nested": OptionalMember("`nested() -> (smaller model, embed) or None` (on the fit form): a model this one "
@@ -355,11 +357,6 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                            "fit-form rows `(T, K)`, compiled; `lm` projects every trial point with "
                                            "it. Without it: `constrain` on the unpacked parameters (NumPy passes "
                                            "over every row at every trial, a visible share of a Fit tile).", None),
-        "glsl_fit_gradient": OptionalMember("`glsl_fit_gradient() -> str`: GLSL (4.3) defining `vec3 brdf_fit_gradient(vec3 "
-                                            "wi, vec3 wo, float x[K], out vec3 grad[K])`, the value and ∂f/∂x at the "
-                                            "packed fit-form parameters x (K = `fit_form().size`), for the GPU fitter "
-                                            "`lm-gl`; without it `lm-gl` refuses the model, naming it (use `lm`).",
-                                            None),
         "glsl_fit_constrain": OptionalMember("`glsl_fit_constrain() -> str`: GLSL (4.3) defining `void brdf_fit_constrain("
                                              "inout float x[K], float peak, float resolution, float peak_cosine, float "
                                              "growth, float max_theta)`, the fit form's `constrain` onto the texel's "

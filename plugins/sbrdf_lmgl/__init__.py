@@ -2,8 +2,8 @@
 
 It runs wherever moderngl reaches an EGL driver with compute shaders (NVIDIA
 drivers, Mesa llvmpipe in CI), with nothing larger to install than the
-renderer already needs.  The model supplies its value and gradient in GLSL
-(the optional ``glsl_fit_gradient`` member); see :mod:`.fitter`.  Its
+renderer already needs.  The model's value and gradient in GLSL are its
+``fit_kernel`` translated (:mod:`sbrdf_core.engine_glsl`); see :mod:`.fitter`.  Its
 parameters are declared in :mod:`.declarations`, which imports neither
 moderngl nor the solver.
 """

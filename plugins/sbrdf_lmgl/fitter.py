@@ -34,6 +34,7 @@ import numpy as np
 
 from sbrdf_core.constraints_glsl import pack_limits, scalars
 from sbrdf_core.contracts import optional
+from sbrdf_core.engine_glsl import fit_gradient_glsl
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.fit import NOT_CONVERGED, FitResult
 from sbrdf_core.nodes.fit import usable as usable_samples
@@ -62,12 +63,13 @@ EXACT32 = 1e-12
 
 
 def gradient_glsl(model) -> str:
-    """The model's ``glsl_fit_gradient()``, or an error naming the model."""
-    member = optional(model, "glsl_fit_gradient", "brdf-model")
-    if member is None:
+    """``brdf_fit_gradient`` translated from the model's fit kernel (:mod:`sbrdf_core.engine_glsl`), or an error
+    naming the model."""
+    glsl = fit_gradient_glsl(model)
+    if glsl is None:
         raise SbrdfError(f"lm-gl: model {getattr(model, 'name', type(model).__name__)!r} has no GLSL fit gradient "
-                         "(the optional glsl_fit_gradient member); fit it with the lm fitter")
-    return member()
+                         "(it is translated from a fit_kernel, which the model lacks); fit it with the lm fitter")
+    return glsl
 
 
 class GLLevenbergMarquardtFitter:

@@ -71,7 +71,7 @@ def chunk(samples: int, K: int, constrained: bool) -> int:
 
 
 def source(gradient_glsl: str, K: int, constrain_glsl: str | None = None) -> str:
-    """The compute shader for a model whose ``glsl_fit_gradient()`` is ``gradient_glsl``, ``K`` fit parameters;
+    """The compute shader for a model whose ``brdf_fit_gradient`` is ``gradient_glsl``, ``K`` fit parameters;
     ``constrain_glsl``, the model's ``glsl_fit_constrain()``, projects trial points where ``u_constrain`` is set."""
     NA = K * (K + 1) // 2
     stride, work = state_stride(K), work_stride(K)

@@ -239,62 +239,6 @@ class CookTorranceModel(BRDFModel):
             "}\n"
         )
 
-    def glsl_fit_gradient(self) -> str:
-        """``vec3 brdf_fit_gradient(wi, wo, float x[7], out vec3 grad[7])``: f and ∂f/∂x in the fit form
-        (ρ_d, F0, log α), for the ``lm-gl`` fitter; D and Smith Λ carry their α derivatives."""
-        if self.distribution == "beckmann":
-            d = ("    float tan2h = (1.0 - c2h) / c2h;\n"
-                 "    float D = exp(-tan2h / a2) / (3.14159265359 * a2 * c2h * c2h);\n"
-                 "    float dD = D * (2.0 * tan2h / (a2 * alpha) - 2.0 / alpha);\n")
-            lam = ("float fitgrad_lambda(float c, float alpha, out float dl) {\n"
-                   "    float t = sqrt(max(1.0 - c * c, 0.0)) / c;\n"
-                   "    float a = 1.0 / (alpha * max(t, 1e-15));\n"
-                   "    dl = 0.0;\n"
-                   "    if (a > 9.0) return 0.0;\n"
-                   "    float u = 1.0 / (1.0 + 0.3275911 * a);\n"
-                   "    float p = u * (0.254829592 + u * (-0.284496736 + u * (1.421413741 + u * (-1.453152027 + u * 1.061405429))));\n"
-                   "    float e = exp(-a * a);\n"
-                   "    dl = 0.5 * e / (a * 1.7724538509) / alpha;\n"
-                   "    return 0.5 * e * (1.0 / (a * 1.7724538509) - p);\n"
-                   "}\n")
-        else:
-            d = ("    float kk = c2h * a2 + (1.0 - c2h);\n"
-                 "    float D = a2 / (3.14159265359 * kk * kk);\n"
-                 "    float dD = D * (2.0 / alpha - 4.0 * c2h * alpha / kk);\n")
-            lam = ("float fitgrad_lambda(float c, float alpha, out float dl) {\n"
-                   "    float tan2 = max(1.0 - c * c, 0.0) / (c * c);\n"
-                   "    float x = alpha * alpha * tan2, root = sqrt(1.0 + x);\n"
-                   "    dl = 0.5 * alpha * tan2 / root;\n"
-                   "    return 0.5 * x / (1.0 + root);\n"
-                   "}\n")
-        return (
-            lam
-            + "vec3 brdf_fit_gradient(vec3 wi, vec3 wo, float x[7], out vec3 grad[7]) {\n"
-            "    for (int k = 0; k < 7; ++k) grad[k] = vec3(0.0);\n"
-            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);\n"
-            "    vec3 rho_d = vec3(x[0], x[1], x[2]), f0 = vec3(x[3], x[4], x[5]);\n"
-            "    float alpha = exp(x[6]);\n"
-            "    float ci = max(wi.z, 1e-6), co = max(wo.z, 1e-6), a2 = alpha * alpha;\n"
-            "    vec3 h = wi + wo;\n"
-            "    float hh = max(dot(h, h), 1e-30);\n"
-            "    float c2h = clamp(max(h.z, 0.0) * max(h.z, 0.0) / hh, 1e-12, 1.0);\n"
-            "    float cd = clamp(dot(wi, h) * inversesqrt(hh), 0.0, 1.0);\n"
-            + d +
-            "    float dli, dlo;\n"
-            "    float li = fitgrad_lambda(ci, alpha, dli), lo = fitgrad_lambda(co, alpha, dlo);\n"
-            "    float G = 1.0 / (1.0 + li + lo);\n"
-            "    float dG = -G * G * (dli + dlo);\n"
-            "    float spec = D * G / (4.0 * ci * co), dspec = (dD * G + D * dG) / (4.0 * ci * co);\n"
-            "    float schlick = pow(1.0 - cd, 5.0);\n"
-            "    vec3 F = f0 + (1.0 - f0) * schlick;\n"
-            "    float sf = spec * (1.0 - schlick);\n"
-            "    grad[0] = vec3(1.0, 0.0, 0.0); grad[1] = vec3(0.0, 1.0, 0.0); grad[2] = vec3(0.0, 0.0, 1.0);\n"
-            "    grad[3] = vec3(sf, 0.0, 0.0); grad[4] = vec3(0.0, sf, 0.0); grad[5] = vec3(0.0, 0.0, sf);\n"
-            "    grad[6] = F * (dspec * alpha);\n"
-            "    return rho_d + F * spec;\n"
-            "}\n"
-        )
-
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("alpha",))
 

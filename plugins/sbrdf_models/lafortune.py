@@ -240,54 +240,6 @@ class LafortuneModel(BRDFModel):
         beta = args["beta"] if self.has_beta else "0.0"
         return f"brdf_lafortune({wi}, {wo}, {args['rho_d']}, {rho_s}, {c}, {n}, {beta})"
 
-    def glsl_fit_gradient(self) -> str:
-        """``vec3 brdf_fit_gradient(wi, wo, float x[K], out vec3 grad[K])``: f and ∂f/∂x in the fit form
-        (C_z = 1, log n; ``x`` packed as :meth:`pack` of :meth:`fit_form`), for the ``lm-gl`` fitter."""
-        if self.channels != 3:
-            raise ValueError("lafortune: the GLSL fit gradient is for RGB lobes, not a single-channel model")
-        form = self.fit_form()
-        K, sl = form.size, form.slices()
-        lines = [f"vec3 brdf_fit_gradient(vec3 wi, vec3 wo, float x[{K}], out vec3 grad[{K}]) {{",
-                 f"    for (int k = 0; k < {K}; ++k) grad[k] = vec3(0.0);",
-                 "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);",
-                 "    float ix = wi.x, iy = wi.y, ox = wo.x, oy = wo.y;"]
-        if self.has_beta:
-            b = sl["beta"].start
-            lines += [f"    float cb = cos(x[{b}]), sb = sin(x[{b}]);",
-                      "    ix = cb * wi.x + sb * wi.y; iy = -sb * wi.x + cb * wi.y;",
-                      "    ox = cb * wo.x + sb * wo.y; oy = -sb * wo.x + cb * wo.y;"]
-        lines += ["    float pxx = ix * ox, pyy = iy * oy, pzz = wi.z * wo.z, q = iy * ox + ix * oy;",
-                  "    vec3 f = vec3(x[0], x[1], x[2]);",
-                  "    grad[0] = vec3(1.0, 0.0, 0.0); grad[1] = vec3(0.0, 1.0, 0.0); grad[2] = vec3(0.0, 0.0, 1.0);",
-                  "    vec3 dbeta = vec3(0.0);"]
-        for j in range(1, self.lobes + 1):
-            r = sl[f"rho_s_{j}"].start
-            cx = sl[f"c_x_{j}" if self.anisotropic else f"c_xy_{j}"].start
-            cy = sl[f"c_y_{j}"].start if self.anisotropic else cx
-            ln = sl[f"log_exponent_{j}"].start
-            shape = (f"        grad[{cx}] = rho * (ds * pxx); grad[{cy}] = rho * (ds * pyy);" if self.anisotropic
-                     else f"        grad[{cx}] = rho * (ds * (pxx + pyy));")
-            lines += ["    {",
-                      f"        vec3 rho = vec3(x[{r}], x[{r + 1}], x[{r + 2}]);",
-                      f"        float cx = x[{cx}], cy = x[{cy}], n = exp(x[{ln}]);",
-                      "        float d = cx * pxx + cy * pyy + pzz;",
-                      "        if (d > 0.0) {",
-                      "            float ld = log(d);",
-                      "            float s = exp(clamp(n * ld, -87.0, 60.0));",
-                      "            float ds = n * exp(clamp((n - 1.0) * ld, -87.0, 60.0));",
-                      "            f += rho * s;",
-                      f"            grad[{r}] = vec3(s, 0.0, 0.0); grad[{r + 1}] = vec3(0.0, s, 0.0); "
-                      f"grad[{r + 2}] = vec3(0.0, 0.0, s);",
-                      "    " + shape,
-                      f"            grad[{ln}] = rho * (s * ld * n);",
-                      "            dbeta += rho * (ds * (cx - cy) * q);",
-                      "        }",
-                      "    }"]
-        if self.has_beta:
-            lines.append(f"    grad[{sl['beta'].start}] = dbeta;")
-        lines += ["    return f;", "}", ""]
-        return "\n".join(lines)
-
     def glsl_fit_constrain(self) -> str:
         """``brdf_fit_constrain``: the fit form's :meth:`~LafortuneFitForm.constrain` in GLSL (the bounds,
         ρ_d ≤ peak, then :func:`bound_lobes` per lobe: n ≤ the resolvable exponent, ρ_s within the budget, |C|

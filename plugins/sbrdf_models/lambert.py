@@ -68,16 +68,6 @@ class LambertModel(BRDFModel):
         return "\n".join(["void brdf_fit_constrain(inout float x[3], float peak, float resolution, float peak_cosine, "
                           "float growth, float max_theta) {"] + clip_lines(self.fit_form()) + ["}", ""])
 
-    def glsl_fit_gradient(self) -> str:
-        """``vec3 brdf_fit_gradient(wi, wo, float x[3], out vec3 grad[3])``: ρ_d and its identity gradient."""
-        return ("vec3 brdf_fit_gradient(vec3 wi, vec3 wo, float x[3], out vec3 grad[3]) {\n"
-                "    bool up = wi.z > 0.0 && wo.z > 0.0;\n"
-                "    grad[0] = up ? vec3(1.0, 0.0, 0.0) : vec3(0.0); grad[1] = up ? vec3(0.0, 1.0, 0.0) : vec3(0.0);\n"
-                "    grad[2] = up ? vec3(0.0, 0.0, 1.0) : vec3(0.0);\n"
-                "    return up ? vec3(x[0], x[1], x[2]) : vec3(0.0);\n"
-                "}\n")
-
-
 @hookimpl
 def sbrdf_brdf_models():
     return [PluginSpec("lambert", "sbrdf_models.lambert:LambertModel",

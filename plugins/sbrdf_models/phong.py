@@ -111,26 +111,6 @@ class PhongModel(BRDFModel):
             "}\n"
         )
 
-    def glsl_fit_gradient(self) -> str:
-        """``vec3 brdf_fit_gradient(wi, wo, float x[7], out vec3 grad[7])``: f and ∂f/∂x in the fit form
-        (ρ_d, ρ_s, log n), for the ``lm-gl`` fitter."""
-        return (
-            "vec3 brdf_fit_gradient(vec3 wi, vec3 wo, float x[7], out vec3 grad[7]) {\n"
-            "    for (int k = 0; k < 7; ++k) grad[k] = vec3(0.0);\n"
-            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);\n"
-            "    vec3 rho_d = vec3(x[0], x[1], x[2]), rho_s = vec3(x[3], x[4], x[5]);\n"
-            "    float n = exp(x[6]);\n"
-            "    float c = dot(vec3(-wi.xy, wi.z), wo);\n"
-            "    float p = 0.0, lc = 0.0;\n"
-            "    if (c > 0.0) { lc = log(c); p = exp(clamp(n * lc, -87.0, 60.0)); }\n"
-            "    float lobe = (n + 2.0) * 0.15915494309 * p;\n"
-            "    grad[0] = vec3(1.0, 0.0, 0.0); grad[1] = vec3(0.0, 1.0, 0.0); grad[2] = vec3(0.0, 0.0, 1.0);\n"
-            "    grad[3] = vec3(lobe, 0.0, 0.0); grad[4] = vec3(0.0, lobe, 0.0); grad[5] = vec3(0.0, 0.0, lobe);\n"
-            "    grad[6] = rho_s * (n * (p * 0.15915494309 + lobe * lc));\n"
-            "    return rho_d + rho_s * lobe;\n"
-            "}\n"
-        )
-
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("exponent",))
 

@@ -166,36 +166,6 @@ class WardModel(BRDFModel):
             "}\n"
         )
 
-    def glsl_fit_gradient(self) -> str:
-        """``vec3 brdf_fit_gradient(wi, wo, float x[K], out vec3 grad[K])``: f and ∂f/∂x in the fit form
-        (ρ_d, ρ_s, log α), for the ``lm-gl`` fitter.  ∂/∂log α_x = (2 e_x − 1) times the lobe."""
-        K = 8 if self.anisotropic else 7
-        slopes = ("    float ax = exp(x[6]), ay = exp(x[7]);\n" if self.anisotropic
-                  else "    float ax = exp(x[6]), ay = ax;\n")
-        if self.normalization == "ward":
-            k = "1.0 / (12.566370614 * sqrt(max(wi.z, 1e-6) * max(wo.z, 1e-6)))"
-        else:
-            k = "dot(h, h) / (3.14159265359 * hz2 * hz2)"
-        shape = ("    grad[6] = rho_s * (lobe * (2.0 * ex - 1.0));\n    grad[7] = rho_s * (lobe * (2.0 * ey - 1.0));\n"
-                 if self.anisotropic else "    grad[6] = rho_s * (lobe * (2.0 * (ex + ey) - 2.0));\n")
-        return (
-            f"vec3 brdf_fit_gradient(vec3 wi, vec3 wo, float x[{K}], out vec3 grad[{K}]) {{\n"
-            f"    for (int k = 0; k < {K}; ++k) grad[k] = vec3(0.0);\n"
-            "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);\n"
-            + slopes +
-            "    vec3 rho_d = vec3(x[0], x[1], x[2]), rho_s = vec3(x[3], x[4], x[5]);\n"
-            "    vec3 h = wi + wo;\n"
-            "    float hz2 = max(h.z, 1e-6) * max(h.z, 1e-6);\n"
-            "    float ex = (h.x / ax) * (h.x / ax) / hz2, ey = (h.y / ay) * (h.y / ay) / hz2;\n"
-            f"    float k = {k};\n"
-            "    float lobe = k * exp(-(ex + ey)) / (ax * ay);\n"
-            "    grad[0] = vec3(1.0, 0.0, 0.0); grad[1] = vec3(0.0, 1.0, 0.0); grad[2] = vec3(0.0, 0.0, 1.0);\n"
-            "    grad[3] = vec3(lobe, 0.0, 0.0); grad[4] = vec3(0.0, lobe, 0.0); grad[5] = vec3(0.0, 0.0, lobe);\n"
-            + shape +
-            "    return rho_d + rho_s * lobe;\n"
-            "}\n"
-        )
-
     def fit_form(self) -> LogFitForm:
         return LogFitForm(self, ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",))
 

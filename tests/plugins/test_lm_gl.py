@@ -238,7 +238,7 @@ def test_robust_loss_and_fixed_parameters():
 
 
 class Flat(BRDFModel):
-    """A model without ``glsl_fit_gradient``."""
+    """A model without a ``fit_kernel``, so without a GLSL fit gradient."""
 
     name = "flat"
     parameters = (ModelParameter("rho_d", 3, (0.0, 1.0), (0.1, 0.2), 0.1, magnitude=True),)
