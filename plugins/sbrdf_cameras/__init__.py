@@ -30,6 +30,9 @@ def sbrdf_devices():
                    summary="Basler camera through pypylon (PYLON_CAMEMU=N emulates N cameras)"),
         PluginSpec("aravis", "sbrdf_cameras.aravis:AravisCamera", params=declarations.ARAVIS,
                    summary="GigE Vision / USB3 Vision camera through Aravis (arv-fake-gv-camera-0.8 simulates one)"),
+        PluginSpec("genicam", "sbrdf_cameras.genicam:GenICamCamera", params=declarations.GENICAM,
+                   summary="GenICam camera through its vendor's GenTL producer (.cti) and harvesters (viky.cti "
+                           "simulates three)"),
         PluginSpec("uvc", "sbrdf_cameras.uvc:UVCCamera", params=declarations.UVC,
                    summary="UVC webcam or capture card through OpenCV VideoCapture (a file stands in for one)"),
         PluginSpec("gphoto", "sbrdf_cameras.gphoto:GPhotoCamera", params=declarations.GPHOTO,

@@ -3,7 +3,7 @@
 ``sbrdf plugins``, graph validation and the reference docs read these through
 the :class:`~sbrdf_core.plugin.PluginSpec` of each contribution
 (``__init__.py``); the implementations (:mod:`.virtual`, :mod:`.pylon`,
-:mod:`.aravis`, :mod:`.uvc`, :mod:`.gphoto`, :mod:`.capture`), imported when
+:mod:`.aravis`, :mod:`.genicam`, :mod:`.uvc`, :mod:`.gphoto`, :mod:`.capture`), imported when
 a graph opens a camera, take the same tuples as their ``params``.  This module
 imports only :mod:`sbrdf_core.params` and :mod:`sbrdf_lib.camera_params` (no
 camera SDK, OpenCV or NumPy).
@@ -51,6 +51,16 @@ ARAVIS = COMMON_PARAMS + (
     Param("height", "int", None, "region of interest height from the top edge", nullable=True,
           bounds=(1, 65536), unit="px"),
     Param("buffers", "int", 4, "stream buffers queued for the camera", bounds=(1, 256)),
+)
+
+GENICAM = COMMON_PARAMS + (
+    Param("producer", "str", None, "GenTL producer of the camera's interface, the vendor's .cti file; default every "
+          ".cti in the folders of GENICAM_GENTL64_PATH", nullable=True, extra={"path": True}),
+    Param("width", "int", None, "region of interest width from the left edge", nullable=True, bounds=(1, 65536),
+          unit="px"),
+    Param("height", "int", None, "region of interest height from the top edge", nullable=True,
+          bounds=(1, 65536), unit="px"),
+    Param("buffers", "int", 4, "buffers the producer fills for the driver", bounds=(1, 256)),
 )
 
 UVC = COMMON_PARAMS + (
