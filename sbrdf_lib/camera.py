@@ -2,7 +2,7 @@
 
 A *frame camera* (:class:`sbrdf_core.contracts.FrameCamera`) is a physical
 camera, or a vendor's emulation of one, that a capture source configures once
-and then triggers frame by frame: the ``pylon``, ``aravis``, ``uvc`` and
+and then triggers frame by frame: the ``pylon``, ``aravis``, ``genicam``, ``uvc`` and
 ``gphoto`` devices.  Unlike the virtual camera it knows nothing of the
 sample, the light or its own pose; it delivers raw codes at an exposure
 time, and the ``gonio`` source records the geometry.
