@@ -452,7 +452,7 @@ class _Translator:
 
     def _Call(self, n):
         fn = self.callee(n.func)
-        name = _CALLS.get(fn) if fn is not None else None
+        name = next((glsl for py, glsl in _CALLS.items() if py is fn), None)
         if name is None or n.keywords:
             self.fail(n, f"the call {ast.unparse(n)!r}")
         args = [self.ex(a) for a in n.args]
