@@ -93,7 +93,9 @@ class _Producers:
     A GenTL producer is a shared library with process-wide state: a second
     ``Harvester`` loading the same ``.cti`` while the first holds it lists no
     devices.  Cameras on the same producers therefore share one, which is
-    reset when the last of them closes.
+    reset when the last of them closes.  Its device list is read when it is
+    loaded and not refreshed while a camera is open: ``Harvester.update()``
+    drops the acquirers it has already created, and the open cameras with them.
     """
 
     def __init__(self) -> None:
@@ -198,7 +200,7 @@ class GenICamCamera(FrameCameraBase):
         except (self._gentl.GenericException, OSError) as e:
             raise self.error(CameraError, f"the GenTL producer {', '.join(files)} could not be loaded: {e}") from None
         self._files = files
-        found = [d for d in h.device_info_list]
+        found = list(h.device_info_list)
         chosen = [d for d in found if self.serial is None or _info(d, "serial_number") == str(self.serial)]
         if not chosen:
             listed = [f"{_info(d, 'serial_number')} ({_info(d, 'model')})" for d in found]

@@ -242,3 +242,12 @@ def test_a_gonio_capture_through_a_virtual_genicam_camera(tmp_path, registry):
     assert (device["driver"], device["vendor"], device["model"], device["serial"]) == (
         "genicam", "Machine Vision Games Ltd.", "Viky", "1")
     assert all([e.time_s for e in p.exposures] == [0.05] for p in m.poses)
+
+
+def test_without_harvesters_the_error_gives_the_install_command(registry, monkeypatch):
+    import sys
+
+    for module in ("genicam", "genicam.gentl", "genicam.genapi", "harvesters", "harvesters.core"):
+        monkeypatch.setitem(sys.modules, module, None)
+    with pytest.raises(ImportError, match=r"pip install 'sbrdf\[genicam\]'"):
+        registry.create("device", "genicam", {"producer": VIKY})
