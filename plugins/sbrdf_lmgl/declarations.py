@@ -13,7 +13,7 @@ from sbrdf_core.params import Param
 from sbrdf_lib.lm_params import WEIGHTING
 
 LM_GL = (
-    Param("model", "str", "lambert", "BRDF model to fit (it must provide glsl_fit_gradient)",
+    Param("model", "str", "lambert", "BRDF model to fit (it must have a fit_kernel)",
           extra={"plugin_category": "brdf-model"}),
     Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
     Param("iterations", "int", 200, "Levenberg-Marquardt iterations at most, per texel (as lm)", bounds=(1, 10000)),
