@@ -21,8 +21,10 @@ simulators (``port: sim``) through a plan of ``rig_poses`` explicit poses with
 a two-exposure bracket, into a capture folder: with the virtual camera; with
 the ``pylon`` driver on Basler's emulator (``PYLON_CAMEMU``) serving the
 virtual run's photographs as 16-bit RGB frames (skipped when ``pypylon`` is
-not installed); and with the ``aravis`` driver on Aravis's fake GigE Vision
-camera over the loopback interface (skipped when it is not installed).  The gonio source's own clock splits each
+not installed); with the ``aravis`` driver on Aravis's fake GigE Vision
+camera over the loopback interface (skipped when it is not installed); and with
+the ``genicam`` driver (harvesters) on the ``genicam`` wheel's virtual producer
+``viky.cti``, one fixed exposure since its cameras have no exposure control.  The gonio source's own clock splits each
 run into motion (move commands until every motor reports its position),
 settle (``settle_s``, 0 here), exposure (the frame camera's integration
 time), transfer (trigger to frame in memory, less the exposure; for the
@@ -45,7 +47,8 @@ on 2 cores).  Progress goes to stderr; the last line of stdout is::
     capture: poses=<int> all_effects_poses_per_s=<float> no_effects_poses_per_s=<float> rig_poses=<int>
     rig_virtual_poses_per_s=<float> rig_pylon_poses_per_s=<float> pylon_motion_s=<float> pylon_settle_s=<float>
     pylon_exposure_s=<float> pylon_transfer_s=<float> pylon_write_s=<float> [rig_aravis_poses_per_s=<float>
-    aravis_motion_s=<float> ... aravis_write_s=<float>] peak_rss_mb=<float>
+    aravis_motion_s=<float> ... aravis_write_s=<float>] [rig_genicam_poses_per_s=<float> genicam_motion_s=<float>
+    ... genicam_write_s=<float>] peak_rss_mb=<float>
 
 (one line; the ``pylon_*_s`` and ``aravis_*_s`` figures are seconds per pose; the ``aravis`` figures
 appear where ``arv-fake-gv-camera-0.8`` and the Aravis bindings are installed: its frames are the
@@ -94,8 +97,9 @@ def run(folder: Path, poses: int, effects: list[str]) -> float:
     return poses / dt
 
 
-def rig(folder: Path, poses: int, camera: dict, **params) -> tuple[float, dict]:
-    """One gonio capture of ``poses`` poses; ``(poses/s, seconds per pose by phase)``."""
+def rig(folder: Path, poses: int, camera: dict, times: list | None = None, **params) -> tuple[float, dict]:
+    """One gonio capture of ``poses`` poses (exposure ``times``, default :data:`RIG_TIMES`); ``(poses/s, seconds
+    per pose by phase)``."""
     from sbrdf_core.registry import default_registry
 
     registry = default_registry()
@@ -104,7 +108,8 @@ def rig(folder: Path, poses: int, camera: dict, **params) -> tuple[float, dict]:
               "arm": {"device": "indexer", "params": {"port": "sim"}, "axes": {"light": "angle_deg"}}}
     src = registry.create("capture", "gonio", {"path": str(folder), "motors": motors, "camera": camera,
                                                "plan": {"angles_deg": RIG_ANGLES[:poses]},
-                                               "exposures": {"times_s": RIG_TIMES}, "durable": True, **params})
+                                               "exposures": {"times_s": times or RIG_TIMES}, "durable": True,
+                                               **params})
     src.bind(registry)
     src.describe()
     t0 = time.perf_counter()
@@ -140,7 +145,28 @@ def rigs(tmp: Path, poses: int) -> dict:
         out["rig_pylon_poses_per_s"] = rate
         out.update({f"pylon_{k}_s": v for k, v in split.items()})
     out.update(aravis_rig(tmp, poses, frame_params))
+    out.update(genicam_rig(tmp, poses, frame_params))
     return out
+
+
+def genicam_rig(tmp: Path, poses: int, frame_params: dict) -> dict:
+    """The rig with the ``genicam`` driver (harvesters) on the ``genicam`` wheel's virtual producer ``viky.cti``,
+    when both are installed.  Its cameras have no exposure control: one fixed exposure
+    (``nominal_exposure_s``), so the capture's own bracket is that one time."""
+    try:
+        from sbrdf_cameras.genicam import virtual_producer
+
+        viky = virtual_producer()
+    except ImportError:
+        viky = None
+    if viky is None:
+        log("  rig, genicam: skipped (pip install 'sbrdf[genicam]')")
+        return {}
+    camera = {"device": "genicam", "params": {"producer": viky, "serial": "1", "pixel_format": "Mono8", "width": 320,
+                                              "height": 240, "nominal_exposure_s": RIG_TIMES[0]}}
+    rate, split = rig(tmp / "rig-genicam", poses, camera, read={"response": "linear"}, times=[RIG_TIMES[0]],
+                      **frame_params)
+    return {"rig_genicam_poses_per_s": rate, **{f"genicam_{k}_s": v for k, v in split.items()}}
 
 
 def aravis_rig(tmp: Path, poses: int, frame_params: dict) -> dict:
