@@ -156,7 +156,8 @@ def mirror_peak(model, params, max_theta, n: int = 24, cosine: bool = False) -> 
     return np.where(np.isfinite(f), f, np.inf).max(axis=(1, 2))
 
 
-def widen_to_peak(model, params, names, limits: Limits, steps: int = 16) -> tuple[dict, np.ndarray]:
+def widen_to_peak(model, params, names, limits: Limits, steps: int = 16, tolerance: float = 1e-4,
+                  ) -> tuple[dict, np.ndarray]:
     """Raise the roughness parameters ``names`` (one common factor) until the lobe's peak fits the limits.
 
     For models whose peak is set by a width rather than a magnitude
@@ -165,8 +166,13 @@ def widen_to_peak(model, params, names, limits: Limits, steps: int = 16) -> tupl
     against ``limits.peak_cosine`` where given: a microfacet lobe's growth
     toward grazing (1/cos², Fresnel) is the model's physics, and bounding it
     by the samples' largest f_r would bend the fit where it was measured.
-    Bisection in log space up to each parameter's upper bound; a texel still
-    over there keeps the widest lobe.
+
+    The factor is searched in log space up to each parameter's upper bound by
+    regula falsi on the log of the peak (Illinois variant), which is nearly
+    linear in the log of the roughness (a GGX lobe's peak goes as α⁻²): a
+    texel settles in a few evaluations where bisection took ``steps``.  It
+    stops within ``tolerance`` (relative) below the bound, always on the side
+    that fits; a texel still over at the widest keeps the widest lobe.
     """
     out = dict(params)
     T = next(iter(out.values())).shape[0]
@@ -175,18 +181,47 @@ def widen_to_peak(model, params, names, limits: Limits, steps: int = 16) -> tupl
     if bound is None:
         return out, np.zeros(T, bool)
     bound = np.asarray(bound, np.float64)
-    over = np.flatnonzero(mirror_peak(model, out, limits.max_theta, cosine=cosine) > bound * (1 + 1e-6))
+    peak = mirror_peak(model, out, limits.max_theta, cosine=cosine)
+    over = np.flatnonzero(peak > bound * (1 + 1e-6))
     if over.size == 0:
         return out, np.zeros(T, bool)
     caps = {p.name: p.bounds[1] for p in model.parameters}
     sub = {k: np.asarray(v, np.float64)[over] for k, v in out.items()}
+    target = np.log(bound[over])
+
+    def excess(rows, factor):  # log(peak / bound) of texels ``rows`` of ``over`` widened by exp(factor)
+        trial = {k: v[rows] for k, v in sub.items()}
+        trial.update({n: np.minimum(sub[n][rows] * np.exp(factor)[:, None], caps[n]) for n in names})
+        with np.errstate(divide="ignore"):
+            return np.log(mirror_peak(model, trial, limits.max_theta, cosine=cosine)) - target[rows]
+
     room = np.max([np.log(caps[n] / np.maximum(sub[n][:, 0], 1e-300)) for n in names], axis=0)
     lo, hi = np.zeros(over.size), np.maximum(room, 0.0)  # log of the factor: lo fails, hi is the widest allowed
+    with np.errstate(divide="ignore"):
+        g_lo = np.log(peak[over]) - target
+    g_hi = excess(np.arange(over.size), hi)
+    active = np.flatnonzero((g_hi < -tolerance) & np.isfinite(g_hi))
+    side = np.zeros(over.size, np.int8)  # which end moved last: Illinois halves the other end's value
     for _ in range(steps):
-        mid = 0.5 * (lo + hi)
-        trial = {**sub, **{n: np.minimum(sub[n] * np.exp(mid)[:, None], caps[n]) for n in names}}
-        fits = mirror_peak(model, trial, limits.max_theta, cosine=cosine) <= bound[over]
-        hi, lo = np.where(fits, mid, hi), np.where(fits, lo, mid)
+        if active.size == 0:
+            break
+        a, b = lo[active], hi[active]
+        ga, gb = g_lo[active], g_hi[active]
+        with np.errstate(invalid="ignore"):  # an infinite peak at ``lo``: bisect
+            mid = np.where(np.isfinite(ga), a + (b - a) * ga / (ga - gb), 0.5 * (a + b))
+        mid = np.clip(mid, a + 1e-3 * (b - a), b - 1e-3 * (b - a))
+        g = excess(active, mid)
+        g = np.where(np.isnan(g), np.inf, g)  # no finite peak: treated as over
+        fits = g <= 0
+        hi[active], g_hi[active] = np.where(fits, mid, b), np.where(fits, g, gb)
+        lo[active], g_lo[active] = np.where(fits, a, mid), np.where(fits, ga, g)
+        # Illinois: an end that stays twice in a row has its value halved, so regula falsi cannot stall there
+        stay_lo, stay_hi = fits & (side[active] == 1), ~fits & (side[active] == -1)
+        g_lo[active[stay_lo]] *= 0.5
+        g_hi[active[stay_hi]] *= 0.5
+        side[active] = np.where(fits, 1, -1)
+        done = (fits & (g > -tolerance)) | (hi[active] - lo[active] < 1e-9)
+        active = active[~done]
     for n in names:
         v = np.array(out[n], np.float64)
         v[over] = np.minimum(sub[n] * np.exp(hi)[:, None], caps[n])
