@@ -109,7 +109,8 @@ def truth_maps(n: int) -> dict[str, np.ndarray]:
     }
 
 
-def graph_text(folder: Path, texels: int) -> str:
+def graph_text(folder: Path, texels: int, common: dict | None = None) -> str:
+    """The benchmark's graph; ``common``: Fit node parameters of every fit (``--coherence``)."""
     lines = ["name: fit-benchmark", "store: ./store", "nodes:",
              f"  cap: {{kind: Capture, plugin: folder, params: {{path: {json.dumps(str(folder))}}}}}",
              f"  reg: {{kind: Register, plugin: aruco, in: {{capture: cap}}, "
@@ -117,7 +118,7 @@ def graph_text(folder: Path, texels: int) -> str:
              "  refl: {kind: Reflectance, in: {stack: reg}}"]
     for name, (model, mp) in FITS.items():
         lines.append(f"  {name}: {{kind: Fit, plugin: lm, in: {{samples: refl}}, "
-                     f"params: {json.dumps({'model': model, 'model_params': mp})}}}")
+                     f"params: {json.dumps({'model': model, 'model_params': mp, **(common or {})})}}}")
     return "\n".join(lines) + "\n"
 
 
@@ -169,6 +170,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="32x32 texels, 150 poses (about a minute)")
     ap.add_argument("--keep", metavar="DIR", default=None, help="work in DIR and keep it")
     ap.add_argument("--docs", action="store_true", help="rewrite the fit_engine section of docs/accuracy-vs-time.md")
+    ap.add_argument("--coherence", choices=("neighbours", "pyramid", "none"), default=None,
+                    help="the Fit nodes' coherence (default: the node's own default), for a paired comparison")
     args = ap.parse_args(argv)
     size = QUICK if args.quick else FULL
     n = size["texels"]
@@ -191,7 +194,7 @@ def main(argv=None) -> int:
             fidelity.capture(folder, truth_url, "orbit", size, seed=0)
         log(f"capture: {size['orbit']} poses, {time.perf_counter() - t0:.1f} s")
         gpath = workdir / "graph.yaml"
-        gpath.write_text(graph_text(folder, n))
+        gpath.write_text(graph_text(folder, n, {"coherence": args.coherence} if args.coherence else None))
         fidelity.FITS = {k: (None, (), m, mp) for k, (m, mp) in FITS.items()}
         fidelity.warm(workdir / "warm")  # compile (or load) every model's kernels off the clock
         t0 = time.perf_counter()
