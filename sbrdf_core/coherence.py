@@ -38,7 +38,6 @@ those in the same tile (or strip of rows): a task sees no other.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -115,12 +114,17 @@ def distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(d), d, np.inf)
 
 
+def ring(a: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """``(8, T, ...)``: each texel's eight neighbours' rows of ``a`` ``(T, ...)``, the grid's edge replicated
+    (as the bounds' 3×3 filters do, ``mode="nearest"``)."""
+    V, U = grid
+    pad = np.pad(a.reshape((V, U) + a.shape[1:]), [(1, 1), (1, 1)] + [(0, 0)] * (a.ndim - 1), mode="edge")
+    return np.stack([pad[1 + dv:1 + dv + V, 1 + du:1 + du + U].reshape(a.shape) for dv, du in OFFSETS])
+
+
 def consensus(look: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
-    """Each texel's 3×3 neighbourhood's median appearance ``(T, Q)`` (itself included; the grid's edge clipped)."""
-    stack = np.stack([look] + [neighbour(look, grid, dv, du) for dv, du in OFFSETS])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a texel with no finite neighbour: NaN, no judgement
-        return np.nanmedian(stack, axis=0)
+    """Each texel's 3×3 neighbourhood's median appearance ``(T, Q, C)`` (itself included; the edge replicated)."""
+    return np.median(np.concatenate([look[None], ring(look, grid)]), axis=0)
 
 
 def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray,
@@ -212,10 +216,7 @@ def _odd(dev: np.ndarray, has: np.ndarray, grid: tuple[int, int], threshold: flo
     neighbours' departures (0: none)."""
     if threshold <= 0:
         return np.zeros(dev.shape, bool)
-    finite = np.where(np.isfinite(dev), dev, np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # no finite neighbour: NaN, not odd
-        typical = np.nanmedian(np.stack([neighbour(finite, grid, dv, du) for dv, du in OFFSETS]), axis=0)
+    typical = np.median(ring(np.where(has, dev, np.inf), grid), axis=0)  # a texel without samples: far off
     return has & (dev > threshold) & (dev > ODD_FACTOR * typical)
 
 
