@@ -29,24 +29,22 @@ YAML::
 from __future__ import annotations
 
 import copy
-import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sbrdf_core.brdf import LOG_CAP, BRDFModel, ModelParameter, above_horizon, positive_power
+from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
-#: McAllister's initial guesses (§4.3.1): lobe 1 forward (mirror), lobe 2 back-scatter.
-INITIAL_LOBES = ((-1.0, -1.0, 1.0, 10.0), (1.0, 1.0, 1.0, 5.0))
-EXPONENT_BOUNDS = (0.1, 20000.0)
+if TYPE_CHECKING:
+    from .lafortune_fit import LafortuneFitForm
+
+from .lafortune_bounds import EXPONENT_BOUNDS, INITIAL_LOBES, _apply_lobe_bounds
+
 #: A lobe whose ρ_s (every channel) is below this, sr⁻¹, contributes nothing measurable: see to_model.
 DEAD_LOBE = 1e-9
-#: A lobe whose peak is below this fraction of the texel's peak budget and of its ρ_d contributes nothing visible.
-NEGLIGIBLE = 1e-3
-#: The neutral shape a dead lobe is reset to: a mirror cosine lobe, n = 1 (bounded under interpolation).
-NEUTRAL_EXPONENT = 1.0
 #: A lobe LM has lost (``fit_trapped``): dead, its peak ρ_s at most the first fraction of the strongest lobe's; or a
 #: spike on a sample or two, at most the second fraction with n within the last factor of its bound.
 TRAPPED = (1e-3, 0.1, 0.95)
@@ -56,9 +54,8 @@ TRAPPED = (1e-3, 0.1, 0.95)
 #: missing lobe's energy varies texel to texel, so a third of a tile are "outliers" a restart cannot improve).
 OUTLIER_RATIO = 2.0
 #: Longest LM step in a lobe's log n (the fit form's ``max_step``): n changes by at most e^0.5 ≈ 1.65× a step.
-#: Unbounded, a quarter of 1-lobe texels on McAllister-like data (benchmarks/fit.py) took a Gauss–Newton step
-#: that multiplied n several times over, cost more than the start, and needed about 20 evaluations instead of 6
-#: while λ grew until the step was short enough; bounded: mean evaluations 9.7 → 7.4 (1 lobe), 11.0 → 10.0 (2).
+#: Why: unbounded, a Gauss–Newton step could multiply n several times over, cost more than the start, and leave
+#: λ to grow through many evaluations until the step was short enough.
 MAX_LOG_EXPONENT_STEP = 0.5
 #: Lobe-1 exponents tried for the starting point (the text's n = 10 among them).
 START_EXPONENTS = (3.0, 10.0, 40.0, 160.0, 640.0)
@@ -296,6 +293,8 @@ class LafortuneModel(BRDFModel):
     # -- fitting support ----------------------------------------------------------------------------
 
     def fit_form(self) -> LafortuneFitForm:
+        from .lafortune_fit import LafortuneFitForm
+
         return LafortuneFitForm(self)
 
     def initial_guess(self, f_r, valid, wi, wo):
@@ -365,367 +364,6 @@ class LafortuneModel(BRDFModel):
         if self.lobes:
             changed |= _apply_lobe_bounds(self, out, limits, exponent_key="exponent_{j}", log=False)
         return out, changed
-
-
-def bound_lobes(rho_d, lobes, limits):
-    """Scale factors that keep C_z = 1 lobes bounded: ``[(rho_scale, c_scale, exponent, dead)], changed``.
-
-    ``lobes`` is ``[(rho_s (T, C), |C|_max (T, 1), n (T, 1))]``.  Each lobe
-    gets n ≤ the sharpest the sampling resolves and a shape that grows toward
-    grazing by at most ``limits.growth`` (m^n, whatever ρ_s); then, against a
-    budget of ``limits.peak − max ρ_d``: ρ_s scaled down if it alone exceeds
-    it, |C| shrunk toward 1 until ρ_s·m^n fits (the grazing growth is what the
-    samples did not see), and all ρ_s scaled together if the lobes' peaks add
-    up to more.  A lobe left below :data:`NEGLIGIBLE` of the budget and of the
-    diffuse term is ``dead``: callers reset it to a neutral shape, because an invisible lobe
-    parked at |C| = 10 or n = 0.1 turns into a real one when a renderer
-    interpolates it with its neighbour's.
-    """
-    T = rho_d.shape[0]
-    changed = np.zeros(T, bool)
-    s2, c2 = np.sin(limits.max_theta) ** 2, np.cos(limits.max_theta) ** 2
-    n_cap = limits.max_cosine_exponent()
-    if limits.peak is None:
-        budget = np.full((T, 1), np.inf)
-    else:
-        budget = np.maximum(np.asarray(limits.peak, np.float64)[:, None] - rho_d.max(axis=1, keepdims=True), 0.0)
-    out, peaks = [], []
-    with np.errstate(all="ignore"):
-        for rho, cabs, n in lobes:
-            n_new = np.clip(np.minimum(n, n_cap), *EXPONENT_BOUNDS)
-            rmax = rho.max(axis=1, keepdims=True)
-            r_scale = np.where(rmax > budget, budget / np.where(rmax > 0, rmax, 1.0), 1.0)
-            r = rmax * r_scale
-            log_m = np.where((r > 0) & np.isfinite(budget), np.log(budget / np.where(r > 0, r, 1.0)) / n_new, np.inf)
-            if limits.growth is not None:
-                log_m = np.minimum(log_m, np.log(max(limits.growth, 1.0)) / n_new)
-            m_allowed = np.exp(np.minimum(log_m, 50.0))
-            c_allowed = np.maximum((m_allowed - c2) / s2, 1.0)
-            c_scale = np.where(cabs > c_allowed, c_allowed / np.where(cabs > 0, cabs, 1.0), 1.0)
-            m = np.maximum(1.0, cabs * c_scale * s2 + c2)
-            peaks.append(r * np.exp(np.minimum(n_new * np.log(m), 700.0)))
-            out.append([r_scale, c_scale, n_new])
-            changed |= ((n_new < n * (1 - 1e-9)) | (r_scale < 1 - 1e-9) | (c_scale < 1 - 1e-9))[:, 0]
-        total = np.sum(peaks, axis=0)
-        share = np.where(total > budget, budget / np.where(total > 0, total, 1.0), 1.0)
-    changed |= share[:, 0] < 1 - 1e-9
-    # Dead: negligible against the budget *and* against the diffuse term.  Why both: a broad weak lobe under a
-    # sharp one (peak 0.06 against a budget of 60) is far below the budget yet carries a twentieth of the albedo.
-    floor = NEGLIGIBLE * np.minimum(budget, rho_d.max(axis=1, keepdims=True))
-    for lobe, peak in zip(out, peaks):
-        lobe[0] = lobe[0] * share
-        lobe.append(((peak * share) < floor) & np.isfinite(budget))
-    return out, changed
-
-
-def _apply_lobe_bounds(model, out, limits, exponent_key, log, reset_dead=True):
-    """:func:`bound_lobes` on ``out`` in place (model form or fit form, C_z = 1); returns ``changed``.
-
-    ``reset_dead`` (model form only) neutralises dead lobes; the fit form
-    keeps them as they are: a lobe the iteration is about to grow starts small.
-    """
-    names = ("c_x", "c_y") if model.anisotropic else ("c_xy",)
-    lobes = []
-    for j in range(1, model.lobes + 1):
-        n = np.asarray(out[exponent_key.format(j=j)], np.float64)
-        cabs = np.max([np.abs(out[f"{nm}_{j}"][:, :1]) for nm in names], axis=0)
-        lobes.append((out[f"rho_s_{j}"], cabs, np.exp(n) if log else n))
-    factors, changed = bound_lobes(out["rho_d"], lobes, limits)
-    for j, (r_scale, c_scale, n_new, dead) in enumerate(factors, start=1):
-        out[f"rho_s_{j}"] = out[f"rho_s_{j}"] * r_scale
-        for nm in names:
-            out[f"{nm}_{j}"] = out[f"{nm}_{j}"] * c_scale
-        out[exponent_key.format(j=j)] = np.log(n_new) if log else n_new
-        if reset_dead:
-            neutralise(model, out, j, dead)
-    return changed
-
-
-def neutralise(model, out, j: int, dead: np.ndarray) -> None:
-    """Lobe ``j`` of model-form ``out`` reset in place where ``dead`` ``(T, 1)``: ρ_s = 0, C at the text's initial
-    lobe, n = :data:`NEUTRAL_EXPONENT`, a shape that stays harmless when quantized or interpolated."""
-    if not np.any(dead):
-        return
-    c0 = INITIAL_LOBES[min(j, 2) - 1][0]
-    out[f"rho_s_{j}"] = np.where(dead, 0.0, out[f"rho_s_{j}"])
-    out[f"exponent_{j}"] = np.where(dead, NEUTRAL_EXPONENT, out[f"exponent_{j}"])
-    for nm in (("c_x", "c_y") if model.anisotropic else ("c_xy",)):
-        out[f"{nm}_{j}"] = np.where(dead, c0, out[f"{nm}_{j}"])
-
-
-def fit_kernel(x, cfg, wi, wo, f, J):
-    """f_r and ∂f_r/∂x of the fit form (C_z = 1, log n) at one direction pair: the fitting engine's kernel.
-
-    ``cfg`` = (lobes, anisotropic, beta); ``x`` in :meth:`LafortuneFitForm.pack` order: ρ_d, then per lobe
-    ρ_s, C_xy (or C_x, C_y), log n, then β.  The numbers of ``eval`` and ``jacobian`` (their test oracle),
-    caps of :func:`~sbrdf_core.brdf.positive_power` included.
-    """
-    nc, K = f.size, x.size
-    lobes, aniso, has_beta = int(cfg[0]), cfg[1] != 0.0, cfg[2] != 0.0
-    for c in range(nc):
-        f[c] = 0.0
-        for k in range(K):
-            J[c, k] = 0.0
-    if wi[2] <= 0.0 or wo[2] <= 0.0:
-        return
-    ix, iy, ox, oy = wi[0], wi[1], wo[0], wo[1]
-    if has_beta:
-        cb, sb = math.cos(x[K - 1]), math.sin(x[K - 1])
-        ix, iy = cb * wi[0] + sb * wi[1], -sb * wi[0] + cb * wi[1]
-        ox, oy = cb * wo[0] + sb * wo[1], -sb * wo[0] + cb * wo[1]
-    pxx, pyy, pzz = ix * ox, iy * oy, wi[2] * wo[2]
-    for c in range(nc):
-        f[c] = x[c]
-        J[c, c] = 1.0
-    k = nc
-    for _ in range(lobes):
-        rs = k
-        kc = k + nc
-        cx = x[kc]
-        cy = x[kc + 1] if aniso else cx
-        kn = kc + (2 if aniso else 1)
-        k = kn + 1
-        n = math.exp(x[kn])
-        d = cx * pxx + cy * pyy + pzz
-        s = dsdx = dsdn = 0.0
-        if d > 0.0:
-            logd = math.log(d)
-            s = math.exp(min(max(n * logd, -745.0), LOG_CAP))
-            dsdx = n * math.exp(min(max((n - 1.0) * logd, -745.0), LOG_CAP))
-            dsdn = s * logd * n
-        for c in range(nc):
-            rho = x[rs + c]
-            f[c] += rho * s
-            J[c, rs + c] = s
-            if aniso:
-                J[c, kc] = rho * dsdx * pxx
-                J[c, kc + 1] = rho * dsdx * pyy
-            else:
-                J[c, kc] = rho * dsdx * (pxx + pyy)
-            J[c, kn] = rho * dsdn
-            if has_beta:
-                J[c, K - 1] += rho * dsdx * (cx - cy) * (iy * ox + ix * oy)
-
-
-class LafortuneFitForm(LafortuneModel):
-    """The same lobes with C_z = 1 fixed and log n: what fitters iterate on."""
-
-    name = "lafortune-fit-form"
-
-    def __init__(self, model: LafortuneModel):
-        self.lobes, self.anisotropic, self.has_beta, self.mirror = model.lobes, model.anisotropic, model.has_beta, model.mirror
-        self.channels = model.channels
-        self.model = model
-        self.parameters = self._declare(fit_form=True)
-        self.fit_outlier_ratio = OUTLIER_RATIO if self.lobes >= 2 else None
-        self._layout: tuple | None = None  # constrain_packed's bounds and offsets, made on first use
-
-    fit_kernel = staticmethod(fit_kernel)
-
-    def kernel_config(self) -> np.ndarray:
-        return np.array([self.lobes, self.anisotropic, self.has_beta], np.float64)
-
-    def lobe_list(self, params):
-        out = []
-        for j in range(1, self.lobes + 1):
-            cx = params[f"c_x_{j}"] if self.anisotropic else params[f"c_xy_{j}"]
-            cy = params[f"c_y_{j}"] if self.anisotropic else cx
-            out.append({"rho_s": params[f"rho_s_{j}"], "c_x": cx, "c_y": cy, "c_z": np.ones_like(cx),
-                        "exponent": np.exp(np.asarray(params[f"log_exponent_{j}"]))})
-        return out
-
-    def jacobian(self, params, wi, wo):
-        return self._jacobian(params, wi, wo, fit_form=True)
-
-    def fit_trapped(self, x):
-        """Rows of a multi-lobe fit where LM lost the forward lobe (:data:`TRAPPED`): a lobe is dead and every live
-        lobe scatters backwards (the specular carried by none), or a lobe is a faint spike at the exponent bound,
-        fitting a sample or two.  A lobe without magnitude gets no gradient in its shape, so LM cannot bring it back.  A
-        dead lobe beside a forward one is not flagged: that is how a 2-lobe fit of one-lobe data ends (GGX data:
-        every texel).  McAllister's data (benchmarks/fit.py): 9 of the 11 texels lm2 fitted worse than the peer."""
-        if self.lobes < 2:  # one lobe: flagging a backward one cost 25 % of lm's time for 4 texels in 4096
-            return np.zeros(x.shape[0], bool)
-        p = self.unpack(x)
-        dead, faint, spike = TRAPPED
-        lobes = range(1, self.lobes + 1)
-        peak = np.stack([p[f"rho_s_{j}"].max(axis=1) for j in lobes], axis=1)
-        log_n = np.concatenate([p[f"log_exponent_{j}"] for j in lobes], axis=1)
-        names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
-        backward = np.stack([np.mean([p[f"{nm}_{j}"][:, 0] for nm in names], axis=0) > 0 for j in lobes], axis=1)
-        strongest = peak.max(axis=1, keepdims=True)
-        gone = peak <= dead * strongest
-        spiked = (peak <= faint * strongest) & (log_n >= np.log(spike * EXPONENT_BOUNDS[1]))
-        return (spiked.any(axis=1) | (gone.any(axis=1) & (backward | gone).all(axis=1))) & (strongest[:, 0] > 0)
-
-    def fit_form(self):
-        return self
-
-    def limit_box(self, limits, lo, hi):
-        """The box part of ``limits`` for the fitting engine: no lobe sharper than the sampling resolves
-        (log n ≤ log ``limits.max_cosine_exponent()``); the peak is projected afterwards (:meth:`constrain`)."""
-        if limits.resolution is None:
-            return lo, hi
-        cap = np.log(np.clip(np.asarray(limits.max_cosine_exponent(), np.float64), *EXPONENT_BOUNDS))
-        where = self.slices()
-        for j in range(1, self.lobes + 1):
-            k = where[f"log_exponent_{j}"]
-            hi[:, k] = np.minimum(hi[:, k], cap)
-        return np.minimum(lo, hi), hi
-
-    def nested(self):
-        """Lafortune with one lobe fewer, and its packed fit-form rows embedded here with the last lobe dead
-        (ρ_s = 0 at its default shape): what ``lm`` compares a fit with, so a lobe more never fits worse."""
-        if self.lobes < 2:
-            return None
-        smaller = copy.copy(self.model)
-        smaller.lobes = self.lobes - 1
-        smaller.parameters = smaller._declare(fit_form=False)
-        sform = smaller.fit_form()
-
-        def embed(x_small):
-            params = sform.unpack(x_small)
-            out = self.defaults(x_small.shape[0])
-            out.update(params)
-            j = self.lobes
-            out[f"rho_s_{j}"] = np.zeros_like(out[f"rho_s_{j}"])
-            return self.pack(out)
-
-        return smaller, embed
-
-    @property
-    def max_step(self) -> np.ndarray:
-        """Longest LM step per packed parameter: :data:`MAX_LOG_EXPONENT_STEP` in each log n, the rest unbounded."""
-        out = np.full(self.size, np.inf)
-        for name, where in self.slices().items():
-            if name.startswith("log_exponent_"):
-                out[where] = MAX_LOG_EXPONENT_STEP
-        return out
-
-    def to_model(self, params):
-        """Back to the model's form; a *dead* lobe (ρ_s below DEAD_LOBE) is reset to a harmless shape.
-
-        A fit may park an unneeded lobe at ρ_s ≈ 1e-29 with |C| = 10 and
-        n = 20000: invisible at the sampled directions, but at grazing angles
-        |C·ω|^n explodes, and any quantization of ρ_s turns it into 1e18 sr⁻¹.
-        """
-        out = {k: np.asarray(v) for k, v in params.items() if not k.startswith("log_exponent_")}
-        for j in range(1, self.lobes + 1):
-            out[f"c_z_{j}"] = np.ones_like(np.asarray(params[f"log_exponent_{j}"]))
-            out[f"exponent_{j}"] = np.exp(np.asarray(params[f"log_exponent_{j}"]))
-            neutralise(self, out, j, np.asarray(params[f"rho_s_{j}"]).max(axis=1, keepdims=True) < DEAD_LOBE)
-        if self.has_beta:
-            out["beta"] = np.mod(np.asarray(params["beta"]) + np.pi / 2, np.pi) - np.pi / 2
-        if self.mirror:
-            out["rho_m"] = np.zeros_like(np.asarray(params["rho_d"]))
-        return out
-
-    def from_model(self, params):
-        canon = self.model.canonical(params)
-        out = {k: v for k, v in canon.items() if not (k.startswith("c_z_") or k.startswith("exponent_") or k == "rho_m")}
-        for j in range(1, self.lobes + 1):
-            out[f"log_exponent_{j}"] = np.log(np.clip(canon[f"exponent_{j}"], *EXPONENT_BOUNDS))
-            for nm in (("c_x", "c_y") if self.anisotropic else ("c_xy",)):
-                out[f"{nm}_{j}"] = np.clip(out[f"{nm}_{j}"], *FIT_C_BOUNDS)
-        return out
-
-    def initial_guess(self, f_r, valid, wi, wo):
-        """ρ_d the 10th percentile of the samples (seed 000 §4.3); lobe 1's exponent the best of
-        :data:`START_EXPONENTS` for the texel (the text's n = 10 among them), each scored with the lobes'
-        magnitudes solved: every texel starts near its own sharpness, which saves LM iterations."""
-        from sbrdf_lib.lm import least_squares
-
-        T = f_r.shape[0]
-        params = self.defaults(T)
-        from sbrdf_lib.lm import diffuse_percentile  # the solver library, needed only when a fit starts
-
-        params["rho_d"] = diffuse_percentile(f_r, valid, 10.0)
-        if not self.lobes:
-            return params
-        objective = least_squares(self, f_r, np.asarray(valid, np.float64), wi, wo)
-        lo, hi = self.bounds()
-        best = best_cost = None
-        for log_n in np.log(START_EXPONENTS):
-            guess = self.refine_linear({**params, "log_exponent_1": np.full((T, 1), log_n)}, f_r, valid, wi, wo)
-            x = np.clip(self.pack(guess), lo, hi)
-            cost = np.nan_to_num(objective.cost(x, np.arange(T)), nan=np.inf)
-            if best is None:
-                best, best_cost = x, cost
-            else:
-                better = cost < best_cost
-                best[better], best_cost[better] = x[better], cost[better]
-        return self.unpack(best)
-
-    def refine_linear(self, params, f_r, valid, wi, wo):
-        return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)
-
-    def constrain_packed(self, x, limits):
-        """:meth:`constrain` on packed rows ``x`` ``(T, K)``, compiled (``lafortune_kernels.constrain_packed``): what
-        LM projects every trial point with.  Falls back to :meth:`constrain` where the horizon bound is 0° (the
-        NumPy path's division by sin² θ = 0 is not reproduced)."""
-        args = self.packed_limits(limits, x.shape[0])
-        if args is None:
-            return self.pack(self.constrain(self.unpack(x), limits)[0])
-        from .lafortune_kernels import constrain_packed
-
-        lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at = args
-        return constrain_packed(np.ascontiguousarray(x, np.float64), lo, hi, peak, has_peak, n_cap, growth, s2, c2,
-                                n_lo, n_hi, rho_at, c_at, ln_at, self.channels)
-
-    def packed_limits(self, limits, T: int) -> tuple | None:
-        """What the compiled projection (``lafortune_kernels._project_row``) reads for ``T`` texels: ``(lo, hi,
-        peak (T,), has_peak, n_cap (T,), growth (< 0: off), sin² θ_max, cos² θ_max, n bounds, and the packed
-        offsets of each lobe's ρ_s, C and log n)``; ``limits`` None: every bound off.  None where the compiled
-        projection does not apply: no lobes, or a horizon bound of 0° (the NumPy path's division by sin² θ = 0
-        is not reproduced)."""
-        max_theta = np.pi / 2 if limits is None else limits.max_theta
-        s2, c2 = float(np.sin(max_theta) ** 2), float(np.cos(max_theta) ** 2)
-        if s2 == 0.0 or not self.lobes:
-            return None
-        if self._layout is None:  # the packed bounds and offsets, once per form
-            sl, lobes = self.slices(), range(1, self.lobes + 1)
-            names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
-            self._layout = (*self.bounds(), *map(float, EXPONENT_BOUNDS),
-                            np.array([sl[f"rho_s_{j}"].start for j in lobes], np.int64),
-                            np.array([[sl[f"{nm}_{j}"].start for nm in names] for j in lobes], np.int64),
-                            np.array([sl[f"log_exponent_{j}"].start for j in lobes], np.int64))
-        lo, hi, n_lo, n_hi, rho_at, c_at, ln_at = self._layout
-        if limits is None:
-            return lo, hi, np.zeros(T), False, np.full(T, np.inf), -1.0, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at
-        n_cap = np.broadcast_to(np.asarray(limits.max_cosine_exponent(), np.float64).reshape(-1), (T,))
-        peak = np.zeros(T) if limits.peak is None else np.asarray(limits.peak, np.float64).reshape(T)
-        return (lo, hi, np.ascontiguousarray(peak), limits.peak is not None, np.ascontiguousarray(n_cap),
-                -1.0 if limits.growth is None else float(limits.growth), s2, c2, n_lo, n_hi, rho_at, c_at, ln_at)
-
-    def constrain(self, params, limits):
-        """:func:`bound_lobes` directly on the fit form (C_z = 1 already, log n)."""
-        out, changed = BRDFModel.constrain(self, params, limits)
-        if self.lobes:
-            changed |= _apply_lobe_bounds(self, out, limits, exponent_key="log_exponent_{j}", log=True,
-                                          reset_dead=False)
-        return out, changed
-
-    def random_guess(self, rng, T):
-        params = super().random_guess(rng, T)
-        if self.has_beta:
-            params["beta"] = rng.uniform(-np.pi / 2, np.pi / 2, (T, 1))
-        return params
-
-
-def solve_magnitudes(model: LafortuneModel, params, f_r, valid, wi, wo) -> dict[str, np.ndarray]:
-    """ρ_s per lobe by non-negative-clipped linear least squares on ``f_r − ρ_d`` with lobe shapes fixed."""
-    pxx, pyy, pzz, _ = model.lobe_dots(params, wi, wo)
-    w = (valid & above_horizon(wi, wo)).astype(float)
-    basis = []
-    for lobe in model.lobe_list(params):
-        x = lobe["c_x"][:, :1] * pxx + lobe["c_y"][:, :1] * pyy + lobe["c_z"][:, :1] * pzz
-        basis.append(positive_power(x, lobe["exponent"][:, :1]) * w)
-    B = np.stack(basis, axis=-1)  # (T, S, L)
-    resid = np.where(w[..., None] > 0, f_r - params["rho_d"][:, None, :], 0.0)
-    A = B.transpose(0, 2, 1) @ B + 1e-12 * np.eye(B.shape[-1])
-    rhs = B.transpose(0, 2, 1) @ resid  # (T, L, 3)
-    rho = np.clip(np.linalg.solve(A, rhs), 0.0, 1e6)
-    rho = np.nan_to_num(rho, nan=0.0, posinf=0.0)
-    return {f"rho_s_{j + 1}": rho[:, j, :] for j in range(B.shape[-1])}
 
 
 @hookimpl

@@ -1,9 +1,9 @@
 """The compiled projection of packed Lafortune fit-form rows onto a texel's limits.
 
-:meth:`~sbrdf_models.lafortune.LafortuneFitForm.constrain_packed` calls it
+:meth:`~sbrdf_models.lafortune_fit.LafortuneFitForm.constrain_packed` calls it
 where a fit left its limits (the peak a lobe may reach anywhere on the
 hemisphere, the sharpness the samples resolve): the same numbers as
-:meth:`~sbrdf_models.lafortune.LafortuneFitForm.constrain`, which the tests
+:meth:`~sbrdf_models.lafortune_fit.LafortuneFitForm.constrain`, which the tests
 compare it with.  Packed layout (as :meth:`LafortuneFitForm.pack`):
 ``rho_d[C]``, per lobe ``rho_s[C], c_x[, c_y], log_exponent``, then ``beta``.
 """

@@ -226,9 +226,9 @@ def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
     """A 2-lobe fit that parks its forward lobe as a faint spike at the exponent bound leaves the specular to the
     other lobe, and LM gets no gradient out of there.  The fit form flags it (``fit_trapped``) and the texel is
     fitted again from multi-start candidates: it reaches the noise level; texels not flagged are not restarted."""
-    import sbrdf_models.lafortune as lafortune
+    import sbrdf_models.lafortune_fit as lafortune_fit
     from sbrdf_lib.lm import fit_model
-    from sbrdf_models.lafortune import LafortuneFitForm
+    from sbrdf_models.lafortune_fit import LafortuneFitForm
 
     noise = 0.01
     model, f, valid, wi, wo, start, trap = lost_lobe_problem(registry, noise=noise)
@@ -240,7 +240,7 @@ def test_a_texel_that_lost_a_lobe_is_fitted_again(registry, monkeypatch):
 
     with monkeypatch.context() as m:
         m.delattr(LafortuneFitForm, "fit_trapped")
-        m.setattr(lafortune, "OUTLIER_RATIO", None)  # which would catch these too
+        m.setattr(lafortune_fit, "OUTLIER_RATIO", None)  # which would catch these too
         stuck, _ = fit()
     assert (stuck[trap] > 1.5 * noise).mean() > 0.5, stuck[trap]  # without the rescue, the trap holds
     rms, restarted = fit()
@@ -286,7 +286,7 @@ def test_a_texel_fitting_far_worse_than_its_tile_is_fitted_again(monkeypatch):
     ``fit_trapped`` passes it, but its cost is several times its tile's median: ``fit_outlier_ratio`` sends it to
     the rescue (one LM run from the variable-projection fit), which brings it to the noise level.  The other
     texels, at their truth, are left as they are; without the ratio nothing is fitted again."""
-    import sbrdf_models.lafortune as lafortune
+    import sbrdf_models.lafortune_fit as lafortune_fit
     from sbrdf_lib.lm import levenberg_marquardt, rescue, total_cost
 
     S, noise = 300, 0.01
@@ -315,7 +315,7 @@ def test_a_texel_fitting_far_worse_than_its_tile_is_fitted_again(monkeypatch):
         return x, x_out, np.sqrt(cost / (3 * S)), restarted
 
     with monkeypatch.context() as m:
-        m.setattr(lafortune, "OUTLIER_RATIO", None)
+        m.setattr(lafortune_fit, "OUTLIER_RATIO", None)
         x, x_out, rms, restarted = rescued()
     assert rms[0] > 3 * noise and not restarted.any() and (x_out == x).all()
     x, x_out, rms, restarted = rescued()
