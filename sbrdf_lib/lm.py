@@ -408,8 +408,7 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     nested = optional(form, "nested", "brdf-model")
     inner = nested() if nested is not None and initial is None and free.all() else None
     if inner is not None:
-        # More freedom never fits worse: the smaller model's solution, embedded (the extra lobe dead), competes as
-        # it is and as the start of one more LM run (the dead lobe's magnitude has a gradient, so it can wake).
+        # More freedom never fits worse: the smaller model's solution, embedded (the extra lobe dead), competes.
         smaller, embed = inner
         small, small_converged, _ = fit_model(smaller, f_r, valid, wi, wo, iterations=iterations, tolerance=tolerance,
                                 damping=damping, starts=starts if starts != model.suggested_starts else 0,
@@ -419,22 +418,9 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
         x_in = np.clip(embed(sform.pack(sform.from_model(small))), lo, hi)
         if project is not None:
             x_in = project(x_in, everyone)
-        keep_better(best, x_in, total_cost(objective, x_in), small_converged.copy(), 0.0)
-        keep_better(best, *descend(x_in), 0.0)
-        if limits is not None and limits.albedo is not None:
-            # The energy bound is held after the fit (the Fit node scales magnitudes down): both compete as they
-            # will leave the node, else the larger model's scaled-down solution could end above the smaller one's.
-            best[0] = within_energy(model, form, best[0], limits.albedo, lo, hi)
-            best[1] = total_cost(objective, best[0])
-            x_in = within_energy(model, form, x_in, limits.albedo, lo, hi)
-            keep_better(best, x_in, total_cost(objective, x_in), small_converged.copy(), 0.0)
-        if weighting != "absolute" or loss != "linear":
-            # The objective is weighted, the training error users read is not: where the smaller model's solution
-            # has the lower plain error, it is kept, so the reported error never grows with the model either.
-            plain = least_squares(form, f_r, valid.astype(np.float64), wi, wo)
-            lower = total_cost(plain, x_in) < total_cost(plain, best[0]) * (1 - 1e-12)
-            best[0][lower], best[2][lower] = x_in[lower], small_converged[lower]
-            best[1][lower] = objective.cost(x_in[lower], np.flatnonzero(lower))
+        compete(model, form, best, x_in, small_converged, objective, descend, limits, (lo, hi),
+                least_squares(form, f_r, valid.astype(np.float64), wi, wo)
+                if weighting != "absolute" or loss != "linear" else None)
     x, cost, converged, restarted = best
     if not want_cost:
         cost = None
@@ -443,6 +429,28 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     if stats is not None:
         stats["restarted"] = restarted
     return form.to_model(form.unpack(x)), converged, cost
+
+
+def compete(model, form, best, x_in, converged, objective, descend, limits, bounds, plain) -> None:
+    """The smaller model's embedded solution ``x_in`` against :func:`fit_model`'s ``best`` (updated in place): as it
+    is, and as the start of one more LM run (``descend``; the dead lobe's magnitude has a gradient, so it can wake).
+
+    Where the Fit node will hold an energy bound (``limits.albedo``) both compete as they will leave the node,
+    else the larger model's scaled-down solution could end above the smaller one's.  ``plain``: the unweighted
+    problem, when the objective is weighted: where ``x_in`` has the lower plain error it is kept, so the error
+    users read never grows with the model either.
+    """
+    keep_better(best, x_in, total_cost(objective, x_in), converged.copy(), 0.0)
+    keep_better(best, *descend(x_in), 0.0)
+    if limits is not None and limits.albedo is not None:
+        best[0] = within_energy(model, form, best[0], limits.albedo, *bounds)
+        best[1] = total_cost(objective, best[0])
+        x_in = within_energy(model, form, x_in, limits.albedo, *bounds)
+        keep_better(best, x_in, total_cost(objective, x_in), converged.copy(), 0.0)
+    if plain is not None:
+        lower = total_cost(plain, x_in) < total_cost(plain, best[0]) * (1 - 1e-12)
+        best[0][lower], best[2][lower] = x_in[lower], converged[lower]
+        best[1][lower] = objective.cost(x_in[lower], np.flatnonzero(lower))
 
 
 def within_energy(model, form, x: np.ndarray, albedo: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
