@@ -29,7 +29,7 @@ import logging
 import sys
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -303,7 +303,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
 
     def run(f, w, a, b, lim, initial=None):
         # rms=False: the node scores the fit itself, below; usable=True: f, w are usable()'s (the pool's too)
-        if initial is None:  # a fitter written before `initial` need not take it
+        if initial is None:  # a fitter written before `initial` need not take it (Fit.options turns coherence off)
             return fitter.fit(model, f, w, a, b, limits=lim, rms=False, usable=True)
         return fitter.fit(model, f, w, a, b, limits=lim, rms=False, usable=True, initial=initial)
 
@@ -421,6 +421,15 @@ def _within(n: int, tile: int, part: int) -> tuple[int, ...]:
     return tuple(out)
 
 
+def takes_initial(fitter) -> bool:
+    """Whether ``fitter.fit`` accepts ``initial`` (a fitter written before the keyword need not): read once, when
+    the node is built."""
+    import inspect
+
+    params = inspect.signature(fitter.fit).parameters
+    return "initial" in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+
+
 class Fit(NodeKind):
     name = "Fit"
     doc = ("Fit a BRDF model per texel inside its physical bounds; writes parameter maps, training and held-out "
@@ -443,6 +452,11 @@ class Fit(NodeKind):
         if relaxed:
             warnings.warn(f"node {ctx.node!r}: physical bounds relaxed ({', '.join(relaxed)}): fitted lobes may "
                           "exceed what the samples support where they were not measured", stacklevel=2)
+        if opts.coherence != "none" and not takes_initial(ctx.plugin):
+            warnings.warn(f"node {ctx.node!r}: fitter {type(ctx.plugin).__name__} takes no `initial` keyword (the "
+                          "fitter contract's refinement from a given solution): coherence is off for this node",
+                          stacklevel=2)
+            opts = replace(opts, coherence="none")
         return opts
 
     @classmethod

@@ -192,3 +192,20 @@ def test_the_demo_preview_loses_most_of_its_specks(tmp_path):
         counts[mode] = (int(found.sum()), int((found & bright).sum()))
     assert counts["neighbours"][0] < 0.25 * counts["none"][0], counts
     assert counts["neighbours"][1] < 0.2 * counts["none"][1], counts
+
+
+def test_a_fitter_without_initial_is_told_apart(uniform):
+    """A fitter written before the contract's ``initial`` keyword: the Fit node turns coherence off for it (with a
+    warning) instead of failing at its first refit."""
+    from sbrdf_core.nodes.fit import takes_initial
+
+    class Old:
+        def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False):
+            raise AssertionError("not called")
+
+    class Open:
+        def fit(self, model, f_r, valid, wi, wo, **options):
+            raise AssertionError("not called")
+
+    _, _, lm = uniform
+    assert takes_initial(lm) and takes_initial(Open()) and not takes_initial(Old())
