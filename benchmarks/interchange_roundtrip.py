@@ -119,7 +119,8 @@ def compare(image: np.ndarray, ref: np.ndarray) -> dict:
 
     ``rel_err`` = Σ|a − b| / Σ|b| (the project's render round-trip measure), ``rms`` = sqrt(Σ|a − b|² / Σ|b|²)
     (ruled by the brightest texels); ``peak_px``: pixels between the maxima of the luminance averaged over a
-    box 1/20 of the image wide, 9×9 at 160×120 (a highlight, not one sparkling texel).  Reference pixels
+    box 1/20 of the image wide, 9×9 at 160×120 (a highlight, not one sparkling texel); ``peak_ratio``: the
+    reference's box luminance at the export's maximum over its own maximum.  Reference pixels
     brighter than 4× its 99th percentile are left out and counted (``fireflies``).
     """
     lit = ref.max(-1) > 0
@@ -141,13 +142,17 @@ def compare(image: np.ndarray, ref: np.ndarray) -> dict:
 
     r = max(1, round(ref.shape[1] / 40))  # the box is 1/20 of the image wide whatever the resolution
 
-    def peak(a):
+    def boxed(a):
         y = np.where(inner, a @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
         p = np.pad(y, r)
-        box = sum(p[i:i + y.shape[0], j:j + y.shape[1]] for i in range(2 * r + 1) for j in range(2 * r + 1))
-        return np.array(np.unravel_index(np.argmax(box), box.shape), float)
+        return sum(p[i:i + y.shape[0], j:j + y.shape[1]] for i in range(2 * r + 1) for j in range(2 * r + 1))
 
-    out["peak_px"] = float(np.linalg.norm(peak(image) - peak(ref)))
+    b_image, b_ref = boxed(image), boxed(ref)
+    at_image, at_ref = (np.unravel_index(np.argmax(b), b.shape) for b in (b_image, b_ref))
+    out["peak_px"] = float(np.linalg.norm(np.subtract(at_image, at_ref)))
+    # how bright the reference is where the export's highlight lies, over its own highlight: near 1 where the
+    # reference's highlight is a plateau and the peak pixel's place says little
+    out["peak_ratio"] = float(b_ref[at_image] / b_ref[at_ref]) if b_ref[at_ref] > 0 else float("nan")
     return out
 
 
@@ -195,7 +200,7 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
     cpu = open_artifact(f"{store}/cpu").read("image")
     for r in ("gltf", "gltf_samples", "mitsuba"):
         out.update({f"{r}_rel_err": float("nan"), f"{r}_rms": float("nan"), f"{r}_peak_px": float("nan"),
-                    f"{r}_fireflies": -1})
+                    f"{r}_peak_ratio": float("nan"), f"{r}_fireflies": -1})
     from sbrdf_gltf.threejs import available, render_gltf
 
     why = available()
@@ -268,7 +273,8 @@ def main(argv=None) -> int:
           f"rough_mitsuba_rel_err={r['mitsuba_rel_err']:.4g} gltf_roughness_p50={g['roughness_p50']:.4g} "
           f"gltf_roughness_p99={g['roughness_p99']:.4g} glossy_gltf_peak_px={g['gltf_peak_px']:.3g} "
           f"glossy_mitsuba_peak_px={g['mitsuba_peak_px']:.3g} rough_gltf_peak_px={r['gltf_peak_px']:.3g} "
-          f"rough_mitsuba_peak_px={r['mitsuba_peak_px']:.3g} glossy_gltf_rms={g['gltf_rms']:.4g} "
+          f"rough_mitsuba_peak_px={r['mitsuba_peak_px']:.3g} rough_gltf_peak_ratio={r['gltf_peak_ratio']:.4g} "
+          f"rough_mitsuba_peak_ratio={r['mitsuba_peak_ratio']:.4g} glossy_gltf_rms={g['gltf_rms']:.4g} "
           f"glossy_mitsuba_rms={g['mitsuba_rms']:.4g} rough_gltf_rms={r['gltf_rms']:.4g} "
           f"rough_mitsuba_rms={r['mitsuba_rms']:.4g} glossy_fireflies={g['gltf_fireflies']} "
           f"rough_fireflies={r['gltf_fireflies']} glossy_conversion_err={g['conversion_err_p50']:.4g} "
