@@ -706,14 +706,18 @@ def _initial_guess(target, f_src, valid, wi, wo, source=None, grazing=True) -> d
         guess = _solve_magnitudes(target, shape, f_src, valid, wi, wo, grazing)
         with np.errstate(all="ignore"):
             cost = np.sum(w * (target.eval(guess, wi, wo) - f_src) ** 2, axis=(1, 2))
-        cost = np.where(np.isfinite(cost), cost, np.inf)
-        if best is None:
-            best, best_cost = guess, cost
-            continue
-        better = cost < best_cost
-        best = {k: np.where(better[:, None], guess[k], best[k]) for k in best}
-        best_cost = np.where(better, cost, best_cost)
+        best, best_cost = keep_lower(best, best_cost, guess, cost)
     return best
+
+
+def keep_lower(best, best_cost, cand, cost):
+    """``(best, best_cost)`` with each texel taking ``cand`` (model-form parameters) where its ``cost`` is lower
+    (a non-finite cost never is); ``best`` None: ``cand`` itself."""
+    cost = np.where(np.isfinite(cost), cost, np.inf)
+    if best is None:
+        return cand, cost
+    better = cost < best_cost
+    return {k: np.where(better[:, None], cand[k], best[k]) for k in best}, np.where(better, cost, best_cost)
 
 
 def _same_model(model, ggx) -> bool:
@@ -971,13 +975,7 @@ def samples_to_gltf(f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.n
                                       weight=ProjectedWeighted)
             with np.errstate(all="ignore"):
                 cost = np.sum((w * v[..., None] * (target.eval(guess, a, o) - f)) ** 2, axis=(1, 2))
-            cost = np.where(np.isfinite(cost), cost, np.inf)
-            if best is None:
-                best, best_cost = guess, cost
-                continue
-            better = cost < best_cost
-            best = {k: np.where(better[:, None], guess[k], best[k]) for k in best}
-            best_cost = np.where(better, cost, best_cost)
+            best, best_cost = keep_lower(best, best_cost, guess, cost)
         assert best is not None
         fitted = best
         if iterations > 0:

@@ -45,6 +45,7 @@ from .convert import (
     _eval,
     _prepare,
     direction_pairs,
+    keep_lower,
     relative_error,
     to_ggx,
 )
@@ -233,13 +234,7 @@ def to_preview_surface(model, params: dict, ggx, *, clearcoat: bool = True, star
                                        fixed=() if clearcoat else ("clearcoat",))
             with np.errstate(all="ignore"):
                 cost = np.sum(w * (_eval(target, cand, wi, wo) - f_src) ** 2, axis=(1, 2))
-            cost = np.where(np.isfinite(cost), cost, np.inf)
-            if best is None:
-                best, best_cost = cand, cost
-                continue
-            better = cost < best_cost
-            best = {k: np.where(better[:, None], cand[k], best[k]) for k in best}
-            best_cost = np.where(better, cost, best_cost)
+            best, best_cost = keep_lower(best, best_cost, cand, cost)
         assert best is not None
         fitted = best
         defaults = target.defaults(n)
