@@ -79,16 +79,6 @@ def _appearance_pairs(n: int = 32) -> tuple[np.ndarray, np.ndarray]:
 APPEARANCE_PAIRS = _appearance_pairs()
 
 
-def neighbour(x: np.ndarray, grid: tuple[int, int], dv: int, du: int) -> np.ndarray:
-    """Rows of ``x`` ``(V·U, ...)`` moved so that row t holds texel t's neighbour at ``(dv, du)``; NaN off the grid."""
-    V, U = grid
-    a = x.reshape((V, U) + x.shape[1:])
-    out = np.full_like(a, np.nan)
-    out[max(0, -dv):V - max(0, dv), max(0, -du):U - max(0, du)] = a[max(0, dv):V + min(0, dv),
-                                                                    max(0, du):U + min(0, du)]
-    return out.reshape(x.shape)
-
-
 def _cost(pred: np.ndarray, f_r: np.ndarray, train: np.ndarray) -> np.ndarray:
     diff = pred - f_r
     return np.where(train, (diff * diff).sum(axis=-1), 0.0).sum(axis=1)
@@ -114,11 +104,13 @@ def distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(d), d, np.inf)
 
 
-def ring(a: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
-    """``(8, T, ...)``: each texel's eight neighbours' rows of ``a`` ``(T, ...)``, the grid's edge replicated
-    (as the bounds' 3×3 filters do, ``mode="nearest"``)."""
+def ring(a: np.ndarray, grid: tuple[int, int], fill: float | None = None) -> np.ndarray:
+    """``(8, T, ...)``: each texel's eight neighbours' rows of ``a`` ``(T, ...)`` in :data:`OFFSETS` order; off the
+    grid, ``fill`` (None: the edge replicated, as the bounds' 3×3 filters do, ``mode="nearest"``)."""
     V, U = grid
-    pad = np.pad(a.reshape((V, U) + a.shape[1:]), [(1, 1), (1, 1)] + [(0, 0)] * (a.ndim - 1), mode="edge")
+    widths = [(1, 1), (1, 1)] + [(0, 0)] * (a.ndim - 1)
+    grid_a = a.reshape((V, U) + a.shape[1:])
+    pad = np.pad(grid_a, widths, mode="edge") if fill is None else np.pad(grid_a, widths, constant_values=fill)
     return np.stack([pad[1 + dv:1 + dv + V, 1 + du:1 + du + U].reshape(a.shape) for dv, du in OFFSETS])
 
 
@@ -137,8 +129,8 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
     ``refit(rows, initial, prior)`` fits texels ``rows`` from ``initial`` (model-form parameters) and returns
     their packed solutions; ``prior`` ``(R, Q, C)`` (NaN rows: none), when given, are extra samples at
     :data:`APPEARANCE_PAIRS` to fit as well: the neighbourhood's median appearance, which pulls an ambiguous
-    texel toward its neighbours only where its own samples leave it free.  ``from_neighbour``: texels whose solution now comes from a neighbour's (as it is or
-    refined); ``outlier``: texels whose appearance stays farther than ``outlier_distance`` from their
+    texel toward its neighbours only where its own samples leave it free.  ``from_neighbour``: texels whose
+    solution now comes from a neighbour's (as it is or refined); ``outlier``: texels whose appearance stays farther than ``outlier_distance`` from their
     neighbourhood's (0: no ambiguous-texel step, none flagged).  ``f_r`` and ``train`` are
     :func:`~sbrdf_core.nodes.fit.usable`'s.  ``parent`` ``(T, K)`` (:func:`pyramid`): each texel's parent's
     solution, compared as a neighbour's is.  ``project(rows, x)``: packed solutions of texels ``rows`` onto
@@ -148,9 +140,9 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
     x = np.array(x, np.float64)
     T, K = x.shape
     has = np.asarray(train.any(axis=1), bool)
-    cost = np.where(has, _cost(_predict(model, x, wi, wo), f_r, train), np.inf)
+    own = _cost(_predict(model, x, wi, wo), f_r, train)
+    cost = np.where(has & np.isfinite(own), own, np.inf)
     dof = np.maximum(train.sum(axis=1) * f_r.shape[-1] - K, 1)
-    cost = np.where(np.isfinite(cost), cost, np.inf)
     # the noise allowance is the texel's own fit's, once: sweeps must not add it up
     allowed = cost + NOISE_TOLERANCE * K * cost / dof
     moved = np.zeros(T, bool)
@@ -162,20 +154,19 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
         odd = _odd(dev, has, grid, outlier_distance)
         best_cost, best_x = cost * (1 - margin), x.copy()
         near, near_x = np.full(T, np.inf), np.full_like(x, np.nan)
-        if parent is not None and sweep == 0:  # the coarse-to-fine start: one more candidate, as a neighbour is
-            rows = np.flatnonzero(has & np.isfinite(parent).all(axis=1))
-            c = _cost(_predict(model, parent[rows], wi[rows], wo[rows]), f_r[rows], train[rows])
-            better = c < best_cost[rows]
-            best_cost[rows[better]], best_x[rows[better]] = c[better], parent[rows[better]]
-        for dv, du in OFFSETS:
-            xn = neighbour(x, grid, dv, du)
+        # the coherent candidates: the parent's solution (coarse to fine, first sweep only), then each neighbour's
+        candidates = [(parent, None)] if parent is not None and sweep == 0 else []
+        candidates += zip(ring(x, grid, fill=np.nan), ring(look, grid, fill=np.nan))
+        for xn, ln in candidates:
             rows = np.flatnonzero(has & np.isfinite(xn).all(axis=1))
             if rows.size == 0:
                 continue
             c = _cost(_predict(model, xn[rows], wi[rows], wo[rows]), f_r[rows], train[rows])
             better = c < best_cost[rows]
             best_cost[rows[better]], best_x[rows[better]] = c[better], xn[rows[better]]
-            d = distance(neighbour(look, grid, dv, du)[rows], middle[rows])
+            if ln is None:  # the parent is no neighbour to look like
+                continue
+            d = distance(ln[rows], middle[rows])
             closer = odd[rows] & (d < near[rows])
             near[rows[closer]], near_x[rows[closer]] = d[closer], xn[rows[closer]]
         better = best_cost < cost * (1 - margin)
@@ -277,15 +268,13 @@ def specks(image: np.ndarray, uniform: np.ndarray | None = None, factor: float =
     out = np.zeros((V, U), bool)
     if V < 3 or U < 3:
         return out
-    ring = np.stack([a[1 + dv:V - 1 + dv, 1 + du:U - 1 + du] for dv, du in OFFSETS])  # (8, V-2, U-2)
-    centre = a[1:-1, 1:-1]
-    median = np.median(np.concatenate([ring, centre[None]]), axis=0)
-    spread = np.maximum(1.4826 * np.median(np.abs(ring - median), axis=0), floor * np.abs(median))
+    around = ring(a.ravel(), (V, U)).reshape(8, V, U)
+    median = np.median(np.concatenate([a[None], around]), axis=0)
+    spread = np.maximum(1.4826 * np.median(np.abs(around - median), axis=0), floor * np.abs(median))
     with np.errstate(invalid="ignore"):
-        inner = ~(np.abs(centre - median) <= factor * spread)  # NaN counts as a speck
+        odd = ~(np.abs(a - median) <= factor * spread)  # NaN counts as a speck
     if uniform is not None:
         u = np.asarray(uniform, bool)
-        whole = np.logical_and.reduce([u[1 + dv:V - 1 + dv, 1 + du:U - 1 + du] for dv, du in OFFSETS]) & u[1:-1, 1:-1]
-        inner &= whole
-    out[1:-1, 1:-1] = inner
+        odd &= u & ring(u.ravel(), (V, U)).reshape(8, V, U).all(axis=0)
+    out[1:-1, 1:-1] = odd[1:-1, 1:-1]  # the grid's edge texels have no whole neighbourhood
     return out

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sbrdf_core.coherence import neighbour
+from sbrdf_core.coherence import OFFSETS, ring
 from sbrdf_core.geometry import fibonacci_hemisphere, tile_directions
 from sbrdf_core.nodes.fit import EXTRA, OUTLIER, FitOptions, fit_tile
 
@@ -18,11 +18,12 @@ TRUTH = {"rho_d": [0.05, 0.06, 0.07], "rho_s_1": [0.6, 0.55, 0.5], "c_xy_1": [-1
          "exponent_1": [60.0]}
 
 
-def test_neighbour_moves_each_row_to_its_texel():
+def test_ring_moves_each_row_to_its_texel():
     x = np.arange(12.0).reshape(12, 1)  # a 3 x 4 grid
-    right = neighbour(x, (3, 4), 0, 1).reshape(3, 4)
+    around = ring(x, (3, 4), fill=np.nan)
+    right = around[OFFSETS.index((0, 1))].reshape(3, 4)
     assert right[0, 0] == 1 and right[2, 2] == 11 and np.isnan(right[:, 3]).all()
-    up_left = neighbour(x, (3, 4), -1, -1).reshape(3, 4)
+    up_left = around[OFFSETS.index((-1, -1))].reshape(3, 4)
     assert up_left[1, 1] == 0 and up_left[2, 3] == 6 and np.isnan(up_left[0]).all() and np.isnan(up_left[:, 0]).all()
 
 
