@@ -330,16 +330,18 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, 
                       np.concatenate([train[rows], use], axis=1), np.concatenate([wi[rows], pw], axis=1),
                       np.concatenate([wo[rows], po], axis=1), limits.take(rows), initial)
             rflags[rows] = 0 if out.flags is None else out.flags
+            return packed(out)
+
+        def packed(out: FitResult) -> np.ndarray:
             return model.pack({k: np.asarray(v, np.float64) for k, v in out.params.items()})
 
         def coarse(f, w, a, b, lim, initial):
-            out = run(f, w, a, b, lim, None if initial is None else model.unpack(initial))
-            return model.pack({k: np.asarray(v, np.float64) for k, v in out.params.items()})
+            return packed(run(f, w, a, b, lim, None if initial is None else model.unpack(initial)))
 
-        parent = pyramid(coarse, f_r, train, wi, wo, grid, limits) if options.coherence == "pyramid" else None
         def project(rows, x):
             return model.pack(enforce(model, model.unpack(x), limits.take(rows))[0])
 
+        parent = pyramid(coarse, f_r, train, wi, wo, grid, limits) if options.coherence == "pyramid" else None
         x, from_neighbour, outlier = cohere(model, model.pack(params), f_r, train, wi, wo, grid, refit,
                                             options.outlier_distance, parent=parent, project=project)
         params = model.unpack(x)
