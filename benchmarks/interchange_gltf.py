@@ -9,7 +9,7 @@ A synthetic Lafortune capture is fitted with Lafortune (``lm``), then:
 ``export_s``                 wall time of the exporter's ``convert`` (the per-texel GGX conversion fit,
                              computed) plus ``write`` (PNGs, .gltf, .bin);
 ``roundtrip_render_rel_err`` the .gltf read back (PNG textures decoded into cook-torrance GGX maps,
-                             ``sbrdf_gltf.exporter.read_gltf`` / ``gltf_maps_to_ggx``) rendered through
+                             ``sbrdf_export.gltf.read_gltf`` / ``gltf_maps_to_ggx``) rendered through
                              ``gl`` (``cpu`` where no GL context can be made: printed) against the render
                              of the fitted Lafortune material, same scene: Σ|a − b| / Σ|a| over pixels.
 
@@ -73,7 +73,7 @@ def round_trip(registry, material, directory, scene, anisotropy=True):
     import dask.array as da
 
     from sbrdf_core.nodes.render import Material
-    from sbrdf_gltf.exporter import gltf_maps_to_ggx, read_gltf
+    from sbrdf_export.gltf import gltf_maps_to_ggx, read_gltf
 
     ex = registry.create("exporter", "gltf", {"anisotropy": anisotropy})
     ex.bind(registry)
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
     from sbrdf_core.runner import run_graph
     from sbrdf_core.store import open_artifact
 
-    registry = Registry(extra=["sbrdf_gltf"])
+    registry = Registry(extra=["sbrdf_export"])
     with tempfile.TemporaryDirectory() as tmp:
         scene = os.path.join(tmp, "scene.yaml")
         Path(scene).write_text(SCENE)

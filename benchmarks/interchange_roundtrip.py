@@ -13,7 +13,7 @@ per-texel error and flagged fraction):
 
 For each, the project's ``cpu`` render of the fit is the reference; the
 exported ``.gltf`` is rendered by three.js (r187, ``GLTFLoader``, headless
-Chromium, :mod:`sbrdf_gltf.threejs`) and the exported ``scene.xml`` by Mitsuba
+Chromium, :mod:`sbrdf_export.threejs`) and the exported ``scene.xml`` by Mitsuba
 3 (``scalar_rgb``).  ``*_rel_err`` is the relative L1 error over the pixels
 the plane covers (eroded by one pixel: silhouettes rasterise differently)
 Σ|a − b|/Σ|b|, b the ``cpu`` image (the measure of ``interchange_gltf``'s
@@ -175,7 +175,7 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
              "params: {source: samples}}\n")
     if importlib.util.find_spec("pxr") is not None:
         text += "  usd: {kind: Export, plugin: usd, in: {material: fit}}\n"
-    runner = Runner(registry=Registry(extra=["sbrdf_export", "sbrdf_gltf"]), progress=False)
+    runner = Runner(registry=Registry(extra=["sbrdf_export"]), progress=False)
     t0 = time.perf_counter()
     runner.run(load_graph(text, runner.registry))
     out = {"pipeline_s": time.perf_counter() - t0}
@@ -201,7 +201,7 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
     for r in ("gltf", "gltf_samples", "mitsuba"):
         out.update({f"{r}_rel_err": float("nan"), f"{r}_rms": float("nan"), f"{r}_peak_px": float("nan"),
                     f"{r}_peak_ratio": float("nan"), f"{r}_fireflies": -1})
-    from sbrdf_gltf.threejs import available, render_gltf
+    from sbrdf_export.threejs import available, render_gltf
 
     why = available()
     if why is None:

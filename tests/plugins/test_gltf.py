@@ -1,4 +1,4 @@
-"""The gltf exporter (plugins/sbrdf_gltf): Khronos-valid files, a faithful read-back, an Export node in a graph."""
+"""The gltf exporter (plugins/sbrdf_export/gltf.py): Khronos-valid files, a faithful read-back, an Export node in a graph."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import pytest
 from sbrdf_core.nodes.render import Material
 from sbrdf_core.registry import Registry
 
-PLUGINS = ("sbrdf_gltf",)
+PLUGINS = ("sbrdf_export",)
 #: The round trips' scene: the sample on a plane and a sphere under two point lights (``w`` × ``h`` pixels).
 ROUND_TRIP_SCENE = textwrap.dedent("""\
     camera: {{position: [0, -1.5, 1.5], look_at: [0, 0, 0.2], fov_deg: 45, resolution: [{w}, {h}]}}
@@ -126,7 +126,7 @@ def test_files_quad_and_extension(exported):
 
 @pytest.mark.parametrize("fmt", ["gltf", "glb"])
 def test_read_back_matches_the_conversion_within_8_bit_quantisation(exported, fmt):
-    from sbrdf_gltf.exporter import gltf_maps_to_ggx, read_gltf
+    from sbrdf_export.gltf import gltf_maps_to_ggx, read_gltf
 
     mat, p, maps, out = exported
     d, attrs = out[fmt]
@@ -148,7 +148,7 @@ def test_round_trip_renders_like_the_original(reg, exported):
     pytest.importorskip("dask.array")
     import dask.array as da
 
-    from sbrdf_gltf.exporter import gltf_maps_to_ggx, read_gltf
+    from sbrdf_export.gltf import gltf_maps_to_ggx, read_gltf
 
     mat, p, maps, out = exported
     d, attrs = out["gltf"]
@@ -234,7 +234,7 @@ def test_anisotropic_material_writes_khr_materials_anisotropy_that_the_validator
 
 
 def test_anisotropy_reads_back_as_the_source_lobe(anisotropic_export):
-    from sbrdf_gltf.exporter import gltf_maps_to_ggx, read_gltf
+    from sbrdf_export.gltf import gltf_maps_to_ggx, read_gltf
 
     mat, p, maps, d, attrs = anisotropic_export
     back = gltf_maps_to_ggx(read_gltf(str(d / "material.gltf")))
@@ -253,7 +253,7 @@ def test_anisotropic_round_trip_renders_like_the_original_through_gl(reg, anisot
     """glTF read back, rendered by `gl` with tangent frames, against the source (stated: < 5 % mean)."""
     import dask.array as da
 
-    from sbrdf_gltf.exporter import gltf_maps_to_ggx, read_gltf
+    from sbrdf_export.gltf import gltf_maps_to_ggx, read_gltf
 
     pytest.importorskip("moderngl")
     mat, p, maps, d, attrs = anisotropic_export

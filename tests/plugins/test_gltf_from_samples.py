@@ -49,7 +49,7 @@ def test_texels_without_samples_get_the_defaults_and_error_one(ggx):
 
 
 def run(text: str, tmp_path):
-    runner = Runner(registry=Registry(extra=("sbrdf_gltf",)), progress=False)
+    runner = Runner(registry=Registry(extra=("sbrdf_export",)), progress=False)
     runner.run(load_graph(textwrap.dedent(text).format(store=tmp_path / "s"), runner.registry))
     return tmp_path / "s"
 

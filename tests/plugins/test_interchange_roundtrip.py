@@ -56,7 +56,7 @@ def store(tmp_path_factory):
     for node, plugin in nodes.items():
         params = f", params: {{scene: {scene}}}" if plugin == "mitsuba" else ""
         text += f"  {node}: {{kind: Export, plugin: {plugin}, in: {{material: fit}}{params}}}\n"
-    runner = Runner(registry=Registry(extra=("sbrdf_export", "sbrdf_gltf")), progress=False)
+    runner = Runner(registry=Registry(extra=("sbrdf_export",)), progress=False)
     runner.run(load_graph(text, runner.registry))
     return tmp / "s", scene, runner.registry
 
@@ -113,7 +113,7 @@ def test_materialx_export_validates(store):
 
 
 def test_threejs_renders_the_gltf_export_like_cpu(store):
-    from sbrdf_gltf.threejs import available, render_gltf
+    from sbrdf_export.threejs import available, render_gltf
     from sbrdf_lib.scene import load_scene
 
     why = available()
