@@ -166,7 +166,7 @@ def main(argv=None) -> int:
                     help="texels per side of the big lm-gl 2-lobe case on a real GPU (default 4096; 0 skips it); "
                          "skipped, saying so, when the graph's size check finds its store would not fit the disk")
     args = ap.parse_args(argv)
-    from sbrdf_lmgl.device import device_name
+    from sbrdf_fitters.lm_gl_device import device_name
 
     side = 32 if args.quick else 256
     device = device_name()

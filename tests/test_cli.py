@@ -42,7 +42,8 @@ def test_plugins_lists_parameters_and_disabling(tmp_path):
     assert "synthetic" in out.stdout and "texels (list[int][2], default [64, 64]" in out.stdout
     out = sbrdf("-p", "no:fitters", "-p", "no:tables", "plugins", "--category", "fitter")
     listed = out.stdout.split("fitter:")[1]
-    assert "\n  lm " not in listed and "mcallister" not in listed and "lm-gl" in listed  # lm-gl is its own plugin
+    assert "\n  lm " not in listed and "mcallister" not in listed and "lm-gl" not in listed
+    assert "\n  svd " in listed  # a fitter of another plugin (separable) stays
 
 
 def test_info_on_missing_store(tmp_path):

@@ -156,7 +156,7 @@ def test_sharp_lobes_exponents_to_ten_thousand():
 def test_a_texel_that_lost_a_lobe_is_fitted_again_on_the_gpu(monkeypatch):
     """lm's rescue of texels the fit form flags as trapped, with the GPU fit: every rescue start in one batched
     run (texels repeated), so the repeated rows must each fit their own copy."""
-    import sbrdf_lmgl.fitter as lmgl
+    import sbrdf_fitters.lm_gl as lmgl
 
     from .test_lm import lost_lobe_problem
 

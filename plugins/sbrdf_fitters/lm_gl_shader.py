@@ -1,4 +1,4 @@
-"""The compute shader: one invocation per texel runs its Levenberg–Marquardt fit, a chunk of iterations a dispatch.
+"""lm-gl's compute shader: one invocation per texel runs its Levenberg–Marquardt fit, a chunk of iterations a dispatch.
 
 Each invocation reads its texel's samples from a shader storage buffer,
 accumulates the normal equations ``JᵀJ`` (packed lower triangle) and ``Jᵀr``

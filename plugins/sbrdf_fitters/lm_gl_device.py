@@ -1,4 +1,4 @@
-"""The GPU side: one EGL context on one thread, and texel tiles streamed through double-buffered SSBOs.
+"""lm-gl's GPU side: one EGL context on one thread, and texel tiles streamed through double-buffered SSBOs.
 
 An EGL context is current in one thread at a time, while the Fit node calls
 fitters from dask's worker threads; so every GL call runs on a single
@@ -24,7 +24,7 @@ import numpy as np
 from sbrdf_core.constraints_glsl import LIMITS_STRIDE
 from sbrdf_core.errors import SbrdfError
 
-from . import shader
+from . import lm_gl_shader
 
 logger = logging.getLogger(__name__)
 
@@ -82,12 +82,12 @@ def _pack(f_r, weight, wi, wo, x0, status, exact, sl):
     """Samples ``[S][n][10]`` (neighbouring invocations read nearby words) and state ``[n][K + 4]`` of texels ``sl``."""
     S, K = f_r.shape[1], x0.shape[1]
     n = len(range(*sl.indices(f_r.shape[0]))) if isinstance(sl, slice) else len(sl)
-    data = np.empty((S, n, shader.SAMPLE), np.float32)
+    data = np.empty((S, n, lm_gl_shader.SAMPLE), np.float32)
     data[..., 0:3] = wi[sl].transpose(1, 0, 2)
     data[..., 3:6] = wo[sl].transpose(1, 0, 2)
     data[..., 6:9] = f_r[sl].transpose(1, 0, 2)
     data[..., 9] = weight[sl].T
-    state = np.zeros((n, shader.state_stride(K)), np.float32)
+    state = np.zeros((n, lm_gl_shader.state_stride(K)), np.float32)
     state[:, :K], state[:, K + 1], state[:, K + 2] = x0[sl], status[sl], exact[sl]
     return data, state
 
@@ -120,15 +120,15 @@ def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, 
     S = f_r.shape[1]
     prog = _program(ctx, src)
     growth, max_theta = (-1.0, 0.0) if limits is None else limits[1:]
-    chunk = shader.chunk(S, K, limits is not None)
+    chunk = lm_gl_shader.chunk(S, K, limits is not None)
     _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_max_step=_max_step(max_step, K),
               u_samples=S, u_iterations=int(iterations),
               u_tolerance=float(tolerance), u_damping=float(damping), u_constrain=int(limits is not None),
               u_growth=float(growth), u_max_theta=float(max_theta), u_chunk=chunk)
-    stride = shader.state_stride(K)
+    stride = lm_gl_shader.state_stride(K)
     size = min(tile, T)
-    pairs = [(ctx.buffer(reserve=max(S, 1) * size * shader.SAMPLE * 4), ctx.buffer(reserve=size * stride * 4),
-              ctx.buffer(reserve=size * LIMITS_STRIDE * 4), ctx.buffer(reserve=size * shader.work_stride(K) * 4))
+    pairs = [(ctx.buffer(reserve=max(S, 1) * size * lm_gl_shader.SAMPLE * 4), ctx.buffer(reserve=size * stride * 4),
+              ctx.buffer(reserve=size * LIMITS_STRIDE * 4), ctx.buffer(reserve=size * lm_gl_shader.work_stride(K) * 4))
              for _ in range(2 if T > size else 1)]
     out = np.zeros((T, stride), np.float32)
     pending = None
@@ -148,7 +148,7 @@ def run_tiles(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, hi, 
             work_buf.bind_to_storage_buffer(2)
             limits_buf.bind_to_storage_buffer(3)
             prog["u_texels"].value = state.shape[0]
-            groups = (state.shape[0] + shader.GROUP - 1) // shader.GROUP
+            groups = (state.shape[0] + lm_gl_shader.GROUP - 1) // lm_gl_shader.GROUP
             for mode in [1] + [0] * -(-int(iterations) // chunk):  # the start, then the iterations in chunks
                 prog["u_mode"].value = mode
                 prog.run(groups)
@@ -178,7 +178,7 @@ def run_stepwise(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, h
     _uniforms(prog, u_lo=lo, u_hi=hi, u_free=free.astype(np.float32), u_max_step=_max_step(max_step, K),
               u_samples=S, u_iterations=int(iterations),
               u_tolerance=float(tolerance), u_damping=float(damping), u_texels=T, u_constrain=0)
-    stride, work_stride = shader.state_stride(K), shader.work_stride(K)
+    stride, work_stride = lm_gl_shader.state_stride(K), lm_gl_shader.work_stride(K)
     NA = K * (K + 1) // 2
     t0 = time.perf_counter()
     data, state = _pack(f_r, weight, wi, wo, x0, status, exact, slice(0, T))
@@ -186,7 +186,7 @@ def run_stepwise(ctx, src: str, x0, status, exact, f_r, weight, wi, wo, *, lo, h
     work_buf = ctx.buffer(reserve=T * work_stride * 4)
     unused = ctx.buffer(reserve=16)  # the limits binding, not read: the CPU projects
     timings["upload_s"] = timings.get("upload_s", 0.0) + time.perf_counter() - t0
-    groups = (T + shader.GROUP - 1) // shader.GROUP
+    groups = (T + lm_gl_shader.GROUP - 1) // lm_gl_shader.GROUP
     trial = slice(NA + K, NA + 2 * K)
     try:
         t0 = time.perf_counter()

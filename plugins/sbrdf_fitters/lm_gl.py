@@ -8,10 +8,10 @@ the plausibility limits.  For a model with the optional
 ``glsl_fit_constrain`` the shader projects the start and every trial point
 onto the texel's :class:`~sbrdf_core.constraints.Limits` itself, so the
 constrained fit is ``lm``'s step for step in one shader loop (chunked over a
-few dispatches, :func:`.shader.chunk`).  For a model without it, a first
+few dispatches, :func:`.lm_gl_shader.chunk`).  For a model without it, a first
 pass fits every texel inside the fit form's box bounds; a texel whose result
 leaves its limits is fitted again from ``lm``'s starts *stepwise*
-(:func:`.device.run_stepwise`: the GPU proposes each trial point, the CPU
+(:func:`.lm_gl_device.run_stepwise`: the GPU proposes each trial point, the CPU
 projects it, the GPU evaluates it); with ``loss`` huber / soft-l1 such
 texels are refitted by ``lm``'s own solver on the CPU.
 
@@ -53,7 +53,7 @@ from sbrdf_lib.lm import (
 )
 from sbrdf_lib.lm_params import WEIGHTINGS
 
-from . import device, shader
+from . import lm_gl_device, lm_gl_shader
 from .declarations import LM_GL
 
 logger = logging.getLogger(__name__)
@@ -119,7 +119,7 @@ class GLLevenbergMarquardtFitter:
         everyone = np.arange(T)
         constrain = optional(model, "glsl_fit_constrain", "brdf-model") if project is not None else None
         in_shader = constrain is not None  # every trial point projected in the shader: no stepwise refit
-        src = shader.source(glsl, K, constrain() if in_shader else None)
+        src = lm_gl_shader.source(glsl, K, constrain() if in_shader else None)
         packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
         plain_weight = valid.astype(np.float64)
         base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model
@@ -143,11 +143,11 @@ class GLLevenbergMarquardtFitter:
                         timings=self.timings, max_step=max_step)
             if project is None:
                 lim = (packed[0][idx], packed[1], packed[2]) if constrained and packed is not None else None
-                x, cost, converged, _ = device.call(device.run_tiles, src, x, status, exact, f_r[idx], w, wi[idx],
-                                                    wo[idx], tile=self.tile, limits=lim, **opts)
+                x, cost, converged, _ = lm_gl_device.call(lm_gl_device.run_tiles, src, x, status, exact, f_r[idx], w,
+                                                          wi[idx], wo[idx], tile=self.tile, limits=lim, **opts)
             else:
-                x, cost, converged, _ = device.call(device.run_stepwise, src, x, status, exact, f_r[idx], w,
-                                                    wi[idx], wo[idx], project=project, **opts)
+                x, cost, converged, _ = lm_gl_device.call(lm_gl_device.run_stepwise, src, x, status, exact, f_r[idx],
+                                                          w, wi[idx], wo[idx], project=project, **opts)
             return x, cost * scale[idx] ** 2, converged
 
         def descend(x0, idx=everyone):
