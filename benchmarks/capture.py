@@ -5,8 +5,8 @@ What it measures
 The ``virtual-camera`` device (built through ``default_registry().create("device",
 "virtual-camera", ...)``, Lambertian procedural material, 256x256 texels, 1024x768
 pixels, lens distortion) photographs ``poses`` poses (camera and light on two
-Fibonacci spirals, ``sbrdf_cameras.virtual.orbit_poses``) and
-``sbrdf_cameras.virtual.capture_to_folder`` writes them, one exposure per pose,
+Fibonacci spirals, ``sbrdf_capture.photograph.orbit_poses``) and
+``sbrdf_capture.photograph.capture_to_folder`` writes them, one exposure per pose,
 into a fresh capture folder (``durable=True``: every image and journal line is
 fsynced, as a real capture would), then finishes the manifest.  Two runs:
 
@@ -79,7 +79,7 @@ def log(msg: str) -> None:
 
 
 def run(folder: Path, poses: int, effects: list[str]) -> float:
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
     from sbrdf_core.registry import default_registry
 
     registry = default_registry()
@@ -154,7 +154,7 @@ def genicam_rig(tmp: Path, poses: int, frame_params: dict) -> dict:
     when both are installed.  Its cameras have no exposure control: one fixed exposure
     (``nominal_exposure_s``), so the capture's own bracket is that one time."""
     try:
-        from sbrdf_cameras.genicam import virtual_producer
+        from sbrdf_devices.cameras.genicam import virtual_producer
 
         viky = virtual_producer()
     except ImportError:

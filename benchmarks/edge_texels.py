@@ -61,7 +61,7 @@ def rings(V: int, U: int) -> np.ndarray:
 
 
 def main(argv=None) -> dict:
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
     from sbrdf_core.runner import run_graph
     from sbrdf_core.store import open_artifact
 

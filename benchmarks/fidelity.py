@@ -243,7 +243,7 @@ def band_fibonacci(n: int, lo_deg: float, hi_deg: float, offset: float = 0.0) ->
 
 
 def poses(scan: str, n: int):
-    from sbrdf_cameras.virtual import orbit_poses
+    from sbrdf_capture.photograph import orbit_poses
     from sbrdf_core.geometry import look_at
 
     if scan == "orbit":
@@ -255,7 +255,7 @@ def poses(scan: str, n: int):
 
 
 def capture(folder: Path, truth_url: str, scan: str, size: dict, seed: int) -> None:
-    from sbrdf_cameras.virtual import capture_to_folder
+    from sbrdf_capture.photograph import capture_to_folder
     from sbrdf_core.registry import default_registry
 
     reg = default_registry()

@@ -146,7 +146,7 @@ def poses_for(gb: float) -> int:
 
 
 def make_capture(folder: Path, gb: float) -> int:
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
     from sbrdf_core.registry import default_registry
 
     P = poses_for(gb)
@@ -382,7 +382,7 @@ def one(tmp: Path, gb: float, cluster: bool, scan: Path | None = None, keep: boo
 
 def lafortune(tmp: Path) -> dict:
     """A 1-lobe Lafortune SBRDF (procedural maps) on the texel grid: per-sample relative errors, per texel and per pose."""
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
     from sbrdf_core.registry import default_registry
     from sbrdf_core.store import open_artifact
 

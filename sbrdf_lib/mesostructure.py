@@ -28,7 +28,7 @@ Configuration (the camera's ``mesostructure`` parameter)::
       facet: lambert                 # or model: the camera's BRDF model (and its maps) on each facet
 
 Numpy arrays are accepted in place of paths when the camera is built from Python.
-Shared by the ``virtual-camera`` device (``sbrdf_cameras``) and the shading
+Shared by the ``virtual-camera`` device (``sbrdf_devices``) and the shading
 plugins' simulated captures.
 """
 

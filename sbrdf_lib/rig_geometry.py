@@ -13,7 +13,7 @@ vectorised over any number of poses; :func:`inverse` finds the motor angles
 for a wanted direction pair (ω_i, ω_r) at the sample centre where the rig can
 reach it.
 
-Shared by the rig's capture source and planner (``sbrdf_rig``) and by any
+Shared by the rig's capture source and planner (``sbrdf_capture``) and by any
 plugin that simulates the rig's geometry (``sbrdf_shading``'s arc capture).
 
 Frames

@@ -7,7 +7,6 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
 from sbrdf_capture.colour import (
     LINEAR_SRGB_TO_XYZ,
     XYZ_TO_LINEAR_SRGB,
@@ -18,6 +17,7 @@ from sbrdf_capture.colour import (
     fit_camera_to_xyz,
 )
 from sbrdf_capture.hdr import merge_exposures
+from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 from sbrdf_capture.response import (
     ResponseCurve,
     codes,

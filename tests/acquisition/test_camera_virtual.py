@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sbrdf_cameras.virtual import EFFECTS
 from sbrdf_core.errors import ParameterError, PluginError
 from sbrdf_core.geometry import look_at
+from sbrdf_devices.cameras.virtual import EFFECTS
 
 SMALL = {"width": 160, "height": 120, "focal_px": 200.0, "texels": [16, 16]}
 OVERHEAD = (np.array([0.0, 0.0, 300.0]),) + look_at(np.array([0.0, 0.0, 400.0]))

@@ -21,12 +21,12 @@ import pytest
 os.environ.setdefault("PYLON_CAMEMU", "2")  # before pypylon's transport layer factory first looks
 pytest.importorskip("pypylon.pylon")
 
+from sbrdf_capture.gonio import GonioCaptureError  # noqa: E402
 from sbrdf_core.runner import run_graph  # noqa: E402
 from sbrdf_core.testing import CameraTests  # noqa: E402
+from sbrdf_devices.motors.sim import SimulatedIndexer, SimulatedPTU  # noqa: E402
 from sbrdf_lib.camera import CameraLost, ExposureRefused, FrameTimeout  # noqa: E402
 from sbrdf_lib.capture_folder import load_manifest, read_journal  # noqa: E402
-from sbrdf_rig.gonio import GonioCaptureError  # noqa: E402
-from sbrdf_rig.sim import SimulatedIndexer, SimulatedPTU  # noqa: E402
 
 from .test_gonio import ANGLES, capture_arrays, motors  # noqa: E402
 

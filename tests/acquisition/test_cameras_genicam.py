@@ -33,8 +33,8 @@ import pytest
 
 pytest.importorskip("harvesters.core", reason="harvesters is not installed: pip install 'sbrdf[genicam]'")
 
-from sbrdf_cameras.genicam import virtual_producer  # noqa: E402
 from sbrdf_core.testing import CameraTests  # noqa: E402
+from sbrdf_devices.cameras.genicam import virtual_producer  # noqa: E402
 from sbrdf_lib.camera import CameraError, CameraLost, ExposureRefused, FrameTimeout  # noqa: E402
 
 VIKY = virtual_producer()
@@ -124,9 +124,9 @@ def test_a_camera_without_exposure_time_cannot_bracket_and_says_so(registry):
 
 def test_a_camera_without_exposure_time_is_refused_before_any_motion(tmp_path, registry, start_simulator):
     """The gonio plan asks for a bracket: refused at the exposure check, the motors where they were."""
+    from sbrdf_capture.gonio import GonioCaptureError
     from sbrdf_core.runner import run_graph
-    from sbrdf_rig.gonio import GonioCaptureError
-    from sbrdf_rig.sim import SimulatedIndexer, SimulatedPTU
+    from sbrdf_devices.motors.sim import SimulatedIndexer, SimulatedPTU
 
     from .test_gonio import ANGLES, motors
 

@@ -61,7 +61,7 @@ def nested_folder(tmp_path, registry) -> Path:
     """A small complete capture whose manifest names its images in subfolders of images/."""
     import json
 
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 
     cam = registry.create("device", "virtual-camera", {"width": 96, "height": 72, "focal_px": 130.0,
                                                        "texels": [8, 8]})
@@ -146,7 +146,7 @@ def png_bomb(path: Path, side: int) -> None:
 
 
 def png_folder(tmp_path, registry) -> Path:
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 
     cam = registry.create("device", "virtual-camera", {"width": 96, "height": 72, "focal_px": 130.0,
                                                        "texels": [8, 8], "effects": ["response", "falloff"]})

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 from sbrdf_lib.capture_folder import (
     JOURNAL,
     MANIFEST,
@@ -204,7 +204,7 @@ KILLER = textwrap.dedent("""\
     import numpy as np
     from sbrdf_core.registry import Registry
     import sbrdf_lib.capture_folder as cf
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 
     kill_at = int(sys.argv[2])
     real = cf._write_atomic

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import zarr
 
-from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 from sbrdf_core.runner import run_graph
 
 

@@ -23,15 +23,15 @@ import numpy as np
 import pytest
 import zarr
 
+from sbrdf_capture.gonio import GonioCaptureError
 from sbrdf_core.errors import ArtifactError, ParameterError
 from sbrdf_core.graph import load_graph
 from sbrdf_core.runner import run_graph
 from sbrdf_core.store import open_artifact
+from sbrdf_devices.motors.sim import Fault, SimulatedIndexer, SimulatedPTU
 from sbrdf_lib.capture_folder import JOURNAL, MANIFEST, load_manifest, read_journal
 from sbrdf_lib.rig_geometry import RigGeometry, forward
 from sbrdf_lib.serial.errors import LinkLost, PositionError, ReplyTimeout, SoftLimitError
-from sbrdf_rig.gonio import GonioCaptureError
-from sbrdf_rig.sim import Fault, SimulatedIndexer, SimulatedPTU
 
 from ..conftest import assert_stores_equal
 

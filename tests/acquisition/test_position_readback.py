@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import pytest
 
+from sbrdf_devices.motors.indexer import Indexer
+from sbrdf_devices.motors.ptu import PanTiltUnit
+from sbrdf_devices.motors.sim import Fault, SimulatedIndexer, SimulatedPTU
 from sbrdf_lib.serial.errors import ImplausibleReply
-from sbrdf_rig.indexer import Indexer
-from sbrdf_rig.ptu import PanTiltUnit
-from sbrdf_rig.sim import Fault, SimulatedIndexer, SimulatedPTU
 
 TIMEOUT_S = 0.15
 LAST = 99  # a corrupt fault's digit past the end changes the reply's last digit: the smallest error

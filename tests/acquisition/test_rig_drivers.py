@@ -14,6 +14,9 @@ from dataclasses import dataclass
 import pytest
 
 from sbrdf_core.errors import SbrdfError
+from sbrdf_devices.motors.indexer import Indexer
+from sbrdf_devices.motors.ptu import PanTiltUnit
+from sbrdf_devices.motors.sim import Fault, SimulatedIndexer, SimulatedPTU
 from sbrdf_lib.serial.errors import (
     DeviceClosed,
     DeviceError,
@@ -25,9 +28,6 @@ from sbrdf_lib.serial.errors import (
     ReplyTimeout,
     SoftLimitError,
 )
-from sbrdf_rig.indexer import Indexer
-from sbrdf_rig.ptu import PanTiltUnit
-from sbrdf_rig.sim import Fault, SimulatedIndexer, SimulatedPTU
 
 TIMEOUT_S = 0.15
 STALL_S = 0.25  # longer than the timeout: the reply arrives after the driver has given up on it

@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sbrdf_lib.rig_geometry import RigGeometry, forward
-from sbrdf_rig.planning import (
+from sbrdf_capture.planning import (
     angular_error_budget_deg,
     bi_angular_distance,
     camera_geometry,
@@ -21,6 +20,7 @@ from sbrdf_rig.planning import (
     plan_poses,
     sampling_density,
 )
+from sbrdf_lib.rig_geometry import RigGeometry, forward
 
 RIG = RigGeometry(sample_standoff_mm=0.0)
 

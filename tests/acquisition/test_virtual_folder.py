@@ -112,7 +112,7 @@ def test_an_interrupted_render_resumes(tmp_path, registry):
 
 
 def test_a_folder_it_did_not_write_is_left_alone(tmp_path, registry):
-    from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+    from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 
     cam = registry.create("device", "virtual-camera", CAMERA)
     cam.bind(registry)

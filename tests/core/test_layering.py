@@ -57,7 +57,7 @@ def test_the_rule_catches_a_plugin_importing_another(tmp_path):
 
 
 def test_the_core_names_no_plugin():
-    """Not even in docstrings (``sbrdf_render.gl``, ``plugins/sbrdf_rig``): the core finds plugins only
+    """Not even in docstrings (``sbrdf_render.gl``, ``plugins/sbrdf_devices``): the core finds plugins only
     through entry points.  (Hook names such as ``sbrdf_fitters`` are the contract, not the package.)"""
     names = [p for p in PLUGINS if p != "sbrdf_example"]
     pattern = re.compile(r"\b(" + "|".join(names) + r")[./:]")

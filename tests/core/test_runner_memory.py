@@ -22,7 +22,7 @@ import pytest
 from dask.callbacks import Callback
 from dask.utils import key_split
 
-from sbrdf_cameras.virtual import capture_to_folder, orbit_poses
+from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 from sbrdf_core.graph import load_graph
 from sbrdf_core.runner import Runner
 from sbrdf_core.streaming import Subgraph

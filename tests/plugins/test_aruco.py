@@ -13,12 +13,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from sbrdf_cameras.virtual import BLACK_ALBEDO, WHITE_ALBEDO, capture_to_folder, orbit_poses
+from sbrdf_capture.photograph import capture_to_folder, orbit_poses
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import camera_centre, look_at, texel_centres
 from sbrdf_core.nodes.register import pose_block
 from sbrdf_core.runner import run_graph
 from sbrdf_core.store import open_artifact
+from sbrdf_devices.cameras.virtual import BLACK_ALBEDO, WHITE_ALBEDO
 from sbrdf_register.aruco import plane_to_pixels
 
 NOISY = ["falloff", "blur", "motor_error", "noise"]

@@ -69,7 +69,7 @@ import numpy as np
 from sbrdf_core.extras import require
 from sbrdf_lib.camera import CameraError, CameraLost, ExposureRefused, FrameCameraBase, FrameTimeout
 
-from .declarations import GENICAM
+from ..declarations import GENICAM
 
 #: Bits per code of the pixel formats the driver reads, channels in the buffer (0: a Bayer mosaic), and whether
 #: the channels arrive blue first.

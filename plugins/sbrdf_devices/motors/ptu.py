@@ -56,7 +56,7 @@ from sbrdf_lib.serial.controller import MotorController
 from sbrdf_lib.serial.errors import DeviceRefused, GarbledReply, ImplausibleReply
 from sbrdf_lib.serial.link import SerialLink
 
-from .declarations import PTU, PTU46_RESOLUTIONS_ARCSEC
+from ..declarations import PTU, PTU46_RESOLUTIONS_ARCSEC
 
 logger = logging.getLogger(__name__)
 
@@ -84,7 +84,7 @@ class PanTiltUnit(MotorController):
 
     axes = ("pan_deg", "tilt_deg")
     #: The simulator the ``gonio`` capture source starts for ``port: sim``.
-    simulator = "sbrdf_rig.sim.ptu:SimulatedPTU"
+    simulator = "sbrdf_devices.motors.sim.ptu:SimulatedPTU"
 
     params = PTU
 

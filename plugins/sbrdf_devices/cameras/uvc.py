@@ -41,7 +41,7 @@ import numpy as np
 from sbrdf_core.errors import ParameterError
 from sbrdf_lib.camera import CameraError, CameraLost, FrameCameraBase, FrameTimeout
 
-from .declarations import UVC
+from ..declarations import UVC
 
 #: V4L2 exposure_time_absolute step, s.
 V4L2_EXPOSURE_UNIT_S = 1e-4

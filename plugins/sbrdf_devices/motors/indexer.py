@@ -54,7 +54,7 @@ from sbrdf_lib.serial.controller import MotorController
 from sbrdf_lib.serial.errors import DeviceRefused, GarbledReply, ImplausibleReply, ReplyTimeout
 from sbrdf_lib.serial.link import SerialLink
 
-from .declarations import INDEXER
+from ..declarations import INDEXER
 
 logger = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ class Indexer(MotorController):
 
     axes = ("angle_deg",)
     #: The simulator the ``gonio`` capture source starts for ``port: sim``.
-    simulator = "sbrdf_rig.sim.indexer:SimulatedIndexer"
+    simulator = "sbrdf_devices.motors.sim.indexer:SimulatedIndexer"
 
     params = INDEXER
 

@@ -50,7 +50,7 @@ import numpy as np
 from sbrdf_core.extras import require
 from sbrdf_lib.camera import CameraError, CameraLost, FrameCameraBase, FrameTimeout
 
-from .declarations import PYLON
+from ..declarations import PYLON
 
 #: Bits per code of the pixel formats the driver reads, and whether the buffer holds RGB triples.
 FORMATS = {"Mono8": (8, 1), "Mono10": (10, 1), "Mono12": (12, 1), "Mono16": (16, 1),

@@ -1,18 +1,54 @@
-"""The camera devices' and the virtual-folder source's parameters, read without importing them.
+"""The devices' parameters, declared once and read without importing a driver.
 
 ``sbrdf plugins``, graph validation and the reference docs read these through
-the :class:`~sbrdf_core.plugin.PluginSpec` of each contribution
-(``__init__.py``); the implementations (:mod:`.virtual`, :mod:`.pylon`,
-:mod:`.aravis`, :mod:`.genicam`, :mod:`.uvc`, :mod:`.gphoto`, :mod:`.capture`), imported when
-a graph opens a camera, take the same tuples as their ``params``.  This module
-imports only :mod:`sbrdf_core.params` and :mod:`sbrdf_lib.camera_params` (no
-camera SDK, OpenCV or NumPy).
+the :class:`~sbrdf_core.plugin.PluginSpec` of each device (``__init__.py``);
+the drivers (:mod:`.motors.ptu`, :mod:`.motors.indexer`,
+:mod:`.cameras.virtual`, :mod:`.cameras.pylon`, :mod:`.cameras.aravis`,
+:mod:`.cameras.genicam`, :mod:`.cameras.uvc`, :mod:`.cameras.gphoto`),
+imported when a capture opens a device, take the same tuples as their
+``params``.  This module imports only :mod:`sbrdf_core.params`,
+:mod:`sbrdf_lib.serial_params` and :mod:`sbrdf_lib.camera_params` (no
+pyserial, camera SDK, OpenCV or NumPy).
 """
 
 from __future__ import annotations
 
-from sbrdf_core.params import REQUIRED, Param, plugin_reference
+from sbrdf_core.params import Param
 from sbrdf_lib.camera_params import COMMON_PARAMS
+from sbrdf_lib.serial_params import LINK_PARAMS
+
+# -- motor controllers (motors/) ----------------------------------------------------------------------------------
+
+#: Arc-seconds per position of the Directed Perception / FLIR PTU-46 family: a PTU-46-17.5 at full step
+#: (185.1428) down to a PTU-46-70 at eighth step; a unit always reports one of these.
+PTU46_RESOLUTIONS_ARCSEC = tuple(round(185.1428 / 2 ** k, 4) for k in range(6))
+
+PTU = (
+    *LINK_PARAMS,
+    Param("pan_limits_deg", "list", [-159.0, 159.0], "pan soft limits [low, high], intersected with the unit's",
+          length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
+    Param("tilt_limits_deg", "list", [-47.0, 31.0], "tilt soft limits [low, high], intersected with the unit's",
+          length=2, item="float", bounds=(-360.0, 360.0), unit="deg"),
+    Param("speed_deg_s", "float", 20.0, "pan and tilt speed", bounds=(0.01, 1000.0), unit="deg/s"),
+    Param("resolutions_arcsec", "list", list(PTU46_RESOLUTIONS_ARCSEC),
+          "resolutions the controller model can report (PTU-46 family by default); a PR/TR reading must be one of "
+          "them and read the same twice; [] checks agreement only", item="float", bounds=(1e-6, None),
+          unit="arcsec"),
+)
+
+INDEXER = (
+    *LINK_PARAMS,
+    Param("axis", "int", 1, "controller axis number", bounds=(1, 4)),
+    Param("gear_ratio", "float", 90.0, "motor revolutions per output revolution", bounds=(1e-3, None)),
+    Param("limits_deg", "list", [10.0, 175.0], "soft limits [low, high] of the output shaft (light arm: 10-175 deg)",
+          length=2, item="float", bounds=(-3600.0, 3600.0), unit="deg"),
+    Param("speed_deg_s", "float", 20.0, "output-shaft speed", bounds=(0.01, 1000.0), unit="deg/s"),
+    Param("acceleration_deg_s2", "float", 40.0, "output-shaft acceleration", bounds=(0.01, 10000.0),
+          unit="deg/s^2"),
+    Param("poll_s", "float", 0.01, "status polling interval while a move runs", bounds=(0.0, 1.0), unit="s"),
+)
+
+# -- cameras (cameras/) -------------------------------------------------------------------------------------------
 
 #: The virtual camera's effects, in the order they are applied.
 EFFECTS = ("falloff", "vignetting", "blur", "motor_error", "dark_current", "black_level", "noise", "saturation",
@@ -24,16 +60,6 @@ MESOSTRUCTURE_SCHEMA = (
     Param("albedo", "any", 0.8, "per-texel albedo: a number, [r, g, b], a .npy path (V, U[, 3]) or {procedural: ...}"),
     Param("facet", "str", "lambert", "each facet reflects Lambertian, or with the camera's BRDF model",
           choices=("lambert", "model")),
-)
-
-#: ``camera``: a device and its parameters.
-CAMERA_SCHEMA = plugin_reference("device", "camera")
-#: ``orbit``: :func:`~sbrdf_cameras.virtual.orbit_poses`'s settings.
-ORBIT_SCHEMA = (
-    Param("camera_distance_mm", "float", 350.0, "camera distance from the sample centre", unit="mm"),
-    Param("light_distance_mm", "float", 450.0, "light distance from the sample centre", unit="mm"),
-    Param("max_camera_theta_deg", "float", 50.0, "largest camera elevation from the normal", unit="deg"),
-    Param("max_light_theta_deg", "float", 65.0, "largest light elevation from the normal", unit="deg"),
 )
 
 PYLON = COMMON_PARAMS + (
@@ -126,25 +152,4 @@ VIRTUAL = (
     Param("mesostructure", "dict", None, "photograph a height field with per-texel albedo instead of a flat sample: "
           "{height_mm, albedo, facet} (sbrdf_lib.mesostructure); effects shadowing/masking act on it",
           nullable=True, schema=MESOSTRUCTURE_SCHEMA),
-)
-
-VIRTUAL_FOLDER = (
-    Param("path", "str", REQUIRED, "capture folder to write (resumed if a run was interrupted, re-rendered if this source "
-          "wrote it with other parameters), relative to the graph file", extra={"path": True}),
-    Param("camera", "dict", {"device": "virtual-camera", "params": {}},
-          "camera device {device, params}: the virtual-camera's parameters (size, focal_px, model, texels, effects, ...)",
-          schema=CAMERA_SCHEMA),
-    Param("poses", "int", 60, "number of poses: camera and light on two Fibonacci spirals over the hemisphere "
-          "(sbrdf_cameras.virtual.orbit_poses)", bounds=(1, 100000)),
-    Param("orbit", "dict", {}, "orbit_poses settings: camera_distance_mm (350), light_distance_mm (450), "
-          "max_camera_theta_deg (50), max_light_theta_deg (65)", schema=ORBIT_SCHEMA),
-    Param("exposures", "list", [1.0], "exposure times in s: one bracket of 1-3 times for every pose, e.g. [0.25, 1.0], "
-          "or one bracket per pose [[...], ...]"),
-    Param("light", "dict", None, "the manifest's light section {type, intensity}; default the camera's light_info()",
-          nullable=True),
-    Param("read", "dict", {}, "parameters of the folder plugin that reads the folder back (response, saturation, "
-          "underexposure, colour_matrix, ...)"),
-    Param("image_format", "str", "png", "file format of 8/16-bit images (float images are always EXR)",
-          choices=("png", "tif")),
-    Param("durable", "bool", True, "fsync every image and journal line (crash-safe against power loss)"),
 )

@@ -1,4 +1,4 @@
-"""A simulated Compumotor 6000-style indexer (see :mod:`sbrdf_rig.indexer` for the protocol).
+"""A simulated Compumotor 6000-style indexer (see :mod:`sbrdf_devices.motors.indexer` for the protocol).
 
 Defaults: one axis, 25000 steps/rev drive and encoder resolution, a 90:1
 gearbox assumed by :attr:`steps_per_deg` (so fault offsets can be given in

@@ -3,7 +3,7 @@
 A graph that starts from a simulated scan needs no preparation step: the
 Capture node's ``virtual-folder`` source renders every pose with a camera
 device (``virtual-camera`` by default) into a real ``sbrdf-capture/1`` folder
-at ``path`` (:func:`sbrdf_cameras.virtual.capture_to_folder`, the same writer
+at ``path`` (:func:`.photograph.capture_to_folder`, the same writer
 a rig uses), and then hands the Capture node exactly what the ``folder``
 plugin reading that folder would (:class:`sbrdf_capture.folder.FolderCapture`
 does the reading, with the parameters under ``read``).  The folder is the
@@ -12,7 +12,7 @@ simulator's shortcut, and the folder can be read again later with
 ``plugin: folder``.
 
 Poses: ``poses`` camera/light pairs on two Fibonacci spirals over the
-hemisphere (:func:`sbrdf_cameras.virtual.orbit_poses`, shaped by ``orbit``).
+hemisphere (:func:`.photograph.orbit_poses`, shaped by ``orbit``).
 Exposures: one bracket of 1-3 times for every pose, or one bracket per pose.
 
 Caching and the folder:
@@ -151,7 +151,7 @@ class VirtualFolderCapture:
 
     def planned(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[list[float]]]:
         """``(light_pos (P, 3), R (P, 3, 3), t (P, 3), exposure brackets)`` of the capture."""
-        from .virtual import orbit_poses
+        from .photograph import orbit_poses
 
         light, R, t = orbit_poses(self.n_poses, **self.orbit)
         return light, R, t, self.times
@@ -180,7 +180,7 @@ class VirtualFolderCapture:
             self.bind(default_registry())
         from sbrdf_lib.capture_folder import MANIFEST, CaptureFolderError, load_manifest, parse_manifest
 
-        from .virtual import capture_to_folder
+        from .photograph import capture_to_folder
 
         header = self._header()
         expected = parse_manifest({**header, "complete": False, "poses": []}, f"{self.path} ({SOURCE} header)").header_json()

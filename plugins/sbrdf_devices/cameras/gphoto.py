@@ -50,7 +50,7 @@ from sbrdf_core.errors import ParameterError
 from sbrdf_core.extras import require
 from sbrdf_lib.camera import CameraError, CameraLost, ExposureRefused, FrameCameraBase, FrameTimeout
 
-from .declarations import GPHOTO
+from ..declarations import GPHOTO
 
 #: libgphoto2 result codes (gphoto2/gphoto2-port-result.h) meaning the camera is gone.
 LOST_CODES = {-7, -52, -53, -105}  # GP_ERROR_IO, _IO_USB_FIND, _IO_USB_CLAIM, GP_ERROR_MODEL_NOT_FOUND

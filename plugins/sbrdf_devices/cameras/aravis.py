@@ -49,7 +49,7 @@ import numpy as np
 from sbrdf_core.extras import require
 from sbrdf_lib.camera import CameraError, CameraLost, FrameCameraBase, FrameTimeout
 
-from .declarations import ARAVIS
+from ..declarations import ARAVIS
 
 #: Bits per code of the pixel formats the driver reads, and channels in the buffer (0: a Bayer mosaic).
 FORMATS = {"Mono8": (8, 1), "Mono10": (10, 1), "Mono12": (12, 1), "Mono16": (16, 1), "RGB8": (8, 3),

@@ -1,4 +1,4 @@
-"""A simulated Directed Perception-style pan-tilt unit (see :mod:`sbrdf_rig.ptu` for the protocol).
+"""A simulated Directed Perception-style pan-tilt unit (see :mod:`sbrdf_devices.motors.ptu` for the protocol).
 
 Defaults follow a PTU-46-70 in eighth-step mode: 46.2857 arc-seconds per
 position, pan ±159°, tilt −47°..+31°, echo on (the factory default), verbose

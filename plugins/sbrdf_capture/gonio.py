@@ -64,9 +64,10 @@ faults, stop the capture with a :class:`GonioCaptureError` (``motor`` is
   exposure saturates more than that share of pixels stops the capture
   (shorten the bracket or lower the gain, then resume).
 
-``port: sim`` in a motor's parameters starts the matching pty simulator
-(:mod:`sbrdf_rig.sim`) inside this process and connects the real driver to
-it, so ``graphs/gonio-virtual.yaml`` runs the whole rig without hardware.
+``port: sim`` in a motor's parameters starts the pty simulator its driver
+names (``ptu``'s and ``indexer``'s are in :mod:`sbrdf_devices.motors.sim`)
+inside this process and connects the real driver to it, so
+``graphs/gonio-virtual.yaml`` runs the whole rig without hardware.
 """
 
 from __future__ import annotations
