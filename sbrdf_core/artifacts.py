@@ -119,8 +119,11 @@ ParamMaps = ArtifactKind(
         ArraySpec("fit_time_s", "VU", "float32", "fitting time per texel (its tile's time shared out), s",
                   timing=True),
         ArraySpec("from_neighbour", "VU", "uint8", "1 where the texel's solution came from a neighbour's (or, with "
-                  "coherence: pyramid, its parent's): one that fits its samples better, or as well within the "
-                  "noise and more like its neighbourhood", required=False),
+                  "coherence: pyramid, its parent's; with coherence: basis, its material's): one that fits its "
+                  "samples better, or as well within the noise and more like its neighbourhood", required=False),
+        ArraySpec("material", "VU", "uint8", "with coherence: basis, the texel's basis material: its cluster among "
+                  "its tile's texels (0 the darkest; labels are per tile, so one label in two tiles need not be one "
+                  "material); 255 where the texel had no training samples", required=False),
         ArraySpec("mip/*", "VUC", "float32", "MIP level l >= 1 of each parameter, mip/<l>/<parameter>, "
                   "(V >> l) x (U >> l) (a Mip node; attrs mip: levels, method, shapes)", required=False),
     ),

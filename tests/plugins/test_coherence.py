@@ -210,3 +210,106 @@ def test_a_fitter_without_initial_is_told_apart(uniform):
 
     _, _, lm = uniform
     assert takes_initial(lm) and takes_initial(Open()) and not takes_initial(Old())
+
+
+# -- coherence: basis (basis materials per tile, in the manner of Lensch et al. 2003) ------------------------------
+
+MATTE = {"rho_d": [0.3, 0.2, 0.1], "rho_s_1": [0.08, 0.08, 0.08], "c_xy_1": [-1.0], "c_z_1": [1.0],
+         "exponent_1": [5.0]}
+
+
+def _two_materials(truth):
+    """``truth`` with the columns u ≥ 2 of the grid made a matte material, and the mask of those texels."""
+    right = (np.arange(GRID[0] * GRID[1]) % GRID[1]) >= 2
+    return {k: np.where(right[:, None], np.asarray(MATTE[k], np.float64), v) for k, v in truth.items()}, right
+
+
+def test_basis_labels_separate_two_materials(uniform):
+    model, truth, lm = uniform
+    varied, right = _two_materials(truth)
+    data = _tile(model, varied, noise=0.005, seed=1)
+    _, chosen = _fit(lm, model, data, coherence="basis", materials=0)  # as many as keep paying: two
+    label = chosen["material"].astype(int)
+    assert set(label[right]) != set(label[~right]) and len(set(label[right])) == len(set(label[~right])) == 1
+    _, four = _fit(lm, model, data, coherence="basis")  # the default 4: a material may split, never two merge
+    label = four["material"].astype(int)
+    assert not set(label[right]) & set(label[~right])
+
+
+def test_basis_never_raises_a_texels_training_cost(uniform):
+    """Against ``coherence: none``: the basis step keeps a texel's own solution unless another fits its training
+    samples strictly better, and the neighbours pass after it does the same without its ambiguous-texel step
+    (``outlier_distance: 0``); with it, a rise stays within the noise allowance of
+    :func:`test_training_error_rises_at_most_within_the_noise`."""
+    model, truth, lm = uniform
+    rng = np.random.default_rng(4)
+    varied = {k: v * rng.uniform(0.7, 1.3, v.shape) if k in ("rho_s_1", "exponent_1") else v
+              for k, v in _two_materials(truth)[0].items()}
+    data = _tile(model, varied, noise=0.01, seed=2)
+    _, alone = _fit(lm, model, data, coherence="none")
+    _, strict = _fit(lm, model, data, coherence="basis", outlier_distance=0.0)
+    assert (strict["rms"] ** 2 <= alone["rms"] ** 2 * (1 + 1e-5)).all()
+    assert strict["from_neighbour"].any()  # the basis changed texels, and none for the worse
+    _, basis = _fit(lm, model, data, coherence="basis")
+    S, K = data[0].shape[2], model.size
+    assert (basis["rms"] ** 2 <= alone["rms"] ** 2 * (1 + K / (3 * S - K)) * (1 + 1e-5)).all()
+
+
+def _spatial_cv(model, params) -> float:
+    """Median over :data:`~sbrdf_core.coherence.APPEARANCE_PAIRS` of the coefficient of variation of f_r (channels
+    summed) across the texels: how much a uniform region's fit varies where it is looked at."""
+    from sbrdf_core.coherence import appearance
+
+    look = appearance(model, model.pack(params)).sum(axis=-1)
+    return float(np.median(look.std(axis=0) / look.mean(axis=0)))
+
+
+def test_basis_varies_no_more_than_neighbours_on_a_noisy_uniform_region(uniform):
+    model, truth, lm = uniform
+    data = _tile(model, truth, noise=0.03, seed=5)
+    cv = {mode: _spatial_cv(model, _fit(lm, model, data, coherence=mode)[0])
+          for mode in ("none", "neighbours", "basis")}
+    assert cv["basis"] <= cv["neighbours"] * 1.02, cv
+
+
+def test_basis_is_deterministic(uniform):
+    model, truth, lm = uniform
+    data = _tile(model, _two_materials(truth)[0], noise=0.01, seed=3)
+    first, second = (np.concatenate([np.concatenate(list(p.values()), axis=1),
+                                     np.stack([c[k] for k in EXTRA if k != "fit_time_s"], axis=1)], axis=1)
+                     for p, c in (_fit(lm, model, data, coherence="basis") for _ in range(2)))
+    np.testing.assert_array_equal(first, second)
+
+
+def test_materials_out_of_bounds_is_refused_with_its_name(write_graph, registry, tmp_path):
+    from sbrdf_core.basis import MAX_MATERIALS
+    from sbrdf_core.errors import GraphError
+    from sbrdf_core.graph import load_graph
+
+    from ..conftest import graph_yaml
+
+    path = write_graph(graph_yaml(tmp_path / "s", fit={"model": "lambert", "coherence": "basis",
+                                                       "materials": MAX_MATERIALS + 1}))
+    with pytest.raises(GraphError, match="materials"):
+        load_graph(path, registry)
+    path = write_graph(graph_yaml(tmp_path / "s", fit={"model": "lambert", "coherence": "clusters"}))
+    with pytest.raises(GraphError, match="coherence.*basis"):  # the choices listed come from the declaration
+        load_graph(path, registry)
+
+
+def test_basis_writes_the_material_map_and_counts_it(write_graph, registry, tmp_path):
+    from sbrdf_core.graph import load_graph
+    from sbrdf_core.runner import Runner
+    from sbrdf_core.store import open_artifact
+
+    from ..conftest import graph_yaml
+
+    graph = load_graph(write_graph(graph_yaml(tmp_path / "s", fit={"model": "lambert", "coherence": "basis",
+                                                                     "materials": 2})), registry)
+    Runner(registry, progress=False).run(graph, only=["fit"])
+    art = open_artifact(graph.url("fit"))
+    label = np.asarray(art.read("material"))
+    assert label.dtype == np.uint8 and label.shape == tuple(art.read("rms").shape)
+    fitted = np.asarray(art.read("samples")) > 0
+    assert (label[fitted] < 2).all() and (label[~fitted] == 255).all()
+    assert art.attrs["summary"]["materials"] == int(label[fitted].max()) + 1

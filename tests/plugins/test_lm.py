@@ -78,8 +78,8 @@ def test_04_tile_without_samples_gets_defaults_not_nan(lambert, lm):
     light = fibonacci_hemisphere(5) * 500
     info = [{"array-location": [(0, 2), (0, 3), (0, 5), (0, 3)]}]
     out = fit_tile(f, valid, light, light, (3, 2), (10.0, 10.0), lm, lambert, block_info=info)
-    # rho_d x3, rms, rms_holdout, samples, flags, restarted, bounded_by, seconds, from_neighbour
-    assert out.shape == (2, 3, 11) and np.isfinite(np.delete(out, 4, axis=-1)).all()
+    # rho_d x3, rms, rms_holdout, samples, flags, restarted, bounded_by, seconds, from_neighbour, material
+    assert out.shape == (2, 3, 12) and np.isfinite(np.delete(out, 4, axis=-1)).all()
     assert np.isnan(out[..., 4]).all()  # nothing held out: NaN, not a made-up error
     np.testing.assert_allclose(out[..., :3], 0.1)  # the model's declared default
     assert (out[..., 5] == 0).all()  # zero samples ...
