@@ -75,6 +75,15 @@ class BRDFModel:
     #: LM runs per texel when a fitter's ``starts`` is 0 (auto): more than one where the model's cost has local
     #: minima a single good guess can miss (Cook–Torrance, Phong and Ward did on 3–7 of 64 texels with one).
     suggested_starts: int = 2
+    #: Width parameters (microfacet or Ward slopes, in the model form) no narrower than the sampling resolves
+    #: (``limits.min_roughness()``).
+    roughness: tuple[str, ...] = ()
+    #: True where :meth:`constrain` is the default clip, the :attr:`roughness` floor and the roughness widened until
+    #: the mirror peak fits, and nothing else (:class:`~sbrdf_core.constraints.WidenedRoughness`): the fitting
+    #: engine then holds every bound inside its loop.
+    widens_to_peak: bool = False
+    #: Cosine-lobe exponents: none sharper than the sampling resolves (``limits.max_cosine_exponent()``).
+    sharpness: tuple[str, ...] = ()
 
     # -- required ---------------------------------------------------------------
 
@@ -223,9 +232,9 @@ class BRDFModel:
         mask of the texels the projection moved.  Fitters call it on every
         iteration (in the fit form), the Fit node once more on what any fitter
         returns.  Default: clip to the declared bounds and ρ_d to the peak
-        bound; models whose lobes can
-        grow without bound (Lafortune) or resolve finer than the sampling
-        (exponents, roughness) override it.
+        bound; models whose lobes can grow without bound (Lafortune) or resolve
+        finer than the sampling (exponents, roughness: see
+        :class:`~sbrdf_core.constraints.WidenedRoughness`) override it.
         """
         out, changed = {}, None
         for p in self.parameters:
@@ -341,22 +350,37 @@ class LogFitForm(BRDFModel):
         return self.from_model(self.model.canonical(self.to_model(params)))
 
     def limit_box(self, limits, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The part of ``limits`` a box holds, in this form: the sharpness the samples resolve, as a floor on the
-        model's ``roughness`` parameters (``limits.min_roughness()``) and a cap on its ``sharpness`` ones
-        (``limits.max_cosine_exponent()``).  The fitting engine iterates inside it (``lo``, ``hi`` are ``(T, K)``,
-        returned tightened); what only ``constrain`` can hold (a peak) is projected afterwards."""
-        if limits.resolution is None:
-            return lo, hi
+        """The part of ``limits`` a box holds, in this form: ρ_d at most the peak, and the sharpness the samples
+        resolve, as a floor on the model's ``roughness`` parameters (``limits.min_roughness()``) and a cap on its
+        ``sharpness`` ones (``limits.max_cosine_exponent()``).  The fitting engine iterates inside it (``lo``,
+        ``hi`` are ``(T, K)``, returned tightened); the peak's widening it holds too where :meth:`peak_widths`
+        says how, else it is projected afterwards."""
         where = self.slices()
-        for name in getattr(self.model, "roughness", ()):
+        if limits.peak is not None and "rho_d" in where:
+            cap = np.asarray(limits.peak, np.float64).reshape(-1, 1)
+            hi[:, where["rho_d"]] = np.minimum(hi[:, where["rho_d"]], cap)
+        if limits.resolution is None:
+            return np.minimum(lo, hi), hi
+        for name in self.model.roughness:
             k = where[f"log_{name}"] if f"log_{name}" in where else where[name]
             floor = np.asarray(limits.min_roughness(), np.float64)
             lo[:, k] = np.maximum(lo[:, k], np.log(floor) if f"log_{name}" in where else floor)
-        for name in getattr(self.model, "sharpness", ()):
+        for name in self.model.sharpness:
             k = where[f"log_{name}"] if f"log_{name}" in where else where[name]
             cap = np.asarray(limits.max_cosine_exponent(), np.float64)
             hi[:, k] = np.minimum(hi[:, k], np.log(cap) if f"log_{name}" in where else cap)
         return np.minimum(lo, hi), hi
+
+    def peak_widths(self) -> np.ndarray | None:
+        """Packed indices of the log roughness parameters, where :meth:`limit_box` and widening them to the peak
+        are the whole of the model's ``constrain`` (``widens_to_peak``): the fitting engine then holds every
+        bound inside its loop.  None otherwise."""
+        if not self.model.widens_to_peak:
+            return None
+        where = self.slices()
+        if not all(f"log_{n}" in where for n in self.model.roughness):
+            return None
+        return np.array([where[f"log_{n}"].start for n in self.model.roughness], np.int64)
 
     def initial_guess(self, f_r, valid, wi, wo):
         return self.from_model(self.model.initial_guess(f_r, valid, wi, wo))

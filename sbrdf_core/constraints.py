@@ -36,7 +36,7 @@ from ._compiled import worth_compiling
 from .brdf import evaluate
 from .brdf_checks import energy_azimuths, energy_report, uncleared
 from .channels import all_finite, channel_max
-from .geometry import polar_direction
+from .geometry import mirror_pairs
 from .types import Limits
 
 #: Samples counted when measuring how close the data comes to the mirror configuration.
@@ -147,10 +147,9 @@ def mirror_peak(model, params, max_theta, n: int = 24, cosine: bool = False) -> 
     instead, which divides out the 1/(4 cos θ_i cos θ_o) growth toward grazing.
     """
     T = next(iter(params.values())).shape[0]
-    th = np.linspace(0.0, max_theta, n)
-    d = np.concatenate([polar_direction(th, phi) for phi in (0.0, np.pi / 2)])
+    d, m = mirror_pairs(max_theta, n)
     with np.errstate(all="ignore"):
-        f = evaluate(model, params, np.broadcast_to(d, (T,) + d.shape), np.broadcast_to(d * [-1, -1, 1], (T,) + d.shape))
+        f = evaluate(model, params, np.broadcast_to(d, (T,) + d.shape), np.broadcast_to(m, (T,) + m.shape))
     if cosine:
         f = f * (d[:, 2] ** 2)[None, :, None]
     return np.where(np.isfinite(f), f, np.inf).max(axis=(1, 2))
@@ -229,6 +228,21 @@ def widen_to_peak(model, params, names, limits: Limits, steps: int = 16, toleran
     changed = np.zeros(T, bool)
     changed[over] = hi > 1e-9  # a texel already at its widest does not move
     return out, changed
+
+
+class WidenedRoughness:
+    """Bounds of a microfacet (or Ward) model, mixed in before :class:`~sbrdf_core.brdf.BRDFModel`: the declared
+    bounds and ρ_d ≤ peak, the ``roughness`` parameters no narrower than the sampling resolves, and wide enough
+    that the mirror peak (where F → 1 and 1/cos² grows) stays within the limits (:func:`widen_to_peak`).  Nothing
+    else, so the fitting engine holds all of it inside its loop (``widens_to_peak``)."""
+
+    widens_to_peak = True
+
+    def constrain(self, params, limits):
+        out, changed = super().constrain(params, limits)  # type: ignore[misc]
+        out, finer = clip_shape(out, self.roughness, low=limits.min_roughness())  # type: ignore[attr-defined]
+        out, wider = widen_to_peak(self, out, self.roughness, limits)  # type: ignore[attr-defined]
+        return out, changed | finer | wider
 
 
 def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi: int = 48):

@@ -41,7 +41,7 @@ __all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "over
 
 _TEMPLATE = Path(__file__).with_name("engine_lm.py")
 _MARK = "kernel = None  # KERNEL: the cached copy imports the model's fit kernel on this line"
-_loaded: dict[tuple[str, str], object] = {}
+_loaded: dict[tuple[str, ...], object] = {}
 _lock = threading.Lock()
 
 
@@ -54,23 +54,36 @@ def cache_dir() -> Path:
     return Path(base) / "sbrdf" / "kernels"
 
 
-def solver(kernel):
-    """The :mod:`~sbrdf_core.engine_lm` module compiled around ``kernel`` (a numba dispatcher), loaded once a process."""
-    func = getattr(kernel, "py_func", kernel)
+def _source(function, what: str) -> tuple[str, str]:
+    func = getattr(function, "py_func", function)
     module, name = func.__module__, func.__qualname__
     if "." in name or "<" in name:
-        raise TypeError(f"{module}.{name}: a fit kernel must be a module-level function (the engine imports it by name)")
-    key = (module, name)
+        raise TypeError(f"{module}.{name}: a {what} must be a module-level function (the engine imports it by name)")
+    return module, name
+
+
+def solver(kernel, project=None):
+    """The :mod:`~sbrdf_core.engine_lm` module compiled around ``kernel`` (and the form's ``project_kernel``
+    where it has one), loaded once a process."""
+    module, name = _source(kernel, "fit kernel")
+    pmodule, pname = _source(project, "projection kernel") if project is not None else ("", "")
+    key = (module, name, pmodule, pname)
     with _lock:
         if key in _loaded:
             return _loaded[key]
         template = _TEMPLATE.read_text()
         if _MARK not in template:
             raise RuntimeError(f"{_TEMPLATE}: the KERNEL line is missing")
-        text = template.replace(_MARK, f"from {module} import {name} as _source  # KERNEL\n"
-                                "kernel = njit(cache=True, nogil=True, inline='always')"
-                                "(getattr(_source, 'py_func', _source))")
-        digest = hashlib.sha256(text.encode() + inspect.getsource(func).encode()).hexdigest()[:16]
+        jit = "njit(cache=True, nogil=True, inline='always')"
+        line = (f"from {module} import {name} as _source  # KERNEL\n"
+                f"kernel = {jit}(getattr(_source, 'py_func', _source))")
+        sources = inspect.getsource(getattr(kernel, "py_func", kernel))
+        if project is not None:
+            line += (f"\nfrom {pmodule} import {pname} as _project  # KERNEL\n"
+                     f"project = njit(cache=True, nogil=True)(getattr(_project, 'py_func', _project))")
+            sources += inspect.getsource(getattr(project, "py_func", project))
+        text = template.replace(_MARK, line)
+        digest = hashlib.sha256(text.encode() + sources.encode()).hexdigest()[:16]
         stem = f"lm_{module.replace('.', '_')}_{name}_{digest}"
         folder = cache_dir()
         folder.mkdir(parents=True, exist_ok=True)
@@ -133,15 +146,19 @@ class CompiledProblem:
     (``Σ (w (f − f_r))²`` per texel), plus a compiled ``levenberg_marquardt``.
     """
 
-    #: The compiled loop holds a box only; :func:`~sbrdf_lib.lm.levenberg_marquardt` projects onto the rest.
-    projects = False
-
     def __init__(self, form, f_r, weight, wi, wo):
         self.form = form
         self.f_r, self.wi, self.wo = _c(f_r), _c(wi), _c(wo)
         self.weight = _c(np.broadcast_to(weight, f_r.shape[:2]))
         self.cfg = _c(form.kernel_config())
-        self._mod = solver(form.kernel)
+        self._project = getattr(form, "project_kernel", None)
+        self._mod = solver(form.kernel, self._project)
+        widths = getattr(form, "peak_widths", None)
+        self._widths = None if widths is None else widths()
+        #: Whether the compiled loop holds the whole of ``form.constrain`` (its box, and its peak widening or the
+        #: form's own ``project_kernel``): if not, :func:`~sbrdf_lib.lm.levenberg_marquardt` projects onto the
+        #: rest afterwards.
+        self.projects = self._widths is not None or self._project is not None
 
     def data_energy(self) -> np.ndarray:
         wf = self.f_r * self.weight[..., None]
@@ -187,11 +204,31 @@ class CompiledProblem:
         used = np.empty(T, np.int64)
         x0, lo, hi, free, exact = _c(x0), _c(lo), _c(hi), _c(free, np.uint8), _c(exact * self.data_energy())
         step = _c(step)
+        widths, log_bound, mi, mo, cos2 = self._peak(limits, T)
+        projecting = self._project is not None and limits is not None
+        lim = _c(self.form.project_limits(limits, T)) if projecting else np.zeros((T, 0))
         over_texels(T, lambda a, b: self._mod.solve(
             self.cfg, x0[a:b], lo[a:b], hi[a:b], free, step, self.f_r[a:b], self.weight[a:b], exact[a:b],
             self.wi[a:b], self.wo[a:b], int(iterations), float(tolerance), float(damping), float(max_damping),
-            x[a:b], cost[a:b], converged[a:b], used[a:b]), T * self.f_r.shape[1] * int(iterations))
+            widths, log_bound[a:b], mi, mo, cos2, projecting, lim[a:b], x[a:b], cost[a:b], converged[a:b],
+            used[a:b]), T * self.f_r.shape[1] * int(iterations))
         return x, cost, converged
+
+    def _peak(self, limits, T: int):
+        """The peak bound as the compiled loop reads it: the packed indices it widens, each texel's log bound
+        (inf: none), the mirror pairs and their weights (cos² θ for ``limits.peak_cosine``)."""
+        from .geometry import mirror_pairs
+
+        bound = None if limits is None or self._widths is None else (
+            limits.peak_cosine if limits.peak_cosine is not None else limits.peak)
+        if bound is None:
+            none = np.zeros((0, 3))
+            return np.zeros(0, np.int64), np.full(T, np.inf), none, none, np.zeros(0)
+        mi, mo = mirror_pairs(limits.max_theta)
+        cos2 = mi[:, 2] ** 2 if limits.peak_cosine is not None else np.ones(len(mi))
+        with np.errstate(divide="ignore"):
+            log_bound = np.log(np.broadcast_to(np.asarray(bound, np.float64).reshape(-1), (T,)))
+        return _c(self._widths, np.int64), _c(log_bound), _c(mi), _c(mo), _c(cos2)
 
 
 #: Direction pairs (texels × pairs) from which :func:`evaluate` runs compiled: below, NumPy costs less.
@@ -216,7 +253,7 @@ def evaluate(model, params, wi, wo) -> np.ndarray | None:
     x = form.pack(params if form is model else form.from_model(params))
     wi, wo = _c(np.broadcast_to(wi, (T, S, 3))), _c(np.broadcast_to(wo, (T, S, 3)))
     out = np.empty((T, S, getattr(form, "channels", 3)))
-    mod, cfg, x = solver(kernel), _c(form.kernel_config()), _c(x)
+    mod, cfg, x = solver(kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config()), _c(x)
     over_texels(T, lambda a, b: mod.evaluate(cfg, x[a:b], wi[a:b], wo[a:b], out[a:b]), T * S)
     return out
 

@@ -13,6 +13,12 @@ Invariants every function keeps:
   a sample with weight 0 is never evaluated;
 - parameters with ``free[k] == 0`` never move, and every iterate stays in
   the per-texel box ``lo[t] ≤ x ≤ hi[t]``;
+- where the form has a projection kernel (``project(x, cfg, lim[t], lo[t], hi[t])``, in place: the form's
+  ``constrain`` on one packed row) every iterate is its projection;
+- where a texel has a peak bound (``log_bound[t]`` finite and ``widths`` not empty), every iterate's mirror
+  peak (the largest f_r·``cos2`` over the mirror pairs ``mi``, ``mo``) is at most the bound: the ``widths``
+  parameters (logarithms of the model's roughness) are raised by one common amount until it is
+  (:func:`widen`, the compiled :func:`~sbrdf_core.constraints.widen_to_peak`);
 - texels are independent and the loops hold no GIL: :mod:`sbrdf_core.engine` runs slices of texels on
   several threads at once.
 """
@@ -22,7 +28,15 @@ import math
 import numpy as np
 from numba import njit
 
+
+@njit(cache=True, nogil=True)
+def project(x, cfg, lim, lo, hi):  # pragma: no cover (stands in where the form has no projection kernel)
+    return False
+
+
+# The cached copy imports the model's fit kernel (and its projection kernel, replacing the stand-in) here:
 kernel = None  # KERNEL: the cached copy imports the model's fit kernel on this line
+
 
 
 @njit(cache=True, nogil=True)
@@ -152,8 +166,145 @@ def trial_point(x, step, lo, hi, max_step, trial):
 
 
 @njit(cache=True, nogil=True)
+def mirror_peak(x, cfg, mi, mo, cos2, f, J, grad):
+    """log of the largest f_r·``cos2`` over the mirror pairs at ``x`` (inf where a value is not finite, −inf
+    where none is positive); with ``grad`` (length K, or 0 to skip) filled by that log's gradient at the
+    pair and channel where the maximum is."""
+    best, at, ch = -np.inf, -1, -1
+    for p in range(mi.shape[0]):
+        kernel(x, cfg, mi[p], mo[p], f, J)
+        for c in range(f.size):
+            v = f[c] * cos2[p]
+            if not math.isfinite(v):
+                return np.inf
+            if v > best:
+                best, at, ch = v, p, c
+    if not best > 0.0:
+        return -np.inf
+    if grad.size:
+        kernel(x, cfg, mi[at], mo[at], f, J)
+        for k in range(grad.size):
+            grad[k] = J[ch, k] / f[ch]
+    return math.log(best)
+
+
+@njit(cache=True, nogil=True)
+def _widened(x, widths, hi, factor, trial):
+    for k in range(x.size):
+        trial[k] = x[k]
+    for i in range(widths.size):
+        k = widths[i]
+        trial[k] = min(x[k] + factor, hi[k])
+
+
+@njit(cache=True, nogil=True)
+def widen(x, cfg, widths, hi, log_bound, mi, mo, cos2, f, J, trial, tolerance=1e-4, steps=16):
+    """Raise the ``widths`` entries of ``x`` (in place, each capped at ``hi``) by one common amount until the
+    mirror peak is within ``log_bound``: regula falsi on the log peak (Illinois), as
+    :func:`~sbrdf_core.constraints.widen_to_peak` does for a batch.  Ends within ``tolerance`` below the
+    bound, on the side that fits; a texel over it even at the widest keeps the widest.  True if ``x`` moved."""
+    none = np.empty(0)
+    g_lo = mirror_peak(x, cfg, mi, mo, cos2, f, J, none) - log_bound
+    if not g_lo > math.log1p(1e-6):  # within the bound (NaN: nothing to compare)
+        return False
+    room = 0.0
+    for i in range(widths.size):
+        room = max(room, hi[widths[i]] - x[widths[i]])
+    a, b = 0.0, room
+    _widened(x, widths, hi, b, trial)
+    g_hi = mirror_peak(trial, cfg, mi, mo, cos2, f, J, none) - log_bound
+    if g_hi < -tolerance and math.isfinite(g_hi):
+        side = 0
+        for _ in range(steps):
+            if math.isfinite(g_lo):
+                mid = a + (b - a) * g_lo / (g_lo - g_hi)
+            else:  # an infinite peak at the narrow end: bisect
+                mid = 0.5 * (a + b)
+            mid = min(max(mid, a + 1e-3 * (b - a)), b - 1e-3 * (b - a))
+            _widened(x, widths, hi, mid, trial)
+            g = mirror_peak(trial, cfg, mi, mo, cos2, f, J, none) - log_bound
+            if math.isnan(g):
+                g = np.inf
+            fits = g <= 0.0
+            if fits:
+                b, g_hi = mid, g
+                if side == 1:  # Illinois: the end that stays twice has its value halved
+                    g_lo *= 0.5
+                side = 1
+            else:
+                a, g_lo = mid, g
+                if side == -1:
+                    g_hi *= 0.5
+                side = -1
+            if (fits and g > -tolerance) or b - a < 1e-9:
+                break
+    if b <= 1e-9:
+        return False
+    _widened(x, widths, hi, b, trial)
+    for k in range(x.size):
+        x[k] = trial[k]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def along_bound(M, grad, free, pinned, step, y):
+    """The damped ``step`` made tangent to an active peak bound whose log has gradient ``grad``.
+
+    ``M`` holds the Cholesky factor :func:`damped_step` left.  Where the step would raise the peak, it is
+    replaced by the minimiser of the same damped model on the plane ``grad · step = 0``:
+    ``step − M⁻¹grad (grad·step) / (grad·M⁻¹grad)``.  Why: LM steps that leave the bound and are widened
+    back move a fraction of the way each time, and a texel held by its peak crawls along the bound for
+    tens of iterations; the tangent step follows it.
+    """
+    K = step.size
+    along = 0.0
+    for k in range(K):
+        y[k] = grad[k] if (free[k] != 0 and not pinned[k]) else 0.0
+        along += y[k] * step[k]
+    if not along > 0.0:
+        return
+    for i in range(K):
+        v = y[i]
+        for k in range(i):
+            v -= M[i, k] * y[k]
+        y[i] = v / M[i, i]
+    for i in range(K - 1, -1, -1):
+        v = y[i]
+        for k in range(i + 1, K):
+            v -= M[k, i] * y[k]
+        y[i] = v / M[i, i]
+    denom = 0.0
+    for k in range(K):
+        denom += (grad[k] if (free[k] != 0 and not pinned[k]) else 0.0) * y[k]
+    if denom > 0.0 and math.isfinite(denom):
+        for k in range(K):
+            step[k] -= y[k] * along / denom
+
+
+@njit(cache=True, nogil=True)
+def projected_step(x, A, g, lam, free, lo, hi, max_step, cfg, lim, pinned, M, step, trial):
+    """``trial`` (the box's trial point from ``step``) through the form's projection; where that held a free
+    parameter where it was while the step pointed away, the step is solved again with it frozen and projected."""
+    raw = trial.copy()
+    project(trial, cfg, lim, lo, hi)
+    again = False
+    for k in range(x.size):
+        scale = 1e-9 * max(abs(x[k]), 1.0)
+        if free[k] != 0 and not pinned[k] and abs(trial[k] - raw[k]) > scale and abs(trial[k] - x[k]) <= scale:
+            pinned[k] = True
+            again = True
+    if again and damped_step(A, g, lam, free, pinned, M, step):
+        trial_point(x, step, lo, hi, max_step, trial)
+        project(trial, cfg, lim, lo, hi)
+
+
+#: Below the bound by less than this (in log), a texel's peak bound is active: its steps go along it.
+ON_BOUND = 1e-3
+
+
+@njit(cache=True, nogil=True)
 def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, tolerance, damping, max_damping,
-          x_out, cost_out, converged_out, iterations_out):
+          widths, log_bound, mi, mo, cos2, projecting, lim, x_out, cost_out, converged_out, iterations_out):
     """Levenberg–Marquardt from ``x0`` for every texel, inside its box ``[lo, hi]``.
 
     Per texel: Marquardt's diagonal damping, shrunk ÷3 on an accepted step
@@ -164,7 +315,10 @@ def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, to
     than ``tolerance`` of its cost, a rejected step was already negligible,
     λ passes ``max_damping`` (no descent direction left) or its cost is below
     ``exact[t]`` (an exact fit to round-off); those are converged.  A texel that
-    uses all ``iterations`` is not.
+    uses all ``iterations`` is not.  With a peak bound every iterate is widened to it (:func:`widen`), and
+    while the bound is active the steps are taken along it (:func:`along_bound`).  With a projection kernel
+    (``projecting``) every iterate is projected, and a parameter the projection holds where it was (the step
+    pointing out of its bound) is frozen and the step solved again without it, as the box's active set does.
     """
     T, K = x0.shape
     nc = f_r.shape[2]
@@ -182,37 +336,71 @@ def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, to
         pinned = np.zeros(K, np.bool_)
         f = np.empty(nc)
         J = np.empty((nc, K))
-        cost = normal_equations(x, cfg, f_r, w, wi, wo, t, free, A, g, f, J)
-        lam = damping
-        done = not (cost > exact[t]) or not math.isfinite(cost)
-        used = 0
-        while not done and used < iterations:
-            used += 1
-            if not box_step(x, A, g, lam, free, lo[t], hi[t], pinned, M, step):
-                lam *= 4.0
-                if lam > max_damping:
-                    done = True
-                continue
-            trial_point(x, step, lo[t], hi[t], max_step, trial)
-            new_cost = normal_equations(trial, cfg, f_r, w, wi, wo, t, free, A2, g2, f, J)
-            if math.isfinite(new_cost) and new_cost < cost:
-                gain = (cost - new_cost) / max(cost, 1e-300)
+        grad = np.empty(K)
+        grad2 = np.empty(K)
+        y = np.empty(K)
+        bounded = widths.size > 0 and math.isfinite(log_bound[t])
+        cost, done, used = 0.0, False, 0
+        # With a projection: a pass inside the box first, then, where the projection moves its result, a pass
+        # with every iterate projected from there.  Why: LM that projects from the start stops early, each
+        # projected step gaining little, far from the point the unprojected pass reaches.
+        for stage in range(2 if projecting else 1):
+            proj = projecting and stage == 1
+            if proj:
                 for k in range(K):
-                    x[k] = trial[k]
-                    g[k] = g2[k]
-                    for b in range(K):
-                        A[k, b] = A2[k, b]
-                cost = new_cost
-                lam = max(lam / 3.0, 1e-12)
-                done = gain < tolerance or cost <= exact[t]
-            else:
-                size = 0.0
-                scale = 1e-12
+                    y[k] = x[k]
+                project(x, cfg, lim[t], lo[t], hi[t])
+                moved = False
                 for k in range(K):
-                    size = max(size, abs(trial[k] - x[k]))
-                    scale = max(scale, abs(x[k]))
-                lam *= 4.0
-                done = size <= 1e-9 * scale or lam > max_damping
+                    moved = moved or abs(x[k] - y[k]) > 1e-9 * (1.0 + abs(y[k]))
+                if not moved:
+                    break
+            on_bound = False
+            if bounded:
+                widen(x, cfg, widths, hi[t], log_bound[t], mi, mo, cos2, f, J, trial)
+                on_bound = mirror_peak(x, cfg, mi, mo, cos2, f, J, grad) > log_bound[t] - ON_BOUND
+            cost = normal_equations(x, cfg, f_r, w, wi, wo, t, free, A, g, f, J)
+            lam = damping
+            done = not (cost > exact[t]) or not math.isfinite(cost)
+            n = 0
+            while not done and n < iterations:
+                n += 1
+                if not box_step(x, A, g, lam, free, lo[t], hi[t], pinned, M, step):
+                    lam *= 4.0
+                    if lam > max_damping:
+                        done = True
+                    continue
+                if on_bound:
+                    along_bound(M, grad, free, pinned, step, y)
+                trial_point(x, step, lo[t], hi[t], max_step, trial)
+                if proj:
+                    projected_step(x, A, g, lam, free, lo[t], hi[t], max_step, cfg, lim[t], pinned, M, step, trial)
+                trial_on_bound = False
+                if bounded:
+                    widen(trial, cfg, widths, hi[t], log_bound[t], mi, mo, cos2, f, J, y)
+                    trial_on_bound = mirror_peak(trial, cfg, mi, mo, cos2, f, J, grad2) > log_bound[t] - ON_BOUND
+                new_cost = normal_equations(trial, cfg, f_r, w, wi, wo, t, free, A2, g2, f, J)
+                if math.isfinite(new_cost) and new_cost < cost:
+                    gain = (cost - new_cost) / max(cost, 1e-300)
+                    for k in range(K):
+                        x[k] = trial[k]
+                        g[k] = g2[k]
+                        grad[k] = grad2[k]
+                        for b in range(K):
+                            A[k, b] = A2[k, b]
+                    on_bound = trial_on_bound
+                    cost = new_cost
+                    lam = max(lam / 3.0, 1e-12)
+                    done = gain < tolerance or cost <= exact[t]
+                else:
+                    size = 0.0
+                    scale = 1e-12
+                    for k in range(K):
+                        size = max(size, abs(trial[k] - x[k]))
+                        scale = max(scale, abs(x[k]))
+                    lam *= 4.0
+                    done = size <= 1e-9 * scale or lam > max_damping
+            used += n
         for k in range(K):
             x_out[t, k] = x[k]
         cost_out[t] = cost

@@ -112,3 +112,11 @@ def fibonacci_hemisphere(n: int, max_theta_deg: float = 80.0, offset: float = 0.
     phi = np.pi * (3 - np.sqrt(5)) * i + offset
     s = np.sqrt(np.clip(1 - z * z, 0, None))
     return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+
+
+def mirror_pairs(max_theta: float, n: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    """The mirror pairs ``(ω_i, ω_o)`` where :func:`~sbrdf_core.constraints.mirror_peak` looks: ``n`` elevations up to ``max_theta``
+    in two azimuths, ``(2n, 3)`` each (what the fitting engine's compiled widening reads too)."""
+    th = np.linspace(0.0, max_theta, n)
+    d = np.concatenate([polar_direction(th, phi) for phi in (0.0, np.pi / 2)])
+    return d, d * [-1, -1, 1]

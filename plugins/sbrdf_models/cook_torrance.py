@@ -34,7 +34,7 @@ import math
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
-from sbrdf_core.constraints import clip_shape, widen_to_peak
+from sbrdf_core.constraints import WidenedRoughness
 from sbrdf_core.constraints_glsl import microfacet_constrain
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -120,7 +120,7 @@ def schlick_lobe_jacobian(params, wi, wo, spec, dspec, schlick):
     return np.stack(cols, axis=-1)
 
 
-class CookTorranceModel(BRDFModel):
+class CookTorranceModel(WidenedRoughness, BRDFModel):
     name = "cook-torrance"
     #: What the sampling bounds (``LogFitForm.limit_box``): the sharpness the samples resolve.
     roughness = ("alpha",)
@@ -248,14 +248,6 @@ class CookTorranceModel(BRDFModel):
         return self.glsl() + microfacet_constrain(self.fit_form(), "brdf_cook_torrance",
                                                   [("vec3", "rho_d"), ("vec3", "f0"), ("float", "alpha")],
                                                   ("alpha",), (ALPHA_BOUNDS[1],))
-
-    def constrain(self, params, limits):
-        """F0 ≤ 1 bounds the lobe's energy; α no narrower than the sampling resolves, and wide enough that
-        the peak (at the mirror pair nearest grazing: F → 1, 1/cos² grows) stays within ``limits.peak``."""
-        out, changed = super().constrain(params, limits)
-        out, finer = clip_shape(out, ("alpha",), low=limits.min_roughness())
-        out, wider = widen_to_peak(self, out, ("alpha",), limits)
-        return out, changed | finer | wider
 
 
 @hookimpl

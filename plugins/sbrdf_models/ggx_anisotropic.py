@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
-from sbrdf_core.constraints import clip_shape, widen_to_peak
+from sbrdf_core.constraints import WidenedRoughness
 from sbrdf_core.plugin import PluginSpec, hookimpl
 
 from .cook_torrance import schlick_lobe, schlick_lobe_jacobian
@@ -94,7 +94,7 @@ def fit_kernel(x, cfg, wi, wo, f, J):
         J[c, 8] = F * dspec_phi
 
 
-class GGXAnisotropicModel(BRDFModel):
+class GGXAnisotropicModel(WidenedRoughness, BRDFModel):
     name = "ggx-anisotropic"
     #: What the sampling bounds (``LogFitForm.limit_box``): the sharpness the samples resolve.
     roughness = ("alpha_t", "alpha_b")
@@ -183,14 +183,6 @@ class GGXAnisotropicModel(BRDFModel):
         phi = out["phi"] + np.where(swap, np.pi / 2, 0.0)
         out["phi"] = np.mod(phi + np.pi / 2, np.pi) - np.pi / 2
         return out
-
-    def constrain(self, params, limits):
-        """F0 ≤ 1 bounds the lobe's energy; neither roughness narrower than the sampling resolves, and wide
-        enough that the peak stays within ``limits.peak`` (as for cook-torrance)."""
-        out, changed = super().constrain(params, limits)
-        out, finer = clip_shape(out, ("alpha_t", "alpha_b"), low=limits.min_roughness())
-        out, wider = widen_to_peak(self, out, ("alpha_t", "alpha_b"), limits)
-        return out, changed | finer | wider
 
 
 @hookimpl

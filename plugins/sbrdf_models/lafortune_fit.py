@@ -91,7 +91,6 @@ class LafortuneFitForm(LafortuneModel):
         self.model = model
         self.parameters = self._declare(fit_form=True)
         self.fit_outlier_ratio = OUTLIER_RATIO if self.lobes >= 2 else None
-        self._layout: tuple | None = None  # constrain_packed's bounds and offsets, made on first use
 
     fit_kernel = staticmethod(fit_kernel)
 
@@ -231,43 +230,42 @@ class LafortuneFitForm(LafortuneModel):
     def refine_linear(self, params, f_r, valid, wi, wo):
         return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)
 
+    @property
+    def project_kernel(self):
+        """:func:`~sbrdf_models.lafortune_kernels.project_kernel`, :meth:`constrain` on one packed row: the fitting
+        engine projects every iterate with it (None without lobes: the box is the whole projection)."""
+        if not self.lobes:
+            return None
+        from .lafortune_kernels import project_kernel
+
+        return project_kernel
+
+    def project_limits(self, limits, T: int) -> np.ndarray:
+        """Each texel's row of what :attr:`project_kernel` reads (``lafortune_kernels.LIMITS``), ``(T, 6)``;
+        ``limits`` None: every bound off."""
+        max_theta = np.pi / 2 if limits is None else limits.max_theta
+        out = np.empty((T, 6))
+        out[:, 4], out[:, 5] = np.sin(max_theta) ** 2, np.cos(max_theta) ** 2
+        if limits is None:
+            out[:, :4] = (0.0, 0.0, np.inf, -1.0)
+            return out
+        out[:, 0] = 0.0 if limits.peak is None else np.asarray(limits.peak, np.float64).reshape(T)
+        out[:, 1] = limits.peak is not None
+        out[:, 2] = np.broadcast_to(np.asarray(limits.max_cosine_exponent(), np.float64).reshape(-1), (T,))
+        out[:, 3] = -1.0 if limits.growth is None else float(limits.growth)
+        return out
+
     def constrain_packed(self, x, limits):
-        """:meth:`constrain` on packed rows ``x`` ``(T, K)``, compiled (``lafortune_kernels.constrain_packed``): what
-        LM projects every trial point with.  Falls back to :meth:`constrain` where the horizon bound is 0° (the
-        NumPy path's division by sin² θ = 0 is not reproduced)."""
-        args = self.packed_limits(limits, x.shape[0])
-        if args is None:
+        """:meth:`constrain` on packed rows ``x`` ``(T, K)``, compiled (:attr:`project_kernel` row by row): how the
+        starting points and LM's NumPy loop project."""
+        if not self.lobes:
             return self.pack(self.constrain(self.unpack(x), limits)[0])
         from .lafortune_kernels import constrain_packed
 
-        lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at = args
-        return constrain_packed(np.ascontiguousarray(x, np.float64), lo, hi, peak, has_peak, n_cap, growth, s2, c2,
-                                n_lo, n_hi, rho_at, c_at, ln_at, self.channels)
-
-    def packed_limits(self, limits, T: int) -> tuple | None:
-        """What the compiled projection (``lafortune_kernels._project_row``) reads for ``T`` texels: ``(lo, hi,
-        peak (T,), has_peak, n_cap (T,), growth (< 0: off), sin² θ_max, cos² θ_max, n bounds, and the packed
-        offsets of each lobe's ρ_s, C and log n)``; ``limits`` None: every bound off.  None where the compiled
-        projection does not apply: no lobes, or a horizon bound of 0° (the NumPy path's division by sin² θ = 0
-        is not reproduced)."""
-        max_theta = np.pi / 2 if limits is None else limits.max_theta
-        s2, c2 = float(np.sin(max_theta) ** 2), float(np.cos(max_theta) ** 2)
-        if s2 == 0.0 or not self.lobes:
-            return None
-        if self._layout is None:  # the packed bounds and offsets, once per form
-            sl, lobes = self.slices(), range(1, self.lobes + 1)
-            names = ("c_x", "c_y") if self.anisotropic else ("c_xy",)
-            self._layout = (*self.bounds(), *map(float, EXPONENT_BOUNDS),
-                            np.array([sl[f"rho_s_{j}"].start for j in lobes], np.int64),
-                            np.array([[sl[f"{nm}_{j}"].start for nm in names] for j in lobes], np.int64),
-                            np.array([sl[f"log_exponent_{j}"].start for j in lobes], np.int64))
-        lo, hi, n_lo, n_hi, rho_at, c_at, ln_at = self._layout
-        if limits is None:
-            return lo, hi, np.zeros(T), False, np.full(T, np.inf), -1.0, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at
-        n_cap = np.broadcast_to(np.asarray(limits.max_cosine_exponent(), np.float64).reshape(-1), (T,))
-        peak = np.zeros(T) if limits.peak is None else np.asarray(limits.peak, np.float64).reshape(T)
-        return (lo, hi, np.ascontiguousarray(peak), limits.peak is not None, np.ascontiguousarray(n_cap),
-                -1.0 if limits.growth is None else float(limits.growth), s2, c2, n_lo, n_hi, rho_at, c_at, ln_at)
+        lo, hi = self.bounds()
+        return constrain_packed(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(self.kernel_config()),
+                                self.project_limits(limits, x.shape[0]), np.asarray(lo, np.float64),
+                                np.asarray(hi, np.float64))
 
     def constrain(self, params, limits):
         """:func:`bound_lobes` directly on the fit form (C_z = 1 already, log n)."""

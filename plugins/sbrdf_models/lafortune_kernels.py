@@ -1,8 +1,10 @@
-"""The compiled projection of packed Lafortune fit-form rows onto a texel's limits.
+"""The projection of packed Lafortune fit-form rows onto a texel's limits, as a kernel.
 
-:meth:`~sbrdf_models.lafortune_fit.LafortuneFitForm.constrain_packed` calls it
-where a fit left its limits (the peak a lobe may reach anywhere on the
-hemisphere, the sharpness the samples resolve): the same numbers as
+The fitting engine compiles :func:`project_kernel` into its loop and projects
+every iterate with it;
+:meth:`~sbrdf_models.lafortune_fit.LafortuneFitForm.constrain_packed` runs it
+over rows for the starting points.  Its bounds are the peak a lobe may reach
+anywhere on the hemisphere and the sharpness the samples resolve: the same numbers as
 :meth:`~sbrdf_models.lafortune_fit.LafortuneFitForm.constrain`, which the tests
 compare it with.  Packed layout (as :meth:`LafortuneFitForm.pack`):
 ``rho_d[C]``, per lobe ``rho_s[C], c_x[, c_y], log_exponent``, then ``beta``.
@@ -15,42 +17,55 @@ import math
 import numpy as np
 from numba import njit
 
-LOG_CAP = 60.0
+from .lafortune_bounds import EXPONENT_BOUNDS
+
+#: Per-texel values :func:`project_kernel` reads (``LafortuneFitForm.project_limits``), in this order.
+LIMITS = ("peak", "has_peak", "n_cap", "growth", "sin2_max_theta", "cos2_max_theta")
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _project_row(v, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C, work):
-    """:func:`constrain_packed` on one packed row ``v``, in place (``work``: (4, L) scratch)."""
-    K = v.shape[0]
-    L, A = c_at.shape
+def project_kernel(x, cfg, lim, lo, hi):
+    """:meth:`LafortuneFitForm.constrain` on one packed row ``x``, in place: the fitting engine's projection.
+
+    The same steps in the same order: ``BRDFModel.constrain``'s clip to the box ``lo``/``hi`` and ρ_d ≤ peak,
+    then ``bound_lobes`` per lobe and the lobes' common share.  ``cfg`` = (lobes, anisotropic, beta), ``lim``
+    the :data:`LIMITS` of the texel (growth < 0: no grazing bound).  Equal to the NumPy path to a few ulp
+    (libm's exp and log against NumPy's).  Returns True.
+    """
+    K = x.shape[0]
+    L, A, C = int(cfg[0]), 2 if cfg[1] != 0.0 else 1, 3
+    peak, has_peak, n_cap, growth, s2, c2 = lim[0], lim[1] != 0.0, lim[2], lim[3], lim[4], lim[5]
+    n_lo, n_hi = EXPONENT_BOUNDS
+    work = np.empty((4, L))
     r_scale, c_scale, n_new, peaks = work[0], work[1], work[2], work[3]
     for k in range(K):
-        v[k] = min(max(v[k], lo[k]), hi[k])
+        x[k] = min(max(x[k], lo[k]), hi[k])
     budget = np.inf
     if has_peak:
         rmax_d = -np.inf
         for c in range(C):
-            v[c] = min(v[c], peak)
-            rmax_d = max(rmax_d, v[c])
+            x[c] = min(x[c], peak)
+            rmax_d = max(rmax_d, x[c])
         budget = max(peak - rmax_d, 0.0)
     finite = budget < np.inf
     total = 0.0
     for j in range(L):
-        n = math.exp(v[ln_at[j]])
+        at = C + j * (C + A + 1)  # this lobe's rho_s; then its C and log n
+        n = math.exp(x[at + C + A])
         nn = min(max(min(n, n_cap), n_lo), n_hi)
         rmax = -np.inf
         for c in range(C):
-            rmax = max(rmax, v[rho_at[j] + c])
+            rmax = max(rmax, x[at + c])
         rs = budget / (rmax if rmax > 0.0 else 1.0) if rmax > budget else 1.0
         r = rmax * rs
         log_m = math.log(budget / r) / nn if (r > 0.0 and finite) else np.inf
         if growth >= 0.0:
             log_m = min(log_m, math.log(max(growth, 1.0)) / nn)
         m_allowed = math.exp(min(log_m, 50.0))
-        c_allowed = max((m_allowed - c2) / s2, 1.0)
+        # at a horizon of 0° only C_z = 1 counts: no bound on C
+        c_allowed = max((m_allowed - c2) / s2, 1.0) if s2 > 0.0 else np.inf
         cabs = 0.0
         for a in range(A):
-            cabs = max(cabs, abs(v[c_at[j, a]]))
+            cabs = max(cabs, abs(x[at + C + a]))
         cs = c_allowed / (cabs if cabs > 0.0 else 1.0) if cabs > c_allowed else 1.0
         m = max(1.0, cabs * cs * s2 + c2)
         peaks[j] = r * math.exp(min(nn * math.log(m), 700.0))
@@ -58,36 +73,24 @@ def _project_row(v, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, r
         r_scale[j], c_scale[j], n_new[j] = rs, cs, nn
     share = budget / (total if total > 0.0 else 1.0) if total > budget else 1.0
     for j in range(L):
+        at = C + j * (C + A + 1)
         scale = r_scale[j] * share
         for c in range(C):
-            v[rho_at[j] + c] *= scale
+            x[at + c] *= scale
         for a in range(A):
-            v[c_at[j, a]] *= c_scale[j]
-        v[ln_at[j]] = math.log(n_new[j])
+            x[at + C + a] *= c_scale[j]
+        x[at + C + A] = math.log(n_new[j])
+    return True
+
+
+_compiled_row = njit(cache=True, nogil=True, error_model="numpy")(project_kernel)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def constrain_packed(x, lo, hi, peak, has_peak, n_cap, growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C):
-    """:meth:`LafortuneFitForm.constrain` on packed fit-form rows ``x`` ``(T, K)``, returned as a new array.
-
-    The same steps in the same order (``BRDFModel.constrain``'s clip to the
-    bounds ``lo``/``hi`` and ρ_d ≤ peak, then ``bound_lobes`` per lobe and
-    the lobes' common share), one texel at a time.  Why: LM projects every
-    trial point, and the NumPy version costs about half a millisecond a call
-    in dict packing and small array passes whatever the number of texels, a
-    tenth of a Fit tile.  ``peak`` ``(T,)`` (read where ``has_peak``),
-    ``n_cap`` ``(T,)`` the resolvable exponent (inf: no bound); ``rho_at``, ``ln_at`` ``(L,)`` the packed offsets of each
-    lobe's ρ_s and log n, ``c_at`` ``(L, A)`` of its C_x (, C_y).  ``growth`` < 0:
-    no grazing bound.  Equal to the NumPy path to a few ulp (libm's exp and
-    log against NumPy's).
-    """
-    T, K = x.shape
-    L = c_at.shape[0]
-    out = np.empty_like(x)
-    work = np.empty((4, L))
-    for t in range(T):
-        for k in range(K):
-            out[t, k] = x[t, k]
-        _project_row(out[t], lo, hi, peak[t], has_peak, n_cap[t], growth, s2, c2, n_lo, n_hi, rho_at, c_at, ln_at, C,
-                     work)
+def constrain_packed(x, cfg, lim, lo, hi):
+    """:func:`project_kernel` on every packed row of ``x`` ``(T, K)`` with its row of ``lim`` ``(T, 6)``, as a
+    new array: the projection of LM's NumPy loop and of the starting points."""
+    out = x.copy()
+    for t in range(x.shape[0]):
+        _compiled_row(out[t], cfg, lim[t], lo, hi)
     return out

@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
-from sbrdf_core.constraints import clip_shape, widen_to_peak
+from sbrdf_core.constraints import WidenedRoughness
 from sbrdf_core.constraints_glsl import microfacet_constrain
 from sbrdf_core.params import Param
 from sbrdf_core.plugin import PluginSpec, hookimpl
@@ -80,7 +80,7 @@ def fit_kernel(x, cfg, wi, wo, f, J):
             J[c, 6] = rho_s * (lobe * (2.0 * (ex + ey) - 2.0))
 
 
-class WardModel(BRDFModel):
+class WardModel(WidenedRoughness, BRDFModel):
     name = "ward"
     fit_kernel = staticmethod(fit_kernel)
 
@@ -177,15 +177,6 @@ class WardModel(BRDFModel):
                                                   [("vec3", "rho_d"), ("vec3", "rho_s")] + [("float", n) for n in names],
                                                   names, (ALPHA_BOUNDS[1],) * len(names),
                                                   azimuths=2 if self.anisotropic else 1)
-
-    def constrain(self, params, limits):
-        """ρ_s ≤ 1 bounds the lobe's energy; no slope narrower than the sampling resolves, and wide enough
-        that the mirror peak stays within ``limits.peak``."""
-        out, changed = super().constrain(params, limits)
-        names = ("alpha_x", "alpha_y") if self.anisotropic else ("alpha",)
-        out, finer = clip_shape(out, names, low=limits.min_roughness())
-        out, wider = widen_to_peak(self, out, names, limits)
-        return out, changed | finer | wider
 
 
 @hookimpl
