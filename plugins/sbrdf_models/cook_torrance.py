@@ -36,8 +36,8 @@ import numpy as np
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import WidenedRoughness
 from sbrdf_core.constraints_glsl import microfacet_constrain
-from sbrdf_core.params import Param
-from sbrdf_core.plugin import PluginSpec, hookimpl
+
+from . import declarations
 
 COS_FLOOR = 1e-6
 ALPHA_BOUNDS = (1e-3, 2.0)
@@ -133,9 +133,7 @@ class CookTorranceModel(WidenedRoughness, BRDFModel):
         ModelParameter("alpha", 1, ALPHA_BOUNDS, (0.05, 0.5), 0.2, doc="roughness"),
     )
 
-    params = (
-        Param("distribution", "str", "ggx", "microfacet normal distribution D and its Smith Λ", choices=("beckmann", "ggx")),
-    )
+    params = declarations.COOK_TORRANCE
 
     def __init__(self, *, distribution: str = "ggx"):
         if distribution not in ("beckmann", "ggx"):
@@ -248,9 +246,3 @@ class CookTorranceModel(WidenedRoughness, BRDFModel):
         return self.glsl() + microfacet_constrain(self.fit_form(), "brdf_cook_torrance",
                                                   [("vec3", "rho_d"), ("vec3", "f0"), ("float", "alpha")],
                                                   ("alpha",), (ALPHA_BOUNDS[1],))
-
-
-@hookimpl
-def sbrdf_brdf_models():
-    return [PluginSpec("cook-torrance", "sbrdf_models.cook_torrance:CookTorranceModel",
-                       summary="Cook-Torrance microfacet: Beckmann or GGX D, Schlick F, height-correlated Smith G")]

@@ -36,7 +36,6 @@ import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
 from sbrdf_core.constraints import WidenedRoughness
-from sbrdf_core.plugin import PluginSpec, hookimpl
 
 from .cook_torrance import schlick_lobe, schlick_lobe_jacobian
 
@@ -183,9 +182,3 @@ class GGXAnisotropicModel(WidenedRoughness, BRDFModel):
         phi = out["phi"] + np.where(swap, np.pi / 2, 0.0)
         out["phi"] = np.mod(phi + np.pi / 2, np.pi) - np.pi / 2
         return out
-
-
-@hookimpl
-def sbrdf_brdf_models():
-    return [PluginSpec("ggx-anisotropic", "sbrdf_models.ggx_anisotropic:GGXAnisotropicModel",
-                       summary="anisotropic GGX with a per-texel direction (glTF KHR_materials_anisotropy's lobe)")]

@@ -35,8 +35,8 @@ import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
-from sbrdf_core.params import Param
-from sbrdf_core.plugin import PluginSpec, hookimpl
+
+from . import declarations
 
 if TYPE_CHECKING:
     from .lafortune_fit import LafortuneFitForm
@@ -72,12 +72,7 @@ class LafortuneModel(BRDFModel):
     name = "lafortune"
     reads_peak_cosine = False  # lobes are bounded on f_r itself (bound_lobes), not as microfacet lobes
 
-    params = (
-        Param("lobes", "int", 1, "number of cosine lobes", bounds=(0, 8)),
-        Param("anisotropic", "bool", False, "separate C_x and C_y per lobe (otherwise C_x = C_y)"),
-        Param("beta", "bool", False, "per-texel anisotropy angle β shared by the lobes (needs anisotropic)"),
-        Param("mirror", "bool", False, "add the mirror term ρ_m (rendered by renderers, not fitted)"),
-    )
+    params = declarations.LAFORTUNE
 
     def __init__(self, *, lobes: int = 1, anisotropic: bool = False, beta: bool = False, mirror: bool = False):
         self.channels = 3
@@ -364,9 +359,3 @@ class LafortuneModel(BRDFModel):
         if self.lobes:
             changed |= _apply_lobe_bounds(self, out, limits, exponent_key="exponent_{j}", log=False)
         return out, changed
-
-
-@hookimpl
-def sbrdf_brdf_models():
-    return [PluginSpec("lafortune", "sbrdf_models.lafortune:LafortuneModel",
-                       summary="Generalized cosine lobes (McAllister's SBRDF): rho_d + sum rho_s max(0, w_r C w_i)^n")]

@@ -16,7 +16,6 @@ import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
 from sbrdf_core.constraints_glsl import clip_lines
-from sbrdf_core.plugin import PluginSpec, hookimpl
 
 
 def fit_kernel(x, cfg, wi, wo, f, J):
@@ -67,8 +66,3 @@ class LambertModel(BRDFModel):
         """``brdf_fit_constrain``: the bounds and ρ_d ≤ peak (the default :meth:`constrain`), for ``lm-gl``."""
         return "\n".join(["void brdf_fit_constrain(inout float x[3], float peak, float resolution, float peak_cosine, "
                           "float growth, float max_theta) {"] + clip_lines(self.fit_form()) + ["}", ""])
-
-@hookimpl
-def sbrdf_brdf_models():
-    return [PluginSpec("lambert", "sbrdf_models.lambert:LambertModel",
-                       summary="Lambertian diffuse reflector, f_r = rho_d")]

@@ -31,7 +31,6 @@ import numpy as np
 from sbrdf_core.brdf import LOG_CAP, BRDFModel, LogFitForm, ModelParameter, above_horizon, positive_power
 from sbrdf_core.constraints import clip_shape
 from sbrdf_core.constraints_glsl import BIG, clip_lines, glsl_float, max_cosine_exponent
-from sbrdf_core.plugin import PluginSpec, hookimpl
 
 EXPONENT_BOUNDS = (0.1, 20000.0)
 
@@ -164,9 +163,3 @@ class PhongModel(BRDFModel):
             out["rho_s"] = out["rho_s"] * shrink
             changed |= over[:, 0] | (shrink[:, 0] < 1 - 1e-9)
         return out, changed
-
-
-@hookimpl
-def sbrdf_brdf_models():
-    return [PluginSpec("phong", "sbrdf_models.phong:PhongModel",
-                       summary="Modified (energy-normalised) Phong: rho_d + rho_s (n+2)/(2 pi) cos^n(alpha)")]
