@@ -357,6 +357,12 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                            "fit-form rows `(T, K)`, compiled; `lm` projects every trial point with "
                                            "it. Without it: `constrain` on the unpacked parameters (NumPy passes "
                                            "over every row at every trial, a visible share of a Fit tile).", None),
+        "project_kernel": OptionalMember("`project_kernel(x, cfg, lim, lo, hi)` (a module-level function, on the fit "
+                                         "form): `constrain` on one packed row `x` in place, inside the box `lo`, `hi`, "
+                                         "with `lim` the texel's row of `project_limits(limits, T) -> (T, m)`; the "
+                                         "fitting engine compiles it into its loop. Without it (and without "
+                                         "`widens_to_peak`): `constrain` after the loop and a NumPy refinement of "
+                                         "what it moved.", None),
         "glsl_fit_constrain": OptionalMember("`glsl_fit_constrain() -> str`: GLSL (4.3) defining `void brdf_fit_constrain("
                                              "inout float x[K], float peak, float resolution, float peak_cosine, float "
                                              "growth, float max_theta)`, the fit form's `constrain` onto the texel's "

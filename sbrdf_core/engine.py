@@ -11,7 +11,10 @@ options).  The kernel is plain Python on scalars and ``math`` (so listing the
 model imports no compiler, and the function itself runs, slowly, anywhere); the
 engine compiles it with numba.  The engine does the rest, the same for every model: the normal
 equations, the damped solve, bounds, step limits and convergence
-(:mod:`sbrdf_core.engine_lm`), in parallel over texels without the GIL.  The
+(:mod:`sbrdf_core.engine_lm`), in parallel over texels without the GIL.  The peak bound is held in
+the loop too: by widening the roughness of a model that declares ``widens_to_peak``
+(:class:`~sbrdf_core.constraints.WidenedRoughness`), or by the form's own ``project_kernel(x, cfg, lim,
+lo, hi)`` (one packed row in place, with ``project_limits(limits, T)`` giving each texel's ``lim``).  The
 NumPy path (``form.eval`` / ``form.jacobian``) is the oracle a model's kernel
 is tested against, and what a model without a kernel is fitted with.
 
