@@ -65,7 +65,8 @@ class BRDFModel:
     :meth:`eval`; the default :meth:`jacobian` uses central differences.
     """
 
-    name: ClassVar[str] = ""
+    #: The registered name (a fit form: the model's with ``-fit-form``).
+    name: str = ""
     #: The model's configuration (``model_params``: lobes, anisotropic, ...), as keyword arguments of ``__init__``.
     params: ClassVar[tuple] = ()
     parameters: tuple[ModelParameter, ...] = ()
@@ -236,19 +237,20 @@ class BRDFModel:
         finer than the sampling (exponents, roughness: see
         :class:`~sbrdf_core.constraints.WidenedRoughness`) override it.
         """
-        out, changed = {}, None
+        out: dict[str, np.ndarray] = {}
+        changed = np.zeros(0, bool)  # a model without parameters: nothing to move
         for p in self.parameters:
             v = np.asarray(params[p.name], dtype=np.float64)
             c = np.clip(v, *p.bounds)
             moved = (c != v).any(axis=-1)
-            changed = moved if changed is None else changed | moved
+            changed = moved if changed.size == 0 else changed | moved
             out[p.name] = c
         out.update({k: v for k, v in params.items() if k not in out})
         if limits.peak is not None and "rho_d" in out:  # no diffuse term brighter than any lobe may be
             cap = np.asarray(limits.peak, np.float64)[:, None]
             changed = changed | (out["rho_d"] > cap).any(axis=-1)
             out["rho_d"] = np.minimum(out["rho_d"], cap)
-        return out, changed if changed is not None else np.zeros(0, bool)
+        return out, changed
 
     def defaults(self, T: int) -> dict[str, np.ndarray]:
         """Every parameter at its declared default, for ``T`` texels."""

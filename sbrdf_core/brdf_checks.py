@@ -160,8 +160,8 @@ class EnergyReport:
 
 
 def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
-                  incident_thetas: Sequence[float] = tuple(np.radians([0.0, 30.0, 60.0, 75.0, 85.0])),
-                  incident_phis: Sequence[float] = (0.0, np.pi / 4, np.pi / 2),
+                  incident_thetas: Sequence[float] | np.ndarray = tuple(np.radians([0.0, 30.0, 60.0, 75.0, 85.0])),
+                  incident_phis: Sequence[float] | np.ndarray = (0.0, np.pi / 4, np.pi / 2),
                   n_theta: int = 64, n_phi: int = 128, limit: float = 1.0, tolerance: float = 1e-3) -> EnergyReport:
     """Directional albedo at every ``(θ_i, φ_i)`` combination (radians) and the texels exceeding ``limit``.
 

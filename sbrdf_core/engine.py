@@ -43,7 +43,7 @@ logger = logging.getLogger(__name__)
 __all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "over_texels", "threads", "solver"]
 
 _TEMPLATE = Path(__file__).with_name("engine_lm.py")
-_MARK = "kernel = None  # KERNEL: the cached copy imports the model's fit kernel on this line"
+_MARK = "kernel: Any = None  # KERNEL: the cached copy imports the model's fit kernel on this line"
 _loaded: dict[tuple[str, ...], object] = {}
 _lock = threading.Lock()
 

@@ -24,6 +24,7 @@ Invariants every function keeps:
 """
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -35,8 +36,7 @@ def project(x, cfg, lim, lo, hi):  # pragma: no cover (stands in where the form 
 
 
 # The cached copy imports the model's fit kernel (and its projection kernel, replacing the stand-in) here:
-kernel = None  # KERNEL: the cached copy imports the model's fit kernel on this line
-
+kernel: Any = None  # KERNEL: the cached copy imports the model's fit kernel on this line
 
 
 @njit(cache=True, nogil=True)
