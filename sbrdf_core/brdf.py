@@ -348,6 +348,15 @@ class LogFitForm(BRDFModel):
     def kernel_config(self) -> np.ndarray:
         return self.model.kernel_config()
 
+    @property
+    def project_kernel(self):
+        """The wrapped model's ``project_kernel`` (its ``constrain`` on one packed row of this form), or None."""
+        return getattr(self.model, "project_kernel", None)
+
+    def project_limits(self, limits, T: int) -> np.ndarray:
+        # read only where project_kernel is set, and a model with one has this too (the contract's pair)
+        return self.model.project_limits(limits, T)  # type: ignore[attr-defined]
+
     def canonical(self, params):
         return self.from_model(self.model.canonical(self.to_model(params)))
 

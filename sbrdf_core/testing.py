@@ -219,6 +219,43 @@ class BRDFModelTests(PluginTests):
             for k in once:
                 np.testing.assert_allclose(twice[k], once[k], rtol=1e-6, atol=1e-9)
 
+    def test_project_kernel_is_the_fit_forms_constrain(self):
+        """A fit form's optional ``project_kernel`` (what the fitting engine projects every iterate with, inside
+        the box ``limit_box`` makes) gives the fit form's ``constrain``, on random points and binding limits."""
+        from .types import Limits
+
+        checked = 0
+        for model in self.models():
+            form = model.fit_form()
+            kernel = getattr(form, "project_kernel", None)
+            if kernel is None:
+                continue
+            T, rng = 64, np.random.default_rng(4)
+            x = form.pack(form.random_guess(rng, T))
+            x[::3] *= 3.0  # beyond the typical ranges: brighter and sharper than the limits allow
+            lo, hi = form.bounds()
+            x = np.clip(x, lo, hi)
+            peak = np.exp(rng.uniform(np.log(0.05), np.log(20.0), T))
+            for limits in (Limits(peak=peak, resolution=np.radians(rng.uniform(0.3, 20.0, T))), Limits(peak=peak),
+                           Limits(resolution=np.full(T, np.radians(4.0)), max_theta=np.radians(80.0))):
+                want = form.pack(form.constrain(form.unpack(x.copy()), limits)[0])
+                box_lo = np.broadcast_to(lo, x.shape).copy()
+                box_hi = np.broadcast_to(hi, x.shape).copy()
+                box = getattr(form, "limit_box", None)
+                if box is not None:
+                    box_lo, box_hi = box(limits, box_lo, box_hi)
+                lim = np.ascontiguousarray(form.project_limits(limits, T), np.float64)
+                cfg = np.asarray(form.kernel_config(), np.float64) if hasattr(form, "kernel_config") else np.zeros(0)
+                got = x.copy()
+                for t in range(T):
+                    kernel(got[t], cfg, lim[t], box_lo[t], box_hi[t])
+                np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12, err_msg=model.name)
+            checked += 1
+        if not checked:
+            import pytest
+
+            pytest.skip("no model here has a project_kernel (optional)")
+
     def test_glsl_compiles_and_matches_numpy(self):
         """The model's GLSL, called through ``glsl_call`` with each parameter a uniform, against ``eval``."""
         import pytest

@@ -61,6 +61,28 @@ def fit_kernel(x, cfg, wi, wo, f, J):
         J[c, 6] = x[3 + c] * dlobe
 
 
+def project_kernel(x, cfg, lim, lo, hi):
+    """:meth:`PhongModel.constrain` on one packed fit-form row ``x`` = (ρ_d, ρ_s, log n), in place, inside the box
+    ``lo``, ``hi`` (which holds ρ_d ≤ peak and n ≤ the resolvable exponent): the fitting engine's projection.
+    ``lim`` = (peak, has_peak).  Returns True."""
+    for k in range(x.size):
+        x[k] = min(max(x[k], lo[k]), hi[k])
+    if lim[1] == 0.0:
+        return True
+    budget = max(lim[0] - max(x[0], x[1], x[2]), 0.0)
+    rho = max(x[3], x[4], x[5])
+    n = math.exp(x[6])
+    n_peak = 2.0 * math.pi * budget / rho - 2.0 if rho > 0.0 else math.inf
+    if n > n_peak * (1.0 + 1e-9):
+        n = max(n_peak, EXPONENT_BOUNDS[0])
+        x[6] = math.log(n)
+    lobe_peak = rho * (n + 2.0) / (2.0 * math.pi)
+    if lobe_peak > budget:
+        for c in range(3, 6):
+            x[c] *= budget / lobe_peak
+    return True
+
+
 class PhongModel(BRDFModel):
     name = "phong"
     #: What the sampling bounds (``LogFitForm.limit_box``): the sharpness the samples resolve.
@@ -68,6 +90,7 @@ class PhongModel(BRDFModel):
     anisotropic = False
     reads_peak_cosine = False  # its peak is bounded on f_r itself
     fit_kernel = staticmethod(fit_kernel)
+    project_kernel = staticmethod(project_kernel)
     parameters = (
         ModelParameter("rho_d", 3, (0.0, 10.0), (0.02, 0.25), 0.1, unit="sr^-1", doc="diffuse term", magnitude=True),
         ModelParameter("rho_s", 3, (0.0, 10.0), (0.05, 0.8), 0.3, unit="1", doc="specular albedo at normal incidence",
@@ -138,6 +161,14 @@ class PhongModel(BRDFModel):
     def albedo_bound(self, params):
         """π ρ_d + ρ_s per channel: the normalised lobe's albedo is ρ_s at normal incidence and less elsewhere."""
         return (np.pi * np.asarray(params["rho_d"]) + np.asarray(params["rho_s"])).max(axis=1)
+
+    @staticmethod
+    def project_limits(limits, T: int) -> np.ndarray:
+        """Each texel's (peak, has_peak), what :func:`project_kernel` reads, ``(T, 2)``."""
+        out = np.zeros((T, 2))
+        if limits is not None and limits.peak is not None:
+            out[:, 0], out[:, 1] = np.asarray(limits.peak, np.float64).reshape(T), 1.0
+        return out
 
     def constrain(self, params, limits):
         """n no sharper than the sampling resolves, and a peak ρ_d + ρ_s (n + 2)/2π within ``limits.peak``.
