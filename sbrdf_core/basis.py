@@ -8,13 +8,15 @@ noise.  A material's texels together sample it far better than any one does.  Th
 
 1. clusters the texels by their fitted appearance (:func:`features`: log f_r per channel at
    :data:`~sbrdf_core.coherence.APPEARANCE_PAIRS`, the pairs :func:`~sbrdf_core.coherence.cohere` compares)
-   into ``materials`` clusters with k-means (:func:`kmeans`; 0: as many as keep paying, :func:`cluster`);
+   into at most ``materials`` clusters with k-means (:func:`kmeans`; 0: as many as stay distinct,
+   :func:`cluster`);
 2. fits each cluster once to its texels' pooled training samples (at most :data:`POOL`, drawn with a fixed
    seed, so a cluster's fit costs about one texel's fit of that many samples), from the fitter's own starts and
-   from the solution of the cluster's most typical texel, keeping the lower pooled cost;
-3. refits every texel from its cluster's solution (the fitter contract's ``initial``) and keeps, per texel,
-   whichever of its own solution, that refit and the cluster's solution as it is has the lowest cost on its own
-   training samples.
+   from the solution of the cluster's most typical texel, keeping the lower pooled cost; clusters that fit
+   each other's samples about as well as their own are merged and fitted again, once (:func:`merge`);
+3. refits every texel from its cluster's solution (the fitter contract's ``initial``) and takes, per texel,
+   the better of that refit and the cluster's solution as it is where it has a lower cost on the texel's own
+   training samples than the texel's own solution.
 
 Invariant: a texel's training cost (plain sum of squares over its training samples and channels, each
 candidate held to the texel's bounds first) never rises: its own solution is kept unless another is strictly
@@ -242,14 +244,30 @@ def basis(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarr
         return x, label, from_basis, refitted
     start = solution[label[cand]]
     refined = np.asarray(refit(cand, model.unpack(start)), np.float64)
-    own = x[cand]
-    if project is not None:  # judged as they will leave the node: inside the texel's own bounds
-        start, refined, own = project(cand, start), project(cand, refined), project(cand, own)
-    c_o, c_r, c_s = (np.where(np.isfinite(c), c, np.inf) for c in
-                     (_cost(_predict(model, v, wi[cand], wo[cand]), f_r[cand], train[cand]) for v in (own, refined, start)))
-    take_refit = (c_r < c_o) & (c_r <= c_s)
-    take_start = (c_s < c_o) & ~take_refit
-    x[cand[take_refit]], x[cand[take_start]] = refined[take_refit], start[take_start]
-    from_basis[cand] = take_refit | take_start
-    refitted[cand] = take_refit
+
+    def cost(rows: np.ndarray, v: np.ndarray) -> np.ndarray:
+        c = _cost(_predict(model, v, wi[rows], wo[rows]), f_r[rows], train[rows])
+        return np.where(np.isfinite(c), c, np.inf)
+
+    # judged as they will leave the node: held to the texel's bounds, its own solution as `coherence: none` leaves
+    # it (a fit outside them often fits clearly worse once held, and then a cluster's solution wins)
+    c_o = cost(cand, x[cand] if project is None else project(cand, x[cand]))
+    c_r, c_s = cost(cand, refined), cost(cand, start)
+    by_refit = c_r <= c_s
+    best = np.where(by_refit[:, None], refined, start)
+    pick = np.flatnonzero(np.minimum(c_r, c_s) < c_o)
+    rows, best = cand[pick], best[pick]
+    if project is not None and rows.size:
+        # both candidates, held to the bounds (the one better before them is often the worse after), but only
+        # where one beats the texel's own before its bounds, which seldom lower a cost: the bounds (an albedo
+        # quadrature for some models) cost more than the fits here
+        r_p, s_p = project(rows, refined[pick]), project(rows, start[pick])
+        cr, cs = cost(rows, r_p), cost(rows, s_p)
+        by_refit[pick] = cr <= cs
+        best = np.where((cr <= cs)[:, None], r_p, s_p)
+        win = np.minimum(cr, cs) < c_o[pick]
+        rows, best, pick = rows[win], best[win], pick[win]
+    x[rows] = best
+    from_basis[rows] = True
+    refitted[rows] = by_refit[pick]
     return x, label, from_basis, refitted
