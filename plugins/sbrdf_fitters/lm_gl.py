@@ -119,7 +119,9 @@ class GLLevenbergMarquardtFitter:
         everyone = np.arange(T)
         constrain = optional(model, "glsl_fit_constrain", "brdf-model") if project is not None else None
         in_shader = constrain is not None  # every trial point projected in the shader: no stepwise refit
-        src = lm_gl_shader.source(glsl, K, constrain() if in_shader else None)
+        widths = getattr(form, "peak_widths", None)
+        along = in_shader and widths is not None and widths() is not None
+        src = lm_gl_shader.source(glsl, K, constrain() if in_shader else None, along)
         packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
         plain_weight = valid.astype(np.float64)
         base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model

@@ -66,13 +66,16 @@ LOOP_BUDGET = 40000
 
 def chunk(samples: int, K: int, constrained: bool) -> int:
     """LM iterations per dispatch: each costs about ``samples`` + K³ loop iterations (sample sums, Cholesky),
-    plus the projection's loops (a bisection over mirror pairs: ~2000)."""
-    return max(1, LOOP_BUDGET // (samples + K**3 + 64 * K + (2000 if constrained else 0)))
+    plus the projection's loops (a bisection over mirror pairs: ~2000) and the peak bound's gradient (48 mirror
+    pairs)."""
+    return max(1, LOOP_BUDGET // (samples + K**3 + 64 * K + (2000 + 48 * K if constrained else 0)))
 
 
-def source(gradient_glsl: str, K: int, constrain_glsl: str | None = None) -> str:
+def source(gradient_glsl: str, K: int, constrain_glsl: str | None = None, along: bool = False) -> str:
     """The compute shader for a model whose ``brdf_fit_gradient`` is ``gradient_glsl``, ``K`` fit parameters;
-    ``constrain_glsl``, the model's ``glsl_fit_constrain()``, projects trial points where ``u_constrain`` is set."""
+    ``constrain_glsl``, the model's ``glsl_fit_constrain()``, projects trial points where ``u_constrain`` is set.
+    ``along``: the projection widens the roughness to the peak bound (the fit form's ``peak_widths``), and
+    while that bound is active steps are taken along it, as the CPU engine's ``along_bound`` does."""
     NA = K * (K + 1) // 2
     stride, work = state_stride(K), work_stride(K)
     if constrain_glsl is None:  # never called (u_constrain stays 0): the CPU projects, stepwise
@@ -100,6 +103,7 @@ uniform float u_free[{K}];
 uniform float u_max_step[{K}];
 const int K = {K};
 const int NA = {NA};
+const bool ALONG = {"true" if along else "false"};
 
 {gradient_glsl}
 
@@ -140,7 +144,53 @@ bool finite(float v) {{ return !isnan(v) && !isinf(v); }}
 // The damped step from x over the parameters fr marks free: Cholesky of D^-1/2 A D^-1/2 + lam I (a frozen
 // parameter's row and column replaced by the identity's); xn the step clamped to the box, xr unclamped; false when a
 // pivot is at round-off.
-bool propose(float A[NA], float g[K], float x[K], float lam, float fr[K], out float xn[K], out float xr[K]) {{
+// The peak bound's log gradient at x where the bound is active (the peak within 0.1 % below it), as the CPU
+// engine's mirror_peak: f_r (times cos^2 for peak_cosine) over the mirror pairs, the gradient where it is largest.
+bool peak_gradient(int t, float x[K], out float c[K]) {{
+    for (int k = 0; k < K; ++k) c[k] = 0.0;
+    if (!ALONG || u_constrain == 0) return false;
+    int o = t * {LIMITS_STRIDE};
+    bool cosine = lim[o + 2] >= 0.0;
+    float bound = cosine ? lim[o + 2] : lim[o];
+    if (!(bound > 0.0)) return false;
+    float best = -1.0;
+    for (int i = 0; i < 24; ++i) {{
+        float th = u_max_theta * float(i) / 23.0, st = sin(th), ct = cos(th);
+        float w = cosine ? ct * ct : 1.0;
+        for (int a = 0; a < 2; ++a) {{
+            vec3 d = a == 0 ? vec3(st, 0.0, ct) : vec3(0.0, st, ct);
+            vec3 J[K];
+            vec3 f = brdf_fit_gradient(d, vec3(-d.xy, d.z), x, J) * w;
+            for (int ch = 0; ch < 3; ++ch) {{
+                if (f[ch] > best) {{
+                    best = f[ch];
+                    for (int k = 0; k < K; ++k) c[k] = J[k][ch] * w;
+                }}
+            }}
+        }}
+    }}
+    if (!(best > 0.0 && best >= bound * exp(-1e-3) && finite(best))) return false;
+    for (int k = 0; k < K; ++k) c[k] /= best;
+    return true;
+}}
+
+// Solve (L L^T) y = b with the Cholesky factor propose builds (packed lower triangle).
+void cholesky_solve(float M[NA], float b[K], out float y[K]) {{
+    for (int i = 0; i < K; ++i) {{
+        int ri = i * (i + 1) / 2;
+        float v = b[i];
+        for (int k = 0; k < i; ++k) v -= M[ri + k] * y[k];
+        y[i] = v / M[ri + i];
+    }}
+    for (int i = K - 1; i >= 0; --i) {{
+        float v = y[i];
+        for (int k = i + 1; k < K; ++k) v -= M[k * (k + 1) / 2 + i] * y[k];
+        y[i] = v / M[i * (i + 1) / 2 + i];
+    }}
+}}
+
+bool propose(float A[NA], float g[K], float x[K], float lam, float fr[K], bool along, float c[K], out float xn[K],
+             out float xr[K]) {{
     float M[NA], d[K], y[K];
     for (int k = 0; k < K; ++k) {{
         xn[k] = x[k];
@@ -162,21 +212,29 @@ bool propose(float A[NA], float g[K], float x[K], float lam, float fr[K], out fl
             }}
         }}
     }}
-    for (int i = 0; i < K; ++i) {{  // L z = -g/d
-        int ri = i * (i + 1) / 2;
-        float v = fr[i] > 0.0 ? -g[i] / d[i] : 0.0;
-        for (int k = 0; k < i; ++k) v -= M[ri + k] * y[k];
-        y[i] = v / M[ri + i];
-    }}
-    for (int i = K - 1; i >= 0; --i) {{  // L^T y = z
-        float v = y[i];
-        for (int k = i + 1; k < K; ++k) v -= M[k * (k + 1) / 2 + i] * y[k];
-        y[i] = v / M[i * (i + 1) / 2 + i];
-    }}
-    float scale = 1.0;  // the step shortened along its direction to u_max_step (sbrdf_lib.lm.limit_step)
+    float b[K];
+    for (int k = 0; k < K; ++k) b[k] = fr[k] > 0.0 ? -g[k] / d[k] : 0.0;
+    cholesky_solve(M, b, y);
     for (int k = 0; k < K; ++k) {{
         float step = fr[k] > 0.0 ? y[k] / d[k] : 0.0;
         y[k] = finite(step) ? step : 0.0;
+    }}
+    if (along) {{  // the step on the plane c . step = 0 where it would raise the active peak bound
+        float z[K];
+        for (int k = 0; k < K; ++k) b[k] = fr[k] > 0.0 ? c[k] / d[k] : 0.0;
+        cholesky_solve(M, b, z);
+        float cs = 0.0, cz = 0.0;
+        for (int k = 0; k < K; ++k) {{
+            z[k] = fr[k] > 0.0 ? z[k] / d[k] : 0.0;
+            cs += (fr[k] > 0.0 ? c[k] : 0.0) * y[k];
+            cz += (fr[k] > 0.0 ? c[k] : 0.0) * z[k];
+        }}
+        if (cs > 0.0 && cz > 0.0 && finite(cz)) {{
+            for (int k = 0; k < K; ++k) y[k] -= z[k] * cs / cz;
+        }}
+    }}
+    float scale = 1.0;  // the step shortened along its direction to u_max_step (sbrdf_lib.lm.limit_step)
+    for (int k = 0; k < K; ++k) {{
         if (abs(y[k]) > u_max_step[k]) scale = min(scale, u_max_step[k] / abs(y[k]));
     }}
     for (int k = 0; k < K; ++k) {{
@@ -189,9 +247,10 @@ bool propose(float A[NA], float g[K], float x[K], float lam, float fr[K], out fl
 // The projected trial point of lm's active set (sbrdf_lib.lm._active_set_step): where the projection held a
 // parameter where it was (the step pointing out of its bound), the others' step is solved again with it frozen.
 bool propose_projected(int t, float A[NA], float g[K], float x[K], float lam, out float xn[K]) {{
-    float fr[K], xr[K];
+    float fr[K], xr[K], c[K];
     for (int k = 0; k < K; ++k) fr[k] = u_free[k];
-    bool ok = propose(A, g, x, lam, fr, xn, xr);
+    bool along = peak_gradient(t, x, c);
+    bool ok = propose(A, g, x, lam, fr, along, c, xn, xr);
     if (!ok) return false;
     project(t, xn);
     bool pinned = false;
@@ -201,7 +260,7 @@ bool propose_projected(int t, float A[NA], float g[K], float x[K], float lam, ou
     }}
     if (!pinned) return true;
     float xs[K];
-    if (!propose(A, g, x, lam, fr, xs, xr)) return true;  // keep the first trial point
+    if (!propose(A, g, x, lam, fr, along, c, xs, xr)) return true;  // keep the first trial point
     project(t, xs);
     xn = xs;
     return true;
@@ -267,9 +326,9 @@ void main() {{
         return;
     }}
     if (u_mode == 2) {{  // propose a trial point, to be projected onto the texel's limits on the CPU
-        float fr[K], xr[K];
+        float fr[K], xr[K], c[K];
         for (int k = 0; k < K; ++k) fr[k] = u_free[k];
-        bool ok = propose(A, g, x, lam, fr, xn, xr);
+        bool ok = propose(A, g, x, lam, fr, false, c, xn, xr);
         for (int k = 0; k < K; ++k) wk[wb + NA + K + k] = xn[k];
         wk[wb + NA + 2 * K + 1] = ok ? 1.0 : 0.0;
         return;
