@@ -200,6 +200,19 @@ class BRDFModel:
         out = {k: np.array(v, dtype=np.float64) for k, v in params.items()}
         if not mags:
             return out
+        form = self.fit_form()
+        if getattr(form, "kernel", None) is not None and f_r.shape[0] and f_r.shape[1]:
+            # The same system by the fit kernel: one pass over the samples, compiled, where this one evaluates
+            # the model once per magnitude and more.  Magnitudes are the same numbers in both forms.
+            from .engine import solve_linear
+
+            x = form.pack(form.from_model(out))
+            where = form.slices()
+            free = np.zeros(form.size, bool)
+            for p in mags:
+                free[where[p.name]] = True
+            solved = form.to_model(form.unpack(solve_linear(form, x, free, f_r, valid, wi, wo)))
+            return {**out, **{p.name: np.asarray(solved[p.name], np.float64) for p in mags}}
         T = f_r.shape[0]
         zero = {**out, **{p.name: np.zeros((T, 3)) for p in mags}}
         with np.errstate(all="ignore"):

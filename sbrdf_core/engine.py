@@ -40,7 +40,8 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "over_texels", "threads", "solver"]
+__all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "over_texels", "solve_linear", "solver",
+           "threads"]
 
 _TEMPLATE = Path(__file__).with_name("engine_lm.py")
 _MARK = "kernel: Any = None  # KERNEL: the cached copy imports the model's fit kernel on this line"
@@ -258,6 +259,21 @@ def evaluate(model, params, wi, wo) -> np.ndarray | None:
     out = np.empty((T, S, getattr(form, "channels", 3)))
     mod, cfg, x = solver(kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config()), _c(x)
     over_texels(T, lambda a, b: mod.evaluate(cfg, x[a:b], wi[a:b], wo[a:b], out[a:b]), T * S)
+    return out
+
+
+def solve_linear(form, x, free, f_r, weight, wi, wo) -> np.ndarray:
+    """Packed fit-form rows ``x`` ``(T, K)`` with the ``free`` parameters (magnitudes: f_r is affine in them)
+    solved by least squares weighted by ``weight`` ``(T, S)``, the others held, clipped to the form's bounds: what
+    :meth:`~sbrdf_core.brdf.BRDFModel.refine_linear` computes, by the form's fit kernel."""
+    T, K = x.shape
+    lo, hi = (_c(b) for b in form.bounds())
+    out = np.empty((T, K))
+    x, free = _c(x), _c(free, np.uint8)
+    f_r, wi, wo, w = _c(f_r), _c(wi), _c(wo), _c(np.broadcast_to(weight, np.shape(f_r)[:2]))
+    mod, cfg = solver(form.kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config())
+    over_texels(T, lambda a, b: mod.linear_solve(cfg, x[a:b], free, lo, hi, f_r[a:b], w[a:b], wi[a:b], wo[a:b],
+                                                 out[a:b]), T * f_r.shape[1])
     return out
 
 

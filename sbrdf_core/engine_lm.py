@@ -409,6 +409,28 @@ def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, to
 
 
 @njit(cache=True, nogil=True)
+def linear_solve(cfg, x, free, lo, hi, f_r, w, wi, wo, out):
+    """Each texel's ``free`` parameters solved by weighted least squares with the others held, clipped to
+    ``[lo, hi]``, into ``out``: one Gauss–Newton step, exact where f_r is affine in them (the magnitudes).  A
+    texel whose system cannot be solved keeps its row of ``x``."""
+    T, K = x.shape
+    nc = f_r.shape[2]
+    for t in range(T):
+        A = np.empty((K, K))
+        M = np.empty((K, K))
+        g = np.empty(K)
+        step = np.zeros(K)
+        pinned = np.zeros(K, np.bool_)
+        f = np.empty(nc)
+        J = np.empty((nc, K))
+        cost = normal_equations(x[t], cfg, f_r, w, wi, wo, t, free, A, g, f, J)
+        ok = math.isfinite(cost) and damped_step(A, g, 1e-12, free, pinned, M, step)
+        for k in range(K):
+            v = x[t, k] + step[k] if ok else x[t, k]
+            out[t, k] = min(max(v, lo[k]), hi[k])
+
+
+@njit(cache=True, nogil=True)
 def costs(cfg, x, f_r, w, wi, wo, out):
     """The objective of every texel at its row of ``x``: ``out[t]``."""
     T, K = x.shape

@@ -140,3 +140,27 @@ def test_small_batches_are_left_to_numpy():
     form, f, valid, wi, wo = _lambert_problem(T=2, S=3)
     params = form.unpack(np.full((2, 3), 0.2))
     assert engine.evaluate(form, params, wi, wo) is None
+
+
+@pytest.mark.parametrize("name,cfg", [("cook-torrance", {"distribution": "ggx"}), ("ward", {"anisotropic": True}),
+                                      ("ggx-anisotropic", {}), ("phong", {}), ("lambert", {})])
+def test_magnitudes_solved_by_the_kernel_are_numpys(name, cfg):
+    """``refine_linear`` by the fit kernel (``engine.solve_linear``, what the fitters' starts use) gives the NumPy
+    solve of the same system, clipped to the same bounds, on noisy data with invalid samples."""
+    model = Registry().create("brdf-model", name, cfg)
+    plain = type("NoKernel", (type(model),), {"fit_kernel": None})(**cfg)  # the NumPy path, the oracle
+    assert plain.fit_form().kernel is None
+    rng = np.random.default_rng(5)
+    T, S = 48, 90
+    truth = model.random_guess(rng, T)
+    theta_i, theta_o = rng.uniform(0, 1.3, (2, T, S))
+    phi_i, phi_o = rng.uniform(0, 2 * np.pi, (2, T, S))
+    d = lambda t, p: np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1)  # noqa: E731
+    wi, wo = d(theta_i, phi_i), d(theta_o, phi_o)
+    f_r = model.eval(truth, wi, wo) * rng.uniform(0.8, 1.2, (T, S, 3))
+    valid = rng.random((T, S)) > 0.2
+    start = model.random_guess(np.random.default_rng(6), T)  # other shapes: the magnitudes do the fitting
+    got, want = model.refine_linear(start, f_r, valid, wi, wo), plain.refine_linear(start, f_r, valid, wi, wo)
+    for p in model.parameters:
+        np.testing.assert_allclose(got[p.name], want[p.name], rtol=1e-6, atol=1e-9, err_msg=p.name)
+    assert any(not np.allclose(got[p.name], start[p.name]) for p in model.parameters if p.magnitude)
