@@ -165,6 +165,7 @@ class FrameCameraBase:
             raise self.error(ExposureRefused, f"exposure {t:g} s is outside the camera's range [{lo:g}, {hi:g}] s",
                              command=f"exposure {t:g} s")
         if self._device_range_s() is None:
+            assert self.nominal_exposure_s is not None, "exposure_range_s() refuses a camera with neither"
             self.exposure_s = float(self.nominal_exposure_s)
         else:
             self.exposure_s = float(self._set_exposure(t))

@@ -226,7 +226,7 @@ class FolderCapture:
         self._check_calibration(manifest)
         self.manifest = manifest
         if self.dark_frame_name:
-            self._load_dark(manifest)
+            self._load_dark(manifest, self.dark_frame_name)
 
     def read_record(self, pose: PoseRecord, where: str) -> tuple[np.ndarray, np.ndarray]:
         """One pose's linear HDR radiance and validity: decode, linearise, subtract dark, merge, colour."""
@@ -358,6 +358,7 @@ class FolderCapture:
     def _open(self) -> Manifest:
         if self.manifest is None:
             self.attach(validate_folder(self.path, allow_incomplete=self.allow_incomplete))
+        assert self.manifest is not None, "attach() sets the manifest"
         return self.manifest
 
     def _read(self, path: Path, where: str, m: Manifest) -> np.ndarray:
@@ -389,6 +390,7 @@ class FolderCapture:
             top = float(np.iinfo(img.dtype).max)
             return img.astype(np.float32) / np.float32(top), img.astype(np.float32) / np.float32(top)
         curve = self.curve
+        assert curve is not None, "attach() chose the response: linear, or this curve"
         if img.dtype.itemsize * 8 != curve.bits:
             raise CaptureFolderError(f"{self.path / MANIFEST}: {where}: a {img.dtype.itemsize * 8}-bit image but the "
                                      f"response curve has {curve.table.shape[0]} entries ({curve.bits}-bit)")
@@ -444,8 +446,8 @@ class FolderCapture:
                 f"poses), and that failed: {e}.  Record camera.response in the manifest, pass response: linear for "
                 "linear images, or try the other response_method") from None
 
-    def _load_dark(self, m: Manifest) -> None:
-        e = Exposure(self.dark_frame_name, self.dark_time_s or 1.0)
+    def _load_dark(self, m: Manifest, name: str) -> None:
+        e = Exposure(name, self.dark_time_s or 1.0)
         path = resolve_image(self.path, e, "dark_frame")
         img = self._read(path, "dark_frame", m)
         self.manifest = m

@@ -79,7 +79,7 @@ import time
 import weakref
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -99,6 +99,11 @@ from sbrdf_lib.rig_geometry import RigGeometry, forward
 from sbrdf_lib.serial.errors import DeviceError, LinkLost, SoftLimitError
 
 from .declarations import GONIO
+
+if TYPE_CHECKING:
+    from sbrdf_core.registry import Registry
+
+    from .folder import FolderCapture
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +156,7 @@ class Motor:
 class _Devices:
     """What must be halted and released, kept apart from the source so a finalizer can reach it."""
 
-    motors: list = field(default_factory=list)
+    motors: list[Motor] = field(default_factory=list)
     camera: Any = None  # a frame camera once opened (the virtual camera holds nothing to release)
 
     def close(self) -> None:
@@ -241,10 +246,13 @@ class GonioCapture:
         self.frame_camera = False
         #: Seconds spent, summed over the poses this process took: motion, settle, exposure, transfer, write.
         self.timings = dict.fromkeys(("motion", "settle", "exposure", "transfer", "write"), 0.0)
-        self.registry = None
-        self.camera = None
-        self.reader = None
-        self.writer = None
+        self.registry: Registry | None = None
+        #: The camera device: a scene-rendering one (``photograph``, ``sample_info``...) bound in :meth:`bind`, or a
+        #: frame camera (``grab``, ``set_exposure``...) opened in :meth:`_connect`; ``frame_camera`` says which.
+        self.camera: Any = None
+        self.reader: FolderCapture | None = None
+        #: The folder writer; :meth:`_start` opens it unless the folder already holds the complete capture.
+        self.writer: CaptureFolderWriter | None = None
         self._plan: tuple[np.ndarray, list[list[float]]] | None = None
         self._started = False
         self._complete = False
@@ -270,7 +278,8 @@ class GonioCapture:
         if not isinstance(motors, dict) or not motors:
             raise ParameterError("gonio: motors: expected a mapping of motor name -> {device, params, axes}, e.g. "
                                  "{sample_pan: {device: ptu, params: {port: sim}, axes: {pan: pan_deg}}}")
-        out, driven = [], {}
+        out: list[Motor] = []
+        driven: dict[str, str] = {}  # joint -> motor name
         for name, config in motors.items():
             device, params = self._parse_device(config, f"motors.{name}")
             axes = config.get("axes", DEFAULT_AXES.get(device))
@@ -293,7 +302,7 @@ class GonioCapture:
         unknown = sorted(set(geometry) - known)
         if unknown:
             raise ParameterError(f"gonio: geometry: unknown field(s) {unknown}; RigGeometry fields: {sorted(known)}")
-        values = {k: tuple(v) if isinstance(v, list) else v for k, v in geometry.items()}
+        values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in geometry.items()}
         return RigGeometry(**values)
 
     def _check_plan_config(self) -> None:
@@ -418,12 +427,22 @@ class GonioCapture:
             if missing:
                 raise ParameterError(f"gonio: exposures: the exposure planner needs {missing}")
             wi, wo = forward(self.geometry, *angles.T).directions()
-            table = plan_exposures(wi, wo, **{k: float(v) for k, v in exp.items()})
+            kwargs: dict[str, Any] = {k: float(v) for k, v in exp.items()}
+            if "max_exposures" in exp:
+                kwargs["max_exposures"] = self._max_exposures()  # a count: a float one made the planner fail
+            table = plan_exposures(wi, wo, **kwargs)
             times = [[float(x) for x in row if np.isfinite(x)] for row in table]
         for i, bracket in enumerate(times):
             if not 1 <= len(bracket) <= 3 or not all(math.isfinite(x) and x > 0 for x in bracket):
                 raise ParameterError(f"gonio: exposures: pose {i} has bracket {bracket}; a bracket is 1 to 3 positive times")
         return times
+
+    def _max_exposures(self) -> int:
+        """``exposures.max_exposures`` as the planner's count of exposures per bracket (a whole number)."""
+        given = self.exposure_config["max_exposures"]
+        if isinstance(given, bool) or not isinstance(given, (int, float)) or given != int(given) or given < 1:
+            raise ParameterError(f"gonio: exposures.max_exposures: expected a whole number >= 1, got {given!r}")
+        return int(given)
 
     # -- capture source protocol ------------------------------------------------------------------
 
@@ -439,7 +458,7 @@ class GonioCapture:
         if not self._started:
             self._start(angles, times)
         header = parse_manifest({**self._header(), "complete": False, "poses": []}, f"{self.path} (gonio header)")
-        mode = self.reader.response_mode
+        mode = self._folder_reader().response_mode
         linear = mode == "linear" or header.camera.response == "linear"
         sample, camera, light = manifest_sections(header, linear)
         return CaptureDescription(
@@ -459,7 +478,7 @@ class GonioCapture:
             from sbrdf_core.registry import default_registry
 
             self.bind(default_registry())
-        self.reader.calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
+        self._folder_reader().calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
 
     def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Take the poses up to ``index`` that the folder lacks, then read pose ``index`` back from the folder."""
@@ -470,11 +489,11 @@ class GonioCapture:
             # A response curve recovered from brackets needs every pose, so then the whole scan comes first.
             last = len(angles) - 1 if self._needs_all_poses() else int(index)
             for j in range(last + 1):
-                if j not in self.writer.done_ids:
+                if j not in self._folder_writer().done_ids:
                     self._take(j, angles, times)
         if self._complete:
-            return self.reader.read_pose(int(index))
-        return self.reader.read_record(self.writer.poses[int(index)], f"pose {int(index)}")
+            return self._folder_reader().read_pose(int(index))
+        return self._folder_reader().read_record(self._folder_writer().poses[int(index)], f"pose {int(index)}")
 
     def read_report(self) -> tuple[str, dict] | None:
         """What reading the poses back found (the folder plugin's :meth:`~sbrdf_capture.folder.FolderCapture.read_report`)."""
@@ -515,6 +534,7 @@ class GonioCapture:
         """
         if self.camera is None:
             return self._recorded_camera
+        assert self.intrinsics is not None, "bind() requires intrinsics with a frame camera"
         info = dict(self.camera.info())
         section = {"width": int(info.pop("width")), "height": int(info.pop("height")),
                    "K": self.intrinsics.get("K"), "dist": self.intrinsics.get("dist", [0.0] * 5)}
@@ -523,8 +543,18 @@ class GonioCapture:
         section["device"] = info
         return section
 
+    def _folder_reader(self) -> FolderCapture:
+        """The ``folder`` reader every pose is read back through; :meth:`bind` creates it."""
+        assert self.reader is not None, "gonio: the folder reader is used before bind()"
+        return self.reader
+
+    def _folder_writer(self) -> CaptureFolderWriter:
+        """The folder writer; poses are taken only after :meth:`_start` opened it (an unfinished capture)."""
+        assert self.writer is not None, "gonio: a pose is taken or recorded before _start() opened the folder"
+        return self.writer
+
     def _needs_all_poses(self) -> bool:
-        mode = self.reader.response_mode
+        mode = self._folder_reader().response_mode
         given = self._header()["camera"].get("response")
         return mode == "recover" or (mode == "auto" and not isinstance(given, dict) and given != "linear")
 
@@ -545,7 +575,7 @@ class GonioCapture:
                                              "light; use another path or remove that folder")
                 self._check_recorded(old.poses, angles, times, complete=True)
                 self._complete = True
-                self.reader.manifest = None  # read it as the folder plugin would
+                self._folder_reader().manifest = None  # read it as the folder plugin would
                 log.info("gonio: %s already holds the complete capture; no motion", self.path)
                 return
         self._connect()
@@ -559,7 +589,7 @@ class GonioCapture:
                                               image_format=self.image_format, durable=self.durable, extra=extra)
             self._check_recorded(list(self.writer.poses.values()), angles, times, complete=False)
             if not self._needs_all_poses():
-                self.reader.attach(self.writer.manifest)
+                self._folder_reader().attach(self.writer.manifest)
             if self.writer.done_ids:
                 log.info("gonio: resuming %s: %d of %d poses already recorded", self.path, len(self.writer.done_ids),
                          len(angles))
@@ -588,24 +618,25 @@ class GonioCapture:
         """Start ``port: sim`` simulators and open every driver (no motion: drivers only configure and query)."""
         from sbrdf_core.registry import import_path
 
-
+        registry = self.registry
+        assert registry is not None, "describe() binds the source before connecting the rig"
         try:
             for m in self.motors:
                 values = dict(m.values)
-                spec = self.registry.get("device", m.device)
+                spec = registry.get("device", m.device)
                 if values.get("port") == SIM_PORT:
-                    cls = import_path(self.registry.load(spec).simulator)
+                    cls = import_path(registry.load(spec).simulator)
                     m.simulator = self._simulator(cls, m.device, values).start()
                     values["port"] = m.simulator.port
                 try:
-                    m.driver = self.registry.load(spec)(**values)
+                    m.driver = registry.load(spec)(**values)
                 except DeviceError as e:
                     raise GonioCaptureError(f"gonio: motor {m.name!r} ({m.device} on {values['port']}) could not be "
                                             f"connected: {e}", pose=-1, motor=m.name, cause=e) from e
             if self.frame_camera:
                 device, values = self.camera_config
                 try:
-                    self.camera = self._devices.camera = self.registry.load(self.registry.get("device", device))(**values)
+                    self.camera = self._devices.camera = registry.load(registry.get("device", device))(**values)
                 except CameraError as e:
                     raise GonioCaptureError(f"gonio: camera {device!r} could not be opened: {e}. Nothing moved",
                                             pose=-1, motor="camera", cause=e) from e
@@ -637,9 +668,9 @@ class GonioCapture:
 
     def _check_limits(self, angles: np.ndarray) -> None:
         """Refuse the plan before any motion if a pose leaves a driver's or the geometry's limits."""
-        problems = []
+        problems: list[tuple[np.ndarray, str, Motor | None]] = []  # (bad poses, message, motor or None: the rig)
         geo = self.geometry.limits
-        driven = {}
+        driven: dict[str, tuple[Motor, str]] = {}
         for m in self.motors:
             for joint, axis in m.axes.items():
                 driven[joint] = (m, axis)
@@ -667,11 +698,11 @@ class GonioCapture:
             poses = sorted(set(np.concatenate([p[0] for p in problems]).tolist()))
             detail = "; ".join(f"pose {p[0][0]}: {p[1]} ({len(p[0])} pose{'s' if len(p[0]) > 1 else ''})"
                                for p in problems)
-            m = first[2]
+            culprit = first[2]
             error = SoftLimitError(
                 f"the gonio plan is refused before any motion: {len(poses)} of {len(angles)} poses leave the limits - "
                 f"{detail}. Narrow the plan (geometry *_limits_deg, or the explicit angles) or widen the motor limits",
-                device=m.device if m else "rig geometry", port=m.driver.port if m else "")
+                device=culprit.device if culprit else "rig geometry", port=culprit.driver.port if culprit else "")
             self._devices.close()
             raise error
 
@@ -717,7 +748,7 @@ class GonioCapture:
                 actual.append(used)
                 saturated.append(saturated_fraction(frame))
         except CameraError as e:
-            done = len(self.writer.done_ids)
+            done = len(self._folder_writer().done_ids)
             what = {CameraLost: "disappeared", FrameTimeout: f"delivered no frame after {self.frame_retries + 1} "
                     "triggers", ExposureRefused: "refused the exposure"}.get(type(e), "failed")
             raise GonioCaptureError(
@@ -726,7 +757,7 @@ class GonioCapture:
                 pose=index, motor="camera", cause=e) from e
         shortest = int(np.argmin(bracket))
         if self.max_saturated_fraction is not None and saturated[shortest] > self.max_saturated_fraction:
-            done = len(self.writer.done_ids)
+            done = len(self._folder_writer().done_ids)
             cause = cam.error(CameraError, f"{saturated[shortest]:.1%} of the pixels saturated at {bracket[shortest]:g} s")
             raise GonioCaptureError(
                 f"gonio: pose {index} of {n_poses}: the shortest exposure ({bracket[shortest]:g} s) saturates "
@@ -746,7 +777,7 @@ class GonioCapture:
                 try:
                     position = m.driver.move_to(**goal)
                 except DeviceError as e:
-                    done = len(self.writer.done_ids)
+                    done = len(self._folder_writer().done_ids)
                     halted = ("Its port is gone (halt attempted, best effort); every other motor halted"
                               if isinstance(e, LinkLost) else "All motors halted")
                     raise GonioCaptureError(
@@ -775,7 +806,7 @@ class GonioCapture:
             if true is not None:
                 extra["simulation"] = {"true_light_pos_mm": true[0].tolist(), "true_R": true[1].tolist(),
                                        "true_t": true[2].tolist()}
-            self.writer.write_pose(index, light, R, t, images, extra=extra)
+            self._folder_writer().write_pose(index, light, R, t, images, extra=extra)
             self._tick("write", clock)
         except BaseException:
             self._devices.close()
@@ -789,11 +820,11 @@ class GonioCapture:
         return now
 
     def _maybe_finish(self, n_poses: int) -> None:
-        if len(self.writer.done_ids) == n_poses and not self._complete:
-            self.writer.finish()
+        if len(self._folder_writer().done_ids) == n_poses and not self._complete:
+            self._folder_writer().finish()
             self._devices.close()
             self._complete = True
-            self.reader.manifest = None  # from now on the finished folder is read exactly as `folder` reads it
+            self._folder_reader().manifest = None  # from now on the finished folder is read exactly as `folder` reads it
             log.info("gonio: capture complete: %s (%d poses)", self.path, n_poses)
 
     def close(self) -> None:

@@ -70,4 +70,4 @@ def merge_exposures(signals: Sequence[np.ndarray], levels: Sequence[np.ndarray],
     fallback = np.where(any_saturated, signals[shortest] / np.float32(times[shortest]),
                         signals[longest] / np.float32(times[longest]))
     radiance = np.where(ok, num / np.where(ok, den, 1.0), fallback).astype(np.float32)
-    return radiance, ok.all(axis=-1)
+    return radiance, np.asarray(ok.all(axis=-1))  # (H, W): an array, which the stubs cannot tell from a scalar

@@ -13,6 +13,7 @@ device.
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -20,10 +21,10 @@ import numpy as np
 from sbrdf_core.errors import ParameterError
 
 
-def _exposure_lists(exposures, n: int) -> list[list[float]]:
-    if np.isscalar(exposures):
+def _exposure_lists(exposures: float | Sequence[float | Sequence[float]], n: int) -> list[list[float]]:
+    if isinstance(exposures, (int, float, numbers.Real)):  # Python and NumPy numbers alike
         return [[float(exposures)]] * n
-    out = [[float(e)] if np.isscalar(e) else [float(x) for x in e] for e in exposures]
+    out = [[float(e)] if isinstance(e, (int, float, numbers.Real)) else [float(x) for x in e] for e in exposures]
     if len(out) != n:
         raise ParameterError(f"capture_to_folder: {len(out)} exposure lists for {n} poses")
     for i, e in enumerate(out):

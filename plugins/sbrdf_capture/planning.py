@@ -150,6 +150,7 @@ def camera_geometry(focal_px: float, res_h: int, res_v: int, *, side_mm: float |
     if side_mm is not None:
         range_mm = side_mm / (2.0 * tan_half)
     else:
+        assert range_mm is not None, "exactly one of the three is given"
         side_mm = 2.0 * range_mm * tan_half
     return CameraGeometry(float(focal_px), int(res_h), int(res_v), math.degrees(fov_h), math.degrees(fov_v),
                           float(range_mm), float(side_mm), res_v / side_mm)

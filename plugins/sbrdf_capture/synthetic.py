@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from sbrdf_core.types import CaptureDescription
 from sbrdf_lib.patterns import pattern  # re-exported: sbrdf_capture.synthetic.pattern is its old home
 
 from .declarations import SYNTHETIC
+
+if TYPE_CHECKING:
+    from sbrdf_core.contracts import BRDFModel
 
 
 class SyntheticCapture:
@@ -33,8 +37,10 @@ class SyntheticCapture:
                  model: str = "lambert", model_params: dict = {}, light_distance_mm: float = 600.0,  # noqa: B006
                  camera_distance_mm: float = 800.0, max_theta_deg: float = 75.0, intensity: float | None = None,
                  noise: float = 0.0, saturation: float | None = None, seed: int = 0, pose_delay_s: float = 0.0):
-        self.texels = tuple(texels)
-        self.size_mm = tuple(size_mm)
+        n_u, n_v = texels  # [U, V], as declared
+        size_x, size_y = size_mm  # [x, y], as declared
+        self.texels: tuple[int, int] = (n_u, n_v)
+        self.size_mm: tuple[float, float] = (size_x, size_y)
         self.poses = poses
         self.model_name, self.model_params = model, dict(model_params)
         self.light_distance = light_distance_mm
@@ -42,7 +48,7 @@ class SyntheticCapture:
         self.max_theta = max_theta_deg
         self.intensity = intensity if intensity is not None else light_distance_mm**2
         self.noise, self.saturation, self.seed, self.pose_delay = noise, saturation, seed, pose_delay_s
-        self.model = None
+        self.model: BRDFModel | None = None
         self._cache: dict | None = None
 
     def __getstate__(self) -> dict:
@@ -53,6 +59,11 @@ class SyntheticCapture:
         """Called by the runner: resolve the model through the run's registry."""
         self.model = registry.create("brdf-model", self.model_name, self.model_params)
         self._cache = None
+
+    def _bound_model(self) -> BRDFModel:
+        """The material's model, which :meth:`bind` resolves (the runner binds every source before reading it)."""
+        assert self.model is not None, "synthetic: read before bind() resolved the model"
+        return self.model
 
     def _pose_inputs(self) -> dict:
         """What every pose shares (texel centres, pose positions, flattened ground truth), computed once per process:
@@ -79,7 +90,7 @@ class SyntheticCapture:
         """The material's parameter maps, ``name -> (V, U, C)``."""
         n_u, n_v = self.texels
         out = {}
-        for k, p in enumerate(self.model.parameters):
+        for k, p in enumerate(self._bound_model().parameters):
             lo, hi = p.typical
             out[p.name] = np.stack([lo + (hi - lo) * pattern(n_u, n_v, k, c) for c in range(p.channels)], axis=-1)
         return out
@@ -110,7 +121,7 @@ class SyntheticCapture:
         c = self._pose_inputs()
         wi, r = directions_to(c["p"], c["light"][index: index + 1])
         wo, _ = directions_to(c["p"], c["camera"][index: index + 1])
-        f = self.model.eval(c["truth"], wi, wo)  # (T, 1, 3)
+        f = self._bound_model().eval(c["truth"], wi, wo)  # (T, 1, 3)
         cos_i = np.clip(wi[..., 2], 0, None)
         L = f * (self.intensity * cos_i / r**2)[..., None]
         if self.noise:

@@ -44,7 +44,7 @@ import json
 import logging
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -53,6 +53,11 @@ from sbrdf_core.errors import ParameterError
 from sbrdf_core.nodes.capture import CaptureDescription
 
 from .declarations import VIRTUAL_FOLDER
+
+if TYPE_CHECKING:
+    from sbrdf_core.registry import Registry
+
+    from .folder import FolderCapture
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +82,7 @@ class VirtualFolderCapture:
             raise ParameterError(f"{SOURCE}: camera: expected {{device: <device plugin>, params: {{...}}}}, got {camera!r}")
         if not isinstance(camera.get("params") or {}, dict):
             raise ParameterError(f"{SOURCE}: camera.params: expected a mapping, got {camera['params']!r}")
-        self.camera_config = {"device": str(camera["device"]), "params": dict(camera.get("params") or {})}
+        self.camera_config: dict[str, Any] = {"device": str(camera["device"]), "params": dict(camera.get("params") or {})}
         self.n_poses = int(poses)
         unknown = sorted(set(orbit) - set(ORBIT_KEYS))
         if unknown:
@@ -91,9 +96,10 @@ class VirtualFolderCapture:
         if bad:
             raise ParameterError(f"{SOURCE}: read: {bad} are set by the {SOURCE} source itself")
         self.image_format, self.durable = image_format, bool(durable)
-        self.registry = None
-        self.camera = None
-        self.reader = None
+        self.registry: Registry | None = None
+        #: The scene-rendering camera device (``photograph``, ``sample_info``, ``camera_info``...), made in :meth:`bind`.
+        self.camera: Any = None
+        self.reader: FolderCapture | None = None
         self.rendered = 0  #: poses photographed by this instance (0 when the folder was already complete)
         self._ready = False
 
@@ -253,8 +259,9 @@ class VirtualFolderCapture:
     def describe(self) -> CaptureDescription:
         """Render (or reuse) the folder, then describe it exactly as ``folder`` does."""
         self.ensure_folder()
-        self.reader.manifest = None  # (re)read the finished folder as the folder plugin would
-        return self.reader.describe()
+        reader = self._folder_reader()
+        reader.manifest = None  # (re)read the finished folder as the folder plugin would
+        return reader.describe()
 
     def calibrate(self, *, dark_offset: np.ndarray | None = None, dark_rate: np.ndarray | None = None,
                   flat: np.ndarray | None = None) -> None:
@@ -264,12 +271,17 @@ class VirtualFolderCapture:
             from sbrdf_core.registry import default_registry
 
             self.bind(default_registry())
-        self.reader.calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
+        self._folder_reader().calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
 
     def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         if not self._ready:
             self.describe()
-        return self.reader.read_pose(int(index))
+        return self._folder_reader().read_pose(int(index))
+
+    def _folder_reader(self) -> FolderCapture:
+        """The ``folder`` reader the finished folder is read through; :meth:`bind` creates it."""
+        assert self.reader is not None, f"{SOURCE}: the folder reader is used before bind()"
+        return self.reader
 
     def read_report(self) -> tuple[str, dict] | None:
         """What reading the folder back found (the folder plugin's :meth:`~sbrdf_capture.folder.FolderCapture.read_report`)."""

@@ -398,6 +398,25 @@ def test_bad_configuration_is_reported_before_connecting(tmp_path):
     assert "a bracket is 1 to 3 positive times" in err(exposures={"times_s": [0.1, 0.2, 0.4, 0.8]})
 
 
+def test_exposure_planner_takes_max_exposures_as_a_count(tmp_path):
+    """exposures.max_exposures reached the planner as a float (every planner key went through float()), and
+    numpy refused it as an array size: any plan giving it failed.  It is a count; a fraction is refused."""
+    from sbrdf_capture.gonio import GonioCapture
+
+    planner = {"diffuse_time_s": 0.5, "highlight_time_s": 2.0 ** -7}
+
+    def brackets(**exposures) -> list[list[float]]:
+        source = GonioCapture(path=str(tmp_path / "scan"), motors=motors(), plan={"angles_deg": ANGLES},
+                              exposures={**planner, **exposures})
+        return source.planned()[1]
+
+    assert max(len(b) for b in brackets()) >= 2  # the planner brackets some pose with its default of 3
+    assert max(len(b) for b in brackets(max_exposures=1)) == 1
+    assert brackets(max_exposures=3) == brackets() and brackets(max_exposures=3.0) == brackets()
+    with pytest.raises(ParameterError, match="max_exposures: expected a whole number"):
+        brackets(max_exposures=2.5)
+
+
 # -- the shipped graph -------------------------------------------------------------------------------------------
 
 

@@ -90,7 +90,7 @@ class GPhotoCamera(FrameCameraBase):
                                  "use trigger: software")
         self.iso, self.keep_on_camera, self.bit_depth, self.linear = iso, bool(keep_on_camera), 8, False
         self.gp = require("gphoto2", extra="gphoto", feature="the gphoto camera driver")
-        self._camera = None
+        self._camera: Any = None  # a gphoto2.Camera while open (the gphoto2 bindings ship no type information)
         self._shutter: list[tuple[float, str]] = []
         try:
             self._open()

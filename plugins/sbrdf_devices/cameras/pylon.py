@@ -85,7 +85,7 @@ class PylonCamera(FrameCameraBase):
         self.emulation_frames = emulation_frames
         self._pylon = require("pypylon.pylon", extra="pylon", feature="the pylon camera driver")
         self._genicam = require("pypylon.genicam", extra="pylon", feature="the pylon camera driver")
-        self._cam = None
+        self._cam: Any = None  # a pypylon InstantCamera while open (pypylon ships no type information)
         try:
             self._open(width, height)
         except BaseException:
@@ -225,6 +225,7 @@ class PylonCamera(FrameCameraBase):
             frame = data[: h * row].reshape(h, row)[:, : w * max(self._channels, 1)]
             frame = frame.reshape(h, w, self._channels) if self._channels == 3 else frame.reshape(h, w)
             if self._channels == 0:
+                assert self.pixel_format is not None, "_configure() reads the camera's pixel format"
                 frame = _demosaic(np.ascontiguousarray(frame), self.pixel_format[5:7])
             return frame.copy()
         finally:

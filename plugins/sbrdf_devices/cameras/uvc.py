@@ -34,7 +34,7 @@ Install: ``pip install 'sbrdf[uvc]'`` (OpenCV is already a dependency of sbrdf).
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,6 +42,9 @@ from sbrdf_core.errors import ParameterError
 from sbrdf_lib.camera import CameraError, CameraLost, FrameCameraBase, FrameTimeout
 
 from ..declarations import UVC
+
+if TYPE_CHECKING:
+    import cv2
 
 #: V4L2 exposure_time_absolute step, s.
 V4L2_EXPOSURE_UNIT_S = 1e-4
@@ -79,7 +82,7 @@ class UVCCamera(FrameCameraBase):
         target = int(self.source) if self.source.isdigit() else self.source
         if self.is_file and not (os.path.exists(self.source) or "%" in self.source):
             raise CameraLost(f"no file {self.source}", device=self.name, port=self.source)
-        self._cap = cv2.VideoCapture(target, cv2.CAP_IMAGES if "%" in self.source else cv2.CAP_ANY)
+        self._cap: cv2.VideoCapture | None = cv2.VideoCapture(target, cv2.CAP_IMAGES if "%" in self.source else cv2.CAP_ANY)
         if not self._cap.isOpened():
             self._cap = None
             raise CameraLost(f"could not open {self.source} (no such device, or it is busy)", device=self.name,
@@ -88,7 +91,7 @@ class UVCCamera(FrameCameraBase):
         if not self.is_file:
             props = [(cv2.CAP_PROP_AUTO_EXPOSURE, 1), (cv2.CAP_PROP_AUTO_WB, 0)]
             if pixel_format:
-                props.append((cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*pixel_format)))
+                props.append((cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*pixel_format)))
             props += [(p, v) for p, v in ((cv2.CAP_PROP_FRAME_WIDTH, width), (cv2.CAP_PROP_FRAME_HEIGHT, height))
                       if v is not None]
             for prop, value in props:
@@ -102,6 +105,7 @@ class UVCCamera(FrameCameraBase):
 
     def _set_exposure(self, exposure_s: float) -> float:
         units = max(1, round(exposure_s / V4L2_EXPOSURE_UNIT_S))
+        assert self._cap is not None, "set_exposure() checks that the camera is open"
         if not self._cap.set(self._cv2.CAP_PROP_EXPOSURE, units):
             raise self.error(CameraError, "the device did not accept the exposure (does it allow manual exposure?)",
                              command=f"exposure_time_absolute = {units}")
@@ -111,7 +115,7 @@ class UVCCamera(FrameCameraBase):
         cap = self._cap
         if cap is None or not cap.isOpened():
             raise self.error(CameraLost, "the device is gone")
-        for _ in range(0 if self.is_file else self.flush_frames):
+        for _flushed in range(0 if self.is_file else self.flush_frames):
             cap.grab()
         ok, frame = cap.read()
         if not ok or frame is None:

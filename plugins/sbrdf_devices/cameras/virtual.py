@@ -55,13 +55,18 @@ from __future__ import annotations
 import hashlib
 import logging
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sbrdf_core.errors import ParameterError
 
 from ..declarations import EFFECTS, VIRTUAL
+
+if TYPE_CHECKING:
+    from sbrdf_core.contracts import BRDFModel
+    from sbrdf_lib.mesostructure import Mesostructure
+    from sbrdf_lib.response import ResponseCurve
 
 logger = logging.getLogger(__name__)
 
@@ -110,8 +115,10 @@ class VirtualCamera:
         cx, cy = principal_point if principal_point is not None else ((self.width - 1) / 2, (self.height - 1) / 2)
         self.K = np.array([[focal_px, 0.0, cx], [0.0, focal_px, cy], [0.0, 0.0, 1.0]])
         self.dist = np.asarray(dist, np.float64)
-        self.size_mm = tuple(float(s) for s in sample_size_mm)
-        self.texels = tuple(int(t) for t in texels)
+        size_x, size_y = (float(s) for s in sample_size_mm)  # [x, y], as declared
+        n_u, n_v = (int(t) for t in texels)  # [U, V], as declared
+        self.size_mm: tuple[float, float] = (size_x, size_y)
+        self.texels: tuple[int, int] = (n_u, n_v)
         self.model_name, self.model_params, self.param_maps_path = model, dict(model_params), param_maps
         self.margin, self.marker_mm, self.markers_per_side = carrier_margin_mm, marker_size_mm, markers_per_side
         self.dictionary = dictionary
@@ -125,7 +132,7 @@ class VirtualCamera:
         self.motor_rotation_deg, self.motor_light_mm, self.blur_px = motor_rotation_deg, motor_light_mm, blur_px
         self.seed, self.row_chunk = seed, row_chunk
         self.carrier_supersample = int(carrier_supersample)
-        self.mesostructure = None
+        self.mesostructure: Mesostructure | None = None
         if mesostructure is not None:
             from sbrdf_lib.mesostructure import Mesostructure
 
@@ -135,13 +142,13 @@ class VirtualCamera:
         if marker_size_mm >= carrier_margin_mm:
             raise ParameterError(f"virtual-camera: marker_size_mm ({marker_size_mm}) must be smaller than carrier_margin_mm "
                                  f"({carrier_margin_mm}) so markers keep a white quiet zone")
-        self.model = None
+        self.model: BRDFModel | None = None
         self.effects_ran: set[str] = set()
         self.true_poses: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._maps: dict[str, np.ndarray] | None = None
         self._rays: np.ndarray | None = None
         self._carrier: tuple[np.ndarray, float] | None = None
-        self._curve = None
+        self._curve: ResponseCurve | None = None
         self._cache: tuple[Any, np.ndarray] | None = None
 
     # -- plugins ---------------------------------------------------------------------
@@ -152,28 +159,31 @@ class VirtualCamera:
             from sbrdf_core.store import open_artifact
 
             art = open_artifact(self.param_maps_path, kind="ParamMaps")
-            self.model = registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
-            self._maps = {p.name: np.asarray(art.read(f"params/{p.name}"), np.float64) for p in self.model.parameters}
+            model = self.model = registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
+            self._maps = {p.name: np.asarray(art.read(f"params/{p.name}"), np.float64) for p in model.parameters}
             V, U = next(iter(self._maps.values())).shape[:2]
             self.texels = (U, V)
         else:
             self.model = registry.create("brdf-model", self.model_name, self.model_params)
 
-    def _ensure_model(self) -> None:
+    def _ensure_model(self) -> BRDFModel:
+        """The material's BRDF model, bound through the default registry if no run bound this camera."""
         if self.model is None:
             from sbrdf_core.registry import default_registry
 
             self.bind(default_registry())
+        assert self.model is not None, "bind() sets the model"
+        return self.model
 
     def ground_truth(self) -> dict[str, np.ndarray]:
         """The material's parameter maps, ``name -> (V, U, C)``."""
-        self._ensure_model()
+        model = self._ensure_model()
         if self._maps is None:
             from sbrdf_lib.patterns import pattern
 
             n_u, n_v = self.texels
             self._maps = {}
-            for k, p in enumerate(self.model.parameters):
+            for k, p in enumerate(model.parameters):
                 lo, hi = p.typical
                 self._maps[p.name] = np.stack([lo + (hi - lo) * pattern(n_u, n_v, k, c) for c in range(p.channels)], axis=-1)
         return self._maps
@@ -200,7 +210,7 @@ class VirtualCamera:
         u = np.clip(((p[:, 0] + sx / 2) / sx * m_u).astype(np.int64), 0, m_u - 1)
         v = np.clip(((p[:, 1] + sy / 2) / sy * m_v).astype(np.int64), 0, m_v - 1)
         wi, _, wo = tile_directions(texels_uv, self.size_mm, rows, cols, light_pos, camera_pos)
-        f = self.model.eval({name: m[v, u] for name, m in maps.items()}, wi, wo)
+        f = self._ensure_model().eval({name: m[v, u] for name, m in maps.items()}, wi, wo)
         return f.reshape(rows[1] - rows[0], cols[1] - cols[0], *f.shape[1:])
 
     # -- manifest sections --------------------------------------------------------------
@@ -378,7 +388,7 @@ class VirtualCamera:
         r = self.rays()
         return (1.0 / np.linalg.norm(r, axis=-1)) ** self.vignetting_power
 
-    def curve(self):
+    def curve(self) -> ResponseCurve:
         if self._curve is None:
             from sbrdf_lib.response import ResponseCurve, response_table
 
@@ -429,7 +439,7 @@ class VirtualCamera:
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
         light, Rt, tt = self.true_pose(light_pos_mm, R, t, pose_id)
-        out = np.empty((self.height, self.width, 3), np.float32)
+        out: np.ndarray = np.empty((self.height, self.width, 3), np.float32)
         for r0 in range(0, self.height, self.row_chunk):
             r1 = min(r0 + self.row_chunk, self.height)
             out[r0:r1] = self._render_rows(r0, r1, light, Rt, tt)
@@ -442,7 +452,7 @@ class VirtualCamera:
         return out
 
     def _render_rows(self, r0: int, r1: int, light: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-        self._ensure_model()
+        model = self._ensure_model()
         centre = -R.T @ t
         d = self.rays()[r0:r1] @ R  # world directions (Rᵀ d for every pixel)
         dz = d[..., 2]
@@ -473,7 +483,7 @@ class VirtualCamera:
             u = np.clip(((x[on_sample] + sx / 2) / sx * n_u).astype(np.int64), 0, n_u - 1)
             v = np.clip(((y[on_sample] + sy / 2) / sy * n_v).astype(np.int64), 0, n_v - 1)
             params = {name: m[v, u] for name, m in maps.items()}
-            f = self.model.eval(params, wi[on_sample][:, None], wo[on_sample][:, None])[:, 0]
+            f = model.eval(params, wi[on_sample][:, None], wo[on_sample][:, None])[:, 0]
             L[on_sample] = f
         if on_carrier.any():
             up = (wi[on_carrier][:, 2] > 0) & (wo[on_carrier][:, 2] > 0)
@@ -495,6 +505,7 @@ class VirtualCamera:
     def _meso_points(self, X, hit, centre, d):
         """Surface points of a mesostructure: above the plane hit, or the first ray hit with ``masking``."""
         m = self.mesostructure
+        assert m is not None, "called only for a camera with a mesostructure"
         if "masking" in self.effects:
             self.effects_ran.add("masking")
             dn = d / np.linalg.norm(d, axis=-1, keepdims=True)
@@ -508,6 +519,7 @@ class VirtualCamera:
     def _meso_radiance(self, X, wi, wo, light) -> np.ndarray:
         """``f_r · cos θ_i' / cos θ_i`` per point: facet BRDF, facet cosine over the plane's (falloff multiplies back)."""
         m = self.mesostructure
+        assert m is not None, "called only for a camera with a mesostructure"
         v, u = m.texel_index(X[:, 0], X[:, 1])
         frame = m.facet_frame(v, u)
         wi_l, wo_l = m.to_local(wi, frame), m.to_local(wo, frame)
@@ -519,7 +531,7 @@ class VirtualCamera:
             sx, sy = self.size_mm
             pu = np.clip(((X[:, 0] + sx / 2) / sx * n_u).astype(np.int64), 0, n_u - 1)
             pv = np.clip(((X[:, 1] + sy / 2) / sy * n_v).astype(np.int64), 0, n_v - 1)
-            f = m.albedo[v, u] * self.model.eval({k: a[pv, pu] for k, a in maps.items()}, wi_l[:, None], wo_l[:, None])[:, 0]
+            f = m.albedo[v, u] * self._ensure_model().eval({k: a[pv, pu] for k, a in maps.items()}, wi_l[:, None], wo_l[:, None])[:, 0]
         lit = (wi_l[:, 2] > 0) & (wo_l[:, 2] > 0) & (wi[:, 2] > 0)
         if "shadowing" in self.effects:
             self.effects_ran.add("shadowing")
@@ -545,7 +557,7 @@ class VirtualCamera:
         return self._black_level_map
 
     def _sensor(self, L: np.ndarray, exposure_s: float, noise_key: Sequence[int], stream: int = 2) -> np.ndarray:
-        S = L * np.float32(exposure_s * self.sensitivity)
+        S: np.ndarray = L * np.float32(exposure_s * self.sensitivity)
         if "dark_current" in self.effects:
             self.effects_ran.add("dark_current")
             S = S + self._dark_rate() * np.float32(exposure_s)

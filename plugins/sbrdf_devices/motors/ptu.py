@@ -51,6 +51,7 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Sequence
+from functools import partial
 
 from sbrdf_lib.serial.controller import MotorController
 from sbrdf_lib.serial.errors import DeviceRefused, GarbledReply, ImplausibleReply
@@ -105,7 +106,7 @@ class PanTiltUnit(MotorController):
             user = {"pan_deg": pan_limits_deg, "tilt_deg": tilt_limits_deg}
             for axis, (letter, word) in _AXIS.items():
                 self.arcsec_per_step[axis] = self._verified(
-                    f"{word.lower()} resolution", f"{letter}R", lambda c=f"{letter}R": self._query(c, _RESOLUTION, float),
+                    f"{word.lower()} resolution", f"{letter}R", partial(self._query, f"{letter}R", _RESOLUTION, float),
                     self._check_resolution)
                 lo_steps = self._factory_limit(axis, letter, word, "N", "Minimum")
                 hi_steps = self._factory_limit(axis, letter, word, "X", "Maximum")

@@ -33,7 +33,8 @@ class SimulatedIndexer(PtySimulator):
         self.errlvl = 4
         self.comexc = 0
         n = self.n_axes
-        self.settings = {"DRES": [int(drive_resolution)] * n, "ERES": [int(encoder_resolution)] * n,
+        #: Per-axis settings by command name: counts and flags are ints, velocities and accelerations floats.
+        self.settings: dict[str, list[float]] = {"DRES": [int(drive_resolution)] * n, "ERES": [int(encoder_resolution)] * n,
                          "MA": [0] * n, "V": [1.0] * n, "A": [10.0] * n, "AD": [10.0] * n,
                          "D": [0] * n, "LSPOS": [0] * n, "LSNEG": [0] * n, "LS": [0] * n, "LH": [0] * n}
         start = round(angle_deg * self.steps_per_deg)
@@ -50,7 +51,7 @@ class SimulatedIndexer(PtySimulator):
 
     # -- replies ------------------------------------------------------------------------
 
-    def _ok(self, *data: str) -> str:
+    def _ok(self, *data: str) -> str | None:
         return self.eol.join([*data, ">"]) if self.errlvl >= 4 else self.eol.join(data) or None
 
     def _error(self, message: str) -> str:
@@ -147,7 +148,7 @@ class SimulatedIndexer(PtySimulator):
             raise ValueError(arg)
         return [(i, convert(f)) for i, f in zip(targets, fields) if f != ""]
 
-    def _go(self, arg: str, axis: int | None) -> str:
+    def _go(self, arg: str, axis: int | None) -> str | None:
         mask = arg or "1" * self.n_axes
         if axis is not None:
             mask = "".join("1" if i == axis - 1 else "0" for i in range(self.n_axes))
@@ -160,7 +161,7 @@ class SimulatedIndexer(PtySimulator):
             motor = self.motors[i]
             distance = self.settings["D"][i]
             target = distance if self.settings["MA"][i] else round(motor.target) + distance
-            ls = self.settings["LS"][i]
+            ls = int(self.settings["LS"][i])  # a bit mask (LS takes ints)
             if ls & 1 and target > self.settings["LSPOS"][i] or ls & 2 and target < self.settings["LSNEG"][i]:
                 positive = target > self.settings["LSPOS"][i]
                 self.limit_hit[i] = (positive, not positive)
