@@ -1,4 +1,4 @@
-"""Environment lighting: time per frame against error, per method (issue 8; seed 000 §6.9, seed 004 §4.4, Table 4.1).
+"""Environment lighting: time per frame against error, per method (seed 000 §6.9, seed 004 §4.4, Table 4.1).
 
 What it measures
 ----------------

@@ -1,4 +1,4 @@
-"""Fitting on the GPU: lm-gl (compute shaders) against lm (CPU) on the same SBRDF (issue 26).
+"""Fitting on the GPU: lm-gl (compute shaders) against lm (CPU) on the same SBRDF.
 
 What it measures
 ----------------

@@ -1,4 +1,4 @@
-"""Quantizing and MIP-mapping a fitted SBRDF: what precision and filtering cost (issue 6; seed 000 §6.5, Ch 5).
+"""Quantizing and MIP-mapping a fitted SBRDF: what precision and filtering cost (seed 000 §6.5, Ch 5).
 
 What it measures
 ----------------

@@ -1,4 +1,4 @@
-"""Rendering speed in Table 6.1's layout, and the gl renderer against the cpu reference (issue 7; seed 000 §6.8).
+"""Rendering speed in Table 6.1's layout, and the gl renderer against the cpu reference (seed 000 §6.8).
 
 What it measures
 ----------------

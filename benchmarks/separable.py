@@ -1,5 +1,5 @@
 """Separable BRDF approximations: error against terms, texture size and parameterization; SVD against ND in time
-and memory (issue 9; seed 001 §4, §5.2, Figs 5 and 6).
+and memory (seed 001 §4, §5.2, Figs 5 and 6).
 
 What it measures
 ----------------

@@ -1,4 +1,4 @@
-"""Shading maps (Kautz et al. 2003, issue 10): linearization, power compression and rendering cost.
+"""Shading maps (Kautz et al. 2003): linearization, power compression and rendering cost.
 
 What it measures
 ----------------

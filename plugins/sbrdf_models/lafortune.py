@@ -335,8 +335,7 @@ class LafortuneModel(BRDFModel):
         â.  Its albedo weights it by cos θ_o, another cosine lobe (about the normal), and the integral of a
         product of two such lobes is largest when they are aligned (Hardy–Littlewood's rearrangement
         inequality on the sphere): ∫ cos^(n+1) θ over the hemisphere = 2π/(n + 2), reached at normal incidence
-        by C = (0, 0, 1).  (Until 2026-11-28 the bound dropped the cos θ_o and read 2π/(n + 1): up to 1.5×
-        looser at n = 1, so more texels went to the energy check's quadrature.)"""
+        by C = (0, 0, 1)."""
         a = np.pi * np.asarray(params["rho_d"], np.float64)
         for lobe in self.lobe_list(params):
             n = np.asarray(lobe["exponent"], np.float64)[:, :1]
