@@ -87,6 +87,8 @@ Method (vectorised over texels, in batches of :data:`BATCH`):
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, LogFitForm, ModelParameter, above_horizon
@@ -707,6 +709,7 @@ def _initial_guess(target, f_src, valid, wi, wo, source=None, grazing=True) -> d
         with np.errstate(all="ignore"):
             cost = np.sum(w * (target.eval(guess, wi, wo) - f_src) ** 2, axis=(1, 2))
         best, best_cost = keep_lower(best, best_cost, guess, cost)
+    assert best is not None, "there is always a shape to try"
     return best
 
 
@@ -773,10 +776,11 @@ def to_gltf_pbr(model, params: dict, ggx, *, starts: int = 1, iterations: int = 
     strength), ``error`` ``(T,)`` the held-out
     cosine-weighted relative RMS of glTF's BRDF against the source (1 for invalid texels).
     """
-    kw = dict(starts=starts, iterations=iterations, flag_error=flag_error, max_theta_deg=max_theta_deg)
-    fits = [(to_ggx(model, params, ggx, **kw), None)]
+    refit = partial(to_ggx, model, params, starts=starts, iterations=iterations, flag_error=flag_error,
+                    max_theta_deg=max_theta_deg)
+    fits = [(refit(ggx), None)]
     if anisotropic is not None and getattr(model, "anisotropic", True):
-        fits.append((to_ggx(model, params, anisotropic, **kw), anisotropic))
+        fits.append((refit(anisotropic), anisotropic))
     T = fits[0][0]["error"].shape[0]
     gltf = {k: np.zeros((T, c)) for k, c in GLTF_MAPS.items()}
     error = np.ones(T)
@@ -831,11 +835,12 @@ def _gltf_batch(model, params, ggx, fits, wi, wo, hi_wi, hi_wo):
     T = fits[0][0]["specular"].shape[0]
     f_src, ok = _prepare(model, params, wi, wo)
     anisotropic = None
-    gltf, err = None, None
+    gltf: dict[str, np.ndarray] | None = None
+    err: np.ndarray | None = None
     for fit, target in fits:  # the isotropic reading, then (if given) the anisotropic one where it gains enough
         ok &= fit["valid"]
         reading, e = _readings(ggx, fit, target, f_src, wi, wo)
-        if gltf is None:
+        if gltf is None or err is None:  # the first reading (both are set together)
             gltf, err = reading, e
             continue
         anisotropic = target
@@ -987,7 +992,7 @@ def samples_to_gltf(f_r: np.ndarray, valid: np.ndarray, wi: np.ndarray, wo: np.n
                 bounded = _solve_magnitudes(target, {"alpha": np.maximum(fitted["alpha"], floor)}, f, v, a, o, True,
                                             weight=ProjectedWeighted)
                 fitted = {k: np.where(sharp, bounded[k], fitted[k]) for k in fitted}
-        ok = v.any(axis=1)
+        ok = np.asarray(v.any(axis=1))  # (n,): an array, which the stubs cannot tell from a scalar
         defaults = target.defaults(n)
         fit = {p.name: np.clip(np.where(ok[:, None], np.nan_to_num(np.asarray(fitted[p.name], np.float64)),
                                         defaults[p.name]), *p.bounds) for p in target.parameters}
@@ -1018,10 +1023,11 @@ def samples_to_gltf_blocks(f_r, valid, light_pos: np.ndarray, camera_pos: np.nda
     names = {**GLTF_MAPS, "error": 1}
     K = sum(names.values())
     light_pos, camera_pos = np.asarray(light_pos, np.float64), np.asarray(camera_pos, np.float64)
+    (n_u, n_v), (size_x, size_y) = texels, size_mm  # pairs, also when given as lists
 
     def block(f, v, block_info=None):
         (v0, v1), (u0, u1) = block_info[0]["array-location"][:2]
-        wi, _, wo = tile_directions(tuple(texels), tuple(size_mm), (v0, v1), (u0, u1), light_pos, camera_pos)
+        wi, _, wo = tile_directions((n_u, n_v), (size_x, size_y), (v0, v1), (u0, u1), light_pos, camera_pos)
         V, U = f.shape[:2]
         g, e = samples_to_gltf(f.reshape(V * U, -1, 3), v.reshape(V * U, -1), wi, wo, ggx, **kw)
         return np.concatenate([np.asarray(g[k], np.float32).reshape(V, U, -1) for k in GLTF_MAPS]

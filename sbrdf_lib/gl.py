@@ -13,10 +13,14 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
+
+if TYPE_CHECKING:
+    from .scene import Scene
 
 __all__ = ["Drawer", "Frame", "check_size", "clip_planes", "context", "device_name", "parameter_exprs"]
 
@@ -88,6 +92,9 @@ class Drawer:
     Subclasses set ``ctx``, ``scene``, ``query`` and ``_res`` (a list) before drawing.
     """
 
+    ctx: Any  # a moderngl.Context (moderngl ships no type information)
+    scene: Scene
+    query: Any  # the moderngl.Query timing the draw calls
     _res: list
 
     def _keep(self, obj):

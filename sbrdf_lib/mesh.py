@@ -42,12 +42,17 @@ __all__ = ["FORMATS", "MeshData", "load_mesh", "load_obj", "mesh_files", "mesh_v
 FORMATS = {".obj": "OBJ", ".ply": "PLY", ".gltf": "glTF", ".glb": "glTF binary (GLB)"}
 
 
-def read_obj(path: str) -> tuple[list, list, list, dict, list]:
+def read_obj(path: str) -> tuple[list[list[float]], list[list[float]], list[list[float]], dict[tuple[int, ...], int],
+                                 list[list[int]]]:
     """The raw ``v``, ``vt``, ``vn`` lists, the corner table ``{(v, vt, vn): index}`` and triangle corner ids.
 
     Polygons are fanned into triangles; a malformed line raises :class:`SbrdfError` naming its line.
     """
-    v, vt, vn, corners, faces = [], [], [], {}, []
+    v: list[list[float]] = []
+    vt: list[list[float]] = []
+    vn: list[list[float]] = []
+    corners: dict[tuple[int, ...], int] = {}  # (v, vt, vn) indices, -1 where absent -> corner id
+    faces: list[list[int]] = []  # three corner ids per triangle
     try:
         lines = input_files.read_bytes(path).decode("utf-8").splitlines()
     except OSError as e:
@@ -152,7 +157,7 @@ def load_mesh(path: str) -> MeshData:
         input_files.check_file(path)  # a device or FIFO would be read forever, a huge file whole
     except OSError as e:
         raise SbrdfError(f"{path}: cannot read mesh: {e.strerror}") from None
-    stamps = [(st.st_mtime_ns, st.st_size)]
+    stamps: list[tuple[int, int] | None] = [(st.st_mtime_ns, st.st_size)]  # None: a buffer that cannot be stat'ed
     for f in mesh_files(path)[1:]:  # a .gltf's buffers: the cache follows them too
         try:
             input_files.check_file(f)
@@ -275,16 +280,25 @@ def _gltf(trimesh, path: str, suffix: str) -> MeshData:
     if not parts:
         raise SbrdfError(f"{path}: the glTF file has no triangles")
     keys = ("uvs", "normals", "tangents")
-    out, base = {k: [] for k in ("positions", "indices") + keys}, 0
+    out: dict[str, list[np.ndarray | None]] = {k: [] for k in keys}  # None: the primitive lacks it
+    positions: list[np.ndarray] = []
+    indices: list[np.ndarray] = []
+    base = 0
     for part in parts:
         for k in keys:  # an attribute only some primitives have is dropped: it would be undefined elsewhere
             out[k].append(part[k])
-        out["positions"].append(part["positions"])
-        out["indices"].append(part["indices"] + base)
+        positions.append(part["positions"])
+        indices.append(part["indices"] + base)
         base += len(part["positions"])
-    cat = {k: None if any(a is None for a in out[k]) else np.concatenate(out[k]) for k in keys}
-    return MeshData(np.concatenate(out["positions"]), cat["uvs"], cat["normals"], cat["tangents"],
-                    np.concatenate(out["indices"]).astype(np.uint32))
+    cat = {k: _concatenate_all(out[k]) for k in keys}
+    return MeshData(np.concatenate(positions), cat["uvs"], cat["normals"], cat["tangents"],
+                    np.concatenate(indices).astype(np.uint32))
+
+
+def _concatenate_all(arrays: list[np.ndarray | None]) -> np.ndarray | None:
+    """The arrays end to end, or ``None`` when any of them is missing."""
+    present = [a for a in arrays if a is not None]
+    return np.concatenate(present) if len(present) == len(arrays) else None
 
 
 def _gltf_part(g, matrix: np.ndarray) -> dict:

@@ -549,6 +549,7 @@ class _SceneValidator:
             self.problem(f"the scene has no light: add {' or '.join(['lights:'] + [n + ':' for n in lit])}", ())
         if self.problems:
             raise SceneError(sorted(self.problems, key=lambda p: (p.line or 0, p.message)))
+        assert camera is not None, "a camera section that did not resolve is a problem, raised above"
         return Scene(self.file, camera, tuple(objects), materials, tuple(lights), sections, shadows,
                      display["exposure"], display["gamma"], background, {str(k): dict(v or {}) for k, v in effects.items()},
                      antialias, lightmap=lightmap, camera_path=camera_path)
@@ -560,7 +561,7 @@ class _SceneValidator:
         values = self.params(CAMERA_PATH, raw, "camera_path", ("camera_path",))
         if len(values) < len(CAMERA_PATH):
             return None
-        keys = []
+        keys: list[dict[str, Any]] = []
         raw_keys = values["keyframes"] if isinstance(values["keyframes"], list) else []
         if len(raw_keys) < 2:
             self.problem("camera_path: keyframes must be a list of at least two {time, position, look_at}",
@@ -626,7 +627,7 @@ class _SceneValidator:
         return SimpleNamespace(**values)
 
     def materials(self, raw) -> dict[str, MaterialRef]:
-        out = {}
+        out: dict[str, MaterialRef] = {}
         if not isinstance(raw, dict):
             self.problem("materials must be a mapping of name -> {artifact} or {model, params}", ("materials",))
             return out

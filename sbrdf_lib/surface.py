@@ -114,10 +114,14 @@ def unit(v: np.ndarray, fallback=None) -> np.ndarray:
 def tessellate(obj) -> Mesh:
     """World-space triangles of a :class:`~sbrdf_lib.scene.SceneObject`."""
     p = obj.params
+    pos: np.ndarray
+    idx: np.ndarray
+    uv: np.ndarray | None  # None (a mesh file without UVs) until projected
+    nrm: np.ndarray | None  # None (a mesh file without normals) until computed
+    tan: np.ndarray | None
     if obj.shape == "plane":
         sx, sy = p["size"]
-        s, t = np.meshgrid([0.0, 1.0], [0.0, 1.0])
-        s, t = s.ravel(), t.ravel()
+        s, t = (a.ravel() for a in np.meshgrid([0.0, 1.0], [0.0, 1.0]))
         pos = np.stack([(s - 0.5) * sx, (t - 0.5) * sy, np.zeros(4)], axis=1)
         nrm = np.tile([0.0, 0.0, 1.0], (4, 1))
         tan = np.tile([1.0, 0.0, 0.0, 1.0], (4, 1))
@@ -125,8 +129,7 @@ def tessellate(obj) -> Mesh:
         idx = np.array([[0, 1, 3], [0, 3, 2]], dtype=np.uint32)
     elif obj.shape in ("sphere", "cylinder"):
         nu, nv = p["segments"] if obj.shape == "sphere" else (p["segments"], 1)
-        s, t = np.meshgrid(np.linspace(0, 1, nu + 1), np.linspace(0, 1, nv + 1))
-        s, t = s.ravel(), t.ravel()
+        s, t = (a.ravel() for a in np.meshgrid(np.linspace(0, 1, nu + 1), np.linspace(0, 1, nv + 1)))
         phi = 2 * np.pi * s
         ring = np.stack([np.cos(phi), np.sin(phi)], axis=1)
         if obj.shape == "sphere":
@@ -201,6 +204,7 @@ def intersect(obj, origin: np.ndarray, dirs: np.ndarray, mesh: Mesh | None = Non
     ``origin (3,)`` or ``(R, 3)``, ``dirs (R, 3)`` in world space.  Meshes need their tessellated ``mesh``.
     """
     if obj.shape == "mesh":
+        assert mesh is not None, "a mesh object is intersected through its tessellated mesh"
         return [intersect_mesh(mesh, origin, dirs)]
     inv = np.linalg.inv(obj.matrix)
     o = np.broadcast_to(origin, dirs.shape) @ inv[:3, :3].T + inv[:3, 3]
