@@ -35,7 +35,7 @@ from sbrdf_core.artifacts import ParamMaps, SampledReflectance, TextureSet
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import directions_to, texel_centres
 from sbrdf_core.nodes.render import open_material
-from sbrdf_core.store import open_artifact
+from sbrdf_core.store import Artifact, open_artifact
 from sbrdf_lib.gl import parameter_exprs
 
 __all__ = ["DEFAULT_VIEW", "LUMA", "collect", "fragment_source", "page_html", "scene_for", "write_page"]
@@ -169,7 +169,7 @@ def collect(registry, url: str, *, sample_grid: int = 16, max_samples: int = 400
     maps = np.concatenate([np.asarray(material.params[p.name], np.float32).reshape(V, U, -1)
                            for p in model.parameters], axis=-1)
     K = maps.shape[-1]
-    fit_art = art
+    fit_art: Artifact | None = art  # the ParamMaps with the fit's statistics, if the page can find it
     if art.kind == TextureSet.kind:
         fit_url = _provenance_input(art, "params")
         try:
@@ -189,7 +189,8 @@ def collect(registry, url: str, *, sample_grid: int = 16, max_samples: int = 400
     ntex = (K + 3) // 4
     packed = np.zeros((Vs, Us, ntex * 4), np.float32)
     packed[..., :K] = maps
-    channels = [{"name": n, "range": _range(packed[..., k])} for k, n in enumerate(_channel_names(model))]
+    channels: list[dict[str, Any]] = [{"name": n, "range": _range(packed[..., k])}
+                                      for k, n in enumerate(_channel_names(model))]
     channels += [{"name": n, "range": _range(extra[..., j])} for j, n in enumerate(extra_names)
                  if np.isfinite(extra[..., j]).any()]
     index = {n: k for k, n in enumerate(_channel_names(model) + extra_names)}
@@ -277,7 +278,9 @@ def _samples(model, material, s_art, grid: int, max_samples: int) -> dict:
         idx = np.flatnonzero(ok[t])
         if len(idx) > max_samples:
             idx = idx[np.linspace(0, len(idx) - 1, max_samples).astype(int)]
-        th.append(theta_h[t, idx]), me.append(meas_l[t, idx]), fi.append(fit_l[t, idx])
+        th.append(theta_h[t, idx])
+        me.append(meas_l[t, idx])
+        fi.append(fit_l[t, idx])
         offsets.append(offsets[-1] + len(idx))
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
     return {"url": s_art.url, "grid": [gu, gv], "us": us.tolist(), "vs": vs.tolist(), "offsets": offsets,

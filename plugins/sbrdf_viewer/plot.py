@@ -35,11 +35,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.geometry import directions_to, polar_direction, texel_centres
+
+if TYPE_CHECKING:
+    from sbrdf_core.contracts import BRDFModel
+    from sbrdf_core.store import Artifact
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # linear sRGB / Rec. 709 luminance weights
 
@@ -59,13 +64,17 @@ class Viewer:
         from sbrdf_core.store import open_artifact
 
         self.art = open_artifact(samples_url, kind="SampledReflectance")
-        self.texels = tuple(int(x) for x in self.art.attrs["texels"])  # (U, V)
-        self.size_mm = tuple(float(x) for x in self.art.attrs["size_mm"])
+        n_u, n_v = (int(x) for x in self.art.attrs["texels"])
+        size_x, size_y = (float(x) for x in self.art.attrs["size_mm"])
+        self.texels: tuple[int, int] = (n_u, n_v)  # (U, V)
+        self.size_mm: tuple[float, float] = (size_x, size_y)
         self.light = self.art.read("light_pos")
         self.camera = self.art.read("camera_pos")
         self.f_r = self.art.zarr_array("f_r")
         self.valid = self.art.zarr_array("valid")
-        self.model = self.maps = None
+        #: The fitted model and its parameter maps (both or neither).
+        self.model: BRDFModel | None = None
+        self.maps: Artifact | None = None
         if params_url:
             pm = open_artifact(params_url, kind="ParamMaps")
             from sbrdf_core.registry import default_registry
@@ -93,7 +102,8 @@ class Viewer:
         """The fitted model at texel (u, v) for direction pairs ``(S, 3)`` -> ``(S, 3)``."""
         if self.model is None:
             return None
-        params = {p.name: np.asarray(self.maps.zarr_array(f"params/{p.name}")[v, u], float).reshape(1, -1)
+        assert self.maps is not None, "the model comes with its parameter maps"
+        params = {p.name: np.asarray(self.maps.zarr_array(f"params/{p.name}")[v, u], np.float64).reshape(1, -1)
                   for p in self.model.parameters}
         wi = np.broadcast_to(wi, wo.shape)
         return np.asarray(self.model.eval(params, wi[None], wo[None]))[0]
@@ -188,7 +198,7 @@ def choose_views(view: Viewer, u: int, v: int, wi: tuple[float, float] | None = 
     notes = []
     auto_tol = tol_deg is None
     steps = [DEFAULT_TOL_DEG] + [t for t in (20.0, 25.0, 30.0, 35.0, 40.0, MAX_TOL_DEG) if t > DEFAULT_TOL_DEG]
-    if not auto_tol:
+    if tol_deg is not None:
         steps = [float(tol_deg)]
 
     if wi is not None:
@@ -233,7 +243,8 @@ def choose_views(view: Viewer, u: int, v: int, wi: tuple[float, float] | None = 
     else:
         wo_vec, wo_from = direction(PREFERRED_THETA_DEG, 180.0), "default"
     wo_deg = wo if wo is not None else to_degrees(wo_vec)
-    return ViewChoice(u, v, wi_vec, tuple(wi_deg), wi_from, wo_vec, tuple(wo_deg), wo_from, float(tol), phi_plane,
+    (wi_theta, wi_phi), (wo_theta, wo_phi) = wi_deg, wo_deg  # pairs, also when given as lists
+    return ViewChoice(u, v, wi_vec, (wi_theta, wi_phi), wi_from, wo_vec, (wo_theta, wo_phi), wo_from, float(tol), phi_plane,
                       wis, wos, lum, ok, near, in_plane, notes)
 
 
@@ -309,7 +320,8 @@ def hemisphere_figure(view: Viewer, c: ViewChoice):
     fig.colorbar(sc, ax=ax, label="luminance f_r (sr⁻¹)", extend="both" if vmin > 0 else "max")
     notes = "".join(f"\n{n}" for n in c.notes)
     ax.set_title(f"texel ({c.u}, {c.v}) exitant hemisphere, ω_i={_fmt(c.wi_deg)} ±{c.tol_deg:g}°\n"
-                 f"{int(near.sum())} samples" + (f"; model {view.maps.attrs['model']}" if view.model else "") + notes,
+                 f"{int(near.sum())} samples" + (f"; model {view.maps.attrs['model']}" if view.maps is not None else "")
+                 + notes,
                  fontsize=9)
     fig.tight_layout()
     return fig
@@ -318,6 +330,7 @@ def hemisphere_figure(view: Viewer, c: ViewChoice):
 def incidence_figure(view: Viewer, c: ViewChoice):
     """(c): the samples near the incidence plane by signed θ_r; the radial axis spans the data shown."""
     import matplotlib.pyplot as plt
+    from matplotlib.projections.polar import PolarAxes
     from matplotlib.ticker import MaxNLocator
 
     phi_i, sel, lum, wos = c.phi_plane, c.in_plane, c.lum, c.wos
@@ -325,6 +338,7 @@ def incidence_figure(view: Viewer, c: ViewChoice):
     theta_signed = np.arccos(np.clip(wos[:, 2], -1, 1)) * np.sign(np.where(forward == 0, 1, forward))
     fig = plt.figure(figsize=(6, 5))
     ax = fig.add_subplot(projection="polar")
+    assert isinstance(ax, PolarAxes)  # the stubs type add_subplot as plain Axes whatever the projection
     ax.set_theta_zero_location("N")
     ax.set_thetamin(-90)
     ax.set_thetamax(90)
@@ -337,6 +351,7 @@ def incidence_figure(view: Viewer, c: ViewChoice):
         curve = view.model_eval(c.u, c.v, c.wi, wo_line) @ LUMA
         curve_max = float(np.nanmax(curve)) if np.isfinite(curve).any() else 0.0
         clipped = data_max > 0 and curve_max > 2 * data_max
+        assert view.maps is not None, "the model comes with its parameter maps"
         label = f"model {view.maps.attrs['model']}" + (f" (peak {curve_max:.3g}, clipped)" if clipped else "")
         ax.plot(th, curve, "C1-", label=label)
     # radial axis from the samples shown (the model's curve only when it is of their size, or there are none)
