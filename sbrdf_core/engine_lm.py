@@ -412,7 +412,8 @@ def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, to
 def linear_solve(cfg, x, free, lo, hi, f_r, w, wi, wo, out):
     """Each texel's ``free`` parameters solved by weighted least squares with the others held, clipped to
     ``[lo, hi]``, into ``out``: one Gauss–Newton step, exact where f_r is affine in them (the magnitudes).  A
-    texel whose system cannot be solved keeps its row of ``x``."""
+    free parameter no sample depends on is 0, the least-norm solution (a lobe nothing shows has no
+    magnitude); a texel whose system cannot be solved keeps its row of ``x``."""
     T, K = x.shape
     nc = f_r.shape[2]
     for t in range(T):
@@ -427,6 +428,8 @@ def linear_solve(cfg, x, free, lo, hi, f_r, w, wi, wo, out):
         ok = math.isfinite(cost) and damped_step(A, g, 1e-12, free, pinned, M, step)
         for k in range(K):
             v = x[t, k] + step[k] if ok else x[t, k]
+            if ok and free[k] != 0 and A[k, k] == 0.0:
+                v = 0.0
             out[t, k] = min(max(v, lo[k]), hi[k])
 
 

@@ -228,7 +228,20 @@ class LafortuneFitForm(LafortuneModel):
         return self.unpack(best)
 
     def refine_linear(self, params, f_r, valid, wi, wo):
-        return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)} if self.lobes else dict(params)
+        """ρ_s of every lobe by least squares with ρ_d and the lobe shapes held, clipped to ≥ 0: by the fit kernel
+        (``engine.solve_linear``); :func:`solve_magnitudes` is the NumPy reference."""
+        if not self.lobes:
+            return dict(params)
+        if not (f_r.shape[0] and f_r.shape[1]):
+            return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)}
+        from sbrdf_core.engine import solve_linear
+
+        where = self.slices()
+        free = np.zeros(self.size, bool)
+        for j in range(1, self.lobes + 1):
+            free[where[f"rho_s_{j}"]] = True
+        solved = self.unpack(solve_linear(self, self.pack(params), free, f_r, valid, wi, wo))
+        return {**params, **{f"rho_s_{j}": solved[f"rho_s_{j}"] for j in range(1, self.lobes + 1)}}
 
     @property
     def project_kernel(self):

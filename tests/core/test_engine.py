@@ -164,3 +164,25 @@ def test_magnitudes_solved_by_the_kernel_are_numpys(name, cfg):
     for p in model.parameters:
         np.testing.assert_allclose(got[p.name], want[p.name], rtol=1e-6, atol=1e-9, err_msg=p.name)
     assert any(not np.allclose(got[p.name], start[p.name]) for p in model.parameters if p.magnitude)
+
+
+@pytest.mark.parametrize("cfg", [{"lobes": 2}, {"lobes": 1, "anisotropic": True, "beta": True}])
+def test_lafortune_magnitudes_solved_by_the_kernel_are_numpys(cfg):
+    """Lafortune's ``refine_linear`` (ρ_s of every lobe, ρ_d and the shapes held) by the fit kernel gives its NumPy
+    reference, ``solve_magnitudes``."""
+    from sbrdf_models.lafortune_fit import solve_magnitudes
+
+    form = Registry().create("brdf-model", "lafortune", cfg).fit_form()
+    rng = np.random.default_rng(7)
+    T, S = 40, 80
+    theta_i, theta_o = rng.uniform(0, 1.3, (2, T, S))
+    phi_i, phi_o = rng.uniform(0, 2 * np.pi, (2, T, S))
+    d = lambda t, p: np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1)  # noqa: E731
+    wi, wo = d(theta_i, phi_i), d(theta_o, phi_o)
+    f_r = form.eval(form.random_guess(rng, T), wi, wo) * rng.uniform(0.8, 1.2, (T, S, 3))
+    valid = rng.random((T, S)) > 0.2
+    start = form.random_guess(np.random.default_rng(8), T)
+    got = form.refine_linear(start, f_r, valid, wi, wo)
+    want = solve_magnitudes(form, start, f_r, valid, wi, wo)
+    for name, value in want.items():
+        np.testing.assert_allclose(got[name], value, rtol=1e-6, atol=1e-9, err_msg=name)
