@@ -56,6 +56,7 @@ import base64
 import json
 import os
 import struct
+from typing import Any
 
 import numpy as np
 
@@ -188,11 +189,11 @@ def textures(maps: dict, alpha: np.ndarray | None = None) -> tuple[dict[str, np.
     bc, m = np.asarray(maps["base_color"]), np.asarray(maps["metallic"])[..., :1]
     rough = np.asarray(maps["roughness"])[..., :1]
     spec, spec_col = np.asarray(maps["specular"])[..., :1], np.asarray(maps["specular_color"])
-    images = {}
+    images: dict[str, np.ndarray] = {}
     base = _srgb8(bc)
-    pbr = {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 1.0, "roughnessFactor": 1.0,
+    pbr: dict[str, Any] = {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 1.0, "roughnessFactor": 1.0,
            "baseColorTexture": "base_color", "metallicRoughnessTexture": "metallic_roughness"}
-    material = {"pbrMetallicRoughness": pbr, "doubleSided": False}
+    material: dict[str, Any] = {"pbrMetallicRoughness": pbr, "doubleSided": False}
     if alpha is not None:
         base = np.concatenate([base, _linear8(np.asarray(alpha)[..., :1])], axis=-1)
         material.update(alphaMode="MASK", alphaCutoff=0.5)
@@ -224,7 +225,7 @@ def textures(maps: dict, alpha: np.ndarray | None = None) -> tuple[dict[str, np.
 def _quad(size_mm, tangents: bool = False) -> dict[str, np.ndarray]:
     w, h = float(size_mm[0]) / 1000.0, float(size_mm[1]) / 1000.0
     x, z = w / 2, h / 2
-    quad = {
+    quad: dict[str, np.ndarray] = {
         "POSITION": np.array([[-x, 0, z], [x, 0, z], [x, 0, -z], [-x, 0, -z]], np.float32),
         "NORMAL": np.tile(np.array([0, 1, 0], np.float32), (4, 1)),
         "TEXCOORD_0": np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32),
@@ -295,7 +296,7 @@ def build_gltf(name: str, maps: dict, size_mm, *, binary: bool, alpha=None, extr
         material["extras"] = {"sbrdf": extras}
     while len(blob) % 4:
         blob.append(0)
-    buffer = {"byteLength": len(blob)}
+    buffer: dict[str, Any] = {"byteLength": len(blob)}
     if not binary:
         buffer["uri"] = f"{name}.bin"
     doc = {
@@ -371,6 +372,8 @@ def _read_doc(path: str) -> tuple[dict, bytes | None]:
             elif kind == 0x004E4942:
                 blob = chunk
             off += 8 + length
+        if doc is None:
+            raise ValueError(f"{path}: a GLB file without its JSON chunk")
         return doc, blob
     return json.loads(data), None
 
@@ -388,6 +391,8 @@ def _image(doc, index, directory, blob) -> np.ndarray:
         with open(os.path.join(directory, im["uri"]), "rb") as f:
             data = f.read()
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError(f"texture {index} ({im.get('uri', 'embedded')}) is not an image OpenCV can decode")
     if img.ndim == 3:
         img = img[..., [2, 1, 0, 3][: img.shape[-1]]]
     scale = 65535.0 if img.dtype == np.uint16 else 255.0

@@ -67,6 +67,8 @@ def build_levels(model, params: dict, method: str = "refit", levels: int | None 
         elif method == "refit":
             nxt = interpolate.mip_refit(model, current, n_dirs=n_dirs, iterations=iterations)
         elif method == "samples":
+            if samples is None or f is None or valid is None:
+                raise ValueError("MIP method 'samples' needs the samples")
             nxt = interpolate.mip_refit_samples(model, f, valid, None, samples["size_mm"], samples["light_pos"],
                                                 samples["camera_pos"], iterations, interpolate.mip_lerp(current))
             f, valid = interpolate.downsample_samples(f, valid)
@@ -100,7 +102,7 @@ class Mip(NodeKind):
     params = (
         Param("method", "str", "refit", "how a level is made from the one above: refit its children's averaged "
               "sampled BRDFs, average their parameters, or refit the downsampled samples",
-              choices=["refit", "average", "samples"]),
+              choices=("refit", "average", "samples")),
         Param("levels", "int", None, "levels below 0 (default: until the smaller side is 1 texel)", nullable=True,
               bounds=(0, 16)),
         Param("directions", "int", 16, "Fibonacci directions per side of the sampled BRDFs blended and refitted "
@@ -118,7 +120,7 @@ class Mip(NodeKind):
         art = ctx.inputs["params"]
         if p["method"] == "samples" and "samples" not in ctx.inputs:
             raise SbrdfError(f"node {ctx.node!r}: method: samples needs in: {{samples: <SampledReflectance>}}")
-        model = ctx.registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
+        model = ctx.plugins().create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
         base = {q.name: art.array(f"params/{q.name}") for q in model.parameters}
         samples = None
         if p["method"] == "samples":
@@ -141,7 +143,7 @@ class Mip(NodeKind):
             wanted = cls.prepare(ctx)
             prepared = dict(zip(wanted, dask.compute(*wanted.values())))
         levels, errors, seconds = prepared["levels"]
-        model = ctx.registry.create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
+        model = ctx.plugins().create("brdf-model", art.attrs["model"], dict(art.attrs.get("model_config", {})))
         names = [q.name for q in model.parameters]
         base = {n: art.array(f"params/{n}") for n in names}
         V, U = next(iter(base.values())).shape[:2]

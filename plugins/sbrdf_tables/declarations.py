@@ -14,7 +14,7 @@ from sbrdf_core.params import Param
 
 GRID_SEARCH = (
     Param("model", "str", "kurt-transmissive", "BRDF model (the grid search fits kurt-transmissive lobes)",
-          choices=["kurt-transmissive"], extra={"plugin_category": "brdf-model"}),
+          choices=("kurt-transmissive",), extra={"plugin_category": "brdf-model"}),
     Param("model_params", "dict", {}, "configuration of that model", extra={"params_of": "model"}),
     Param("n", "int", 9, "values per parameter and level (n^P candidates per level)", bounds=(2, 64)),
     Param("iterations", "int", 4, "grid levels: the first over the search box, each further one ± one step "

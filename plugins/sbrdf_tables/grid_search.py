@@ -121,7 +121,8 @@ def search_lobe(geometry, abs_cos_o, target, weight, transmission, *, n=9, itera
     w = np.asarray(weight, np.float32)
     ac = np.asarray(abs_cos_o, np.float64)
     side = geometry["side"]
-    best_x, best_err, evaluations, boxes = None, np.inf, 0, []
+    best_x: np.ndarray | None = None
+    best_err, evaluations, boxes = np.inf, 0, []
     for _level in range(iterations):
         axes = [np.linspace(lo[k], hi[k], n) if hi[k] > lo[k] else np.array([lo[k]]) for k in range(5)]
         if keep_boxes:
@@ -151,6 +152,8 @@ def search_lobe(geometry, abs_cos_o, target, weight, transmission, *, n=9, itera
             best_err, best_x = float(err[i]), x
         spacing = np.array([(axes[k][1] - axes[k][0]) if len(axes[k]) > 1 else 0.0 for k in range(5)])
         lo, hi = np.maximum(x - spacing, lo0), np.minimum(x + spacing, hi0)
+    if best_x is None:
+        raise ValueError(f"search_lobe: no candidate with a finite error in {iterations} level(s) of the search")
     return LobeSearch(dict(zip(FIELDS, map(float, best_x))), best_err, evaluations, boxes)
 
 
@@ -222,7 +225,7 @@ def fit_table(model, theta_i, theta_o, wi, wo, p, *, n=9, iterations=4, alternat
         ac = abs_cos_o[subset]
         specular = p0[subset] - diffuse[subset]
         contrib = [np.zeros(subset.sum()) for _ in lobes]
-        found = [None] * len(lobes)
+        found: list[dict[str, float] | None] = [None] * len(lobes)  # each lobe's values, once searched
         rounds = alternations if len(lobes) > 1 else 1
         for _ in range(rounds):
             for j, lb in enumerate(lobes):
@@ -239,6 +242,7 @@ def fit_table(model, theta_i, theta_o, wi, wo, p, *, n=9, iterations=4, alternat
                 found[j] = res.values
                 contrib[j] = lobe_p(lb, res.values, g, ac)
         for lb, v in zip(lobes, found):
+            assert v is not None, "every lobe is searched in the first round"
             values.update({name: v[FIELDS[q]] for q, name in enumerate(lb[:5])})
     params = {q.name: np.full((1, q.channels), values[q.name]) for q in model.parameters}
     return _finish(model, params, theta_i, theta_o, wi, wo, p, evaluations, time.perf_counter() - t0, k_d)
@@ -304,7 +308,7 @@ class GridSearchFitter:
         self.n, self.iterations, self.alternations = n, iterations, alternations
         self.search, self.fixed, self.histogram_bins = dict(search), dict(fixed), histogram_bins
         self.lm_refine, self.lm_iterations = lm_refine, lm_iterations
-        self.last: list[TableFit] = []
+        self.last: list[TableFit | None] = []  # per texel of the last fit; None: no valid sample
 
     @staticmethod
     def check_params(params):

@@ -143,6 +143,27 @@ def test_read_back_matches_the_conversion_within_8_bit_quantisation(exported, fm
     assert np.median(maps["error"]) < 0.03
 
 
+def test_reading_back_a_malformed_file_names_what_is_wrong(tmp_path):
+    """A GLB without its JSON chunk, or a texture that is not an image, used to fail deep inside the reader
+    (subscripting None, or None.ndim); they are refused with what is wrong."""
+    import json
+    import struct
+
+    from sbrdf_export.gltf import read_gltf
+
+    binary = struct.pack("<II", 4, 0x004E4942) + b"\0\0\0\0"  # a BIN chunk only
+    glb = tmp_path / "no-json.glb"
+    glb.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(binary)) + binary)
+    with pytest.raises(ValueError, match="without its JSON chunk"):
+        read_gltf(str(glb))
+    (tmp_path / "base.png").write_bytes(b"not a PNG")
+    doc = {"asset": {"version": "2.0"}, "images": [{"uri": "base.png"}], "textures": [{"source": 0}],
+           "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]}
+    (tmp_path / "bad-texture.gltf").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"texture 0 \(base.png\) is not an image"):
+        read_gltf(str(tmp_path / "bad-texture.gltf"))
+
+
 def test_round_trip_renders_like_the_original(reg, exported):
     """The material read back from glTF renders through `cpu` like the fitted original (stated: < 5 % mean)."""
     pytest.importorskip("dask.array")
