@@ -33,7 +33,7 @@ LM = (
     Param("fixed", "list", [], "fit-form parameter names held at their initial value", item="str"),
     Param("seed", "int", 0, "seed of the Sobol starting points"),
     Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1: outliers such as dust spikes "
-          "are down-weighted (iteratively reweighted)", choices=["linear", "huber", "soft-l1"]),
+          "are down-weighted (iteratively reweighted)", choices=("linear", "huber", "soft-l1")),
     Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns from quadratic to linear; "
           "0 = 1.4826 x the texel's median absolute residual", bounds=(0.0, None)),
     WEIGHTING,
@@ -52,7 +52,7 @@ LM_GL = (
     Param("fixed", "list", [], "fit-form parameter names held at their initial value", item="str"),
     Param("seed", "int", 0, "seed of the Sobol starting points"),
     Param("loss", "str", "linear", "linear (least squares), or huber / soft-l1 (iteratively reweighted)",
-          choices=["linear", "huber", "soft-l1"]),
+          choices=("linear", "huber", "soft-l1")),
     WEIGHTING,
     Param("loss_scale", "float", 0.0, "residual (sr^-1) where a robust loss turns linear; 0 = 1.4826 x the "
           "texel's median absolute residual", bounds=(0.0, None)),
@@ -70,32 +70,32 @@ ROOT_FLOOR = Param("root_floor", "float", 0.01, "line search: drop samples whose
 #: The parameters McAllister's procedure and its line-search variant share.
 SHARED = (
     Param("model", "str", "lafortune", "BRDF model (McAllister's procedure fits Lafortune lobes)",
-          choices=["lafortune"], extra={"plugin_category": "brdf-model"}),
+          choices=("lafortune",), extra={"plugin_category": "brdf-model"}),
     MODEL_PARAMS,
-    Param("diffuse", "str", "percentile", "rho_d estimate per channel", choices=["percentile", "min", "weighted-mean"]),
+    Param("diffuse", "str", "percentile", "rho_d estimate per channel", choices=("percentile", "min", "weighted-mean")),
     Param("percentile", "float", 10.0, "percentile of the samples taken as rho_d", bounds=(0.0, 100.0)),
     Param("colour_space", "str", "mcallister", "luminance weights of the working RGB space",
-          choices=["mcallister", "rec709", "rec2020"]),
+          choices=("mcallister", "rec709", "rec2020")),
     Param("rho_s_guard", "float", 0.05, "Eq 4.10 uses samples whose luminance residual is at least this fraction "
           "of the texel's largest", bounds=(0.0, 1.0)),
 )
 
 MCALLISTER = SHARED + (
     Param("lobe_fit", "str", "lm", "how the lobe shape is fitted to the luminance residual",
-          choices=["lm", "line-search"]),
+          choices=("lm", "line-search")),
     Param("lobe_2_start", "str", "text", "lobe 2 starts from the text's guess C=(1,1,1), n=5, or from the "
-          "1-lobe fit", choices=["text", "one-lobe"]),
+          "1-lobe fit", choices=("text", "one-lobe")),
     ITERATIONS,
     TOLERANCE,
     Param("starts", "int", 1, "starting points of the lobe fit: 1 = the procedure's own, more adds Sobol starts "
           "and keeps the best", bounds=(1, 64)),
     Param("objective", "str", "root", "line search residual: in n-th-root space (as written) or BRDF space",
-          choices=["root", "brdf"]),
+          choices=("root", "brdf")),
     ROOT_FLOOR,
 )
 
 LINE_SEARCH = SHARED + (
     Param("objective", "str", "root", "residual in n-th-root space (as written, Eq 4.9) or BRDF space",
-          choices=["root", "brdf"]),
+          choices=("root", "brdf")),
     ROOT_FLOOR,
 )

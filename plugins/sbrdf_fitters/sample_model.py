@@ -114,7 +114,7 @@ class SampleModel(NodeKind):
         Param("size_mm", "list", [100.0, 100.0], "sample size [x, y]", length=2, item="float", bounds=(1e-3, None),
               unit="mm"),
         Param("poses", "int", 400, "light/camera direction pairs", bounds=(1, 1000000)),
-        Param("directions", "str", "fibonacci", "how poses are placed", choices=["fibonacci", "random"]),
+        Param("directions", "str", "fibonacci", "how poses are placed", choices=("fibonacci", "random")),
         Param("light_pos", "list", None, "explicit light positions [[x, y, z], ...] (a pose plan); overrides poses",
               nullable=True, unit="mm"),
         Param("camera_pos", "list", None, "explicit camera positions, one per light position", nullable=True, unit="mm"),

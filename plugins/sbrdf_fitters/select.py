@@ -44,7 +44,7 @@ class Select(NodeKind):
     output = ParamMaps
     params = (
         Param("by", "str", "holdout", "figure compared: mean held-out RMS (holdout), or mean training RMS (training: "
-              "favours the model with more parameters)", choices=["holdout", "training"]),
+              "favours the model with more parameters)", choices=("holdout", "training")),
     )
 
     @classmethod
