@@ -100,7 +100,8 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     ``mirror``: the integrand is symmetric under φ_o → −φ_o (an isotropic
     model, ω_i in the xz-plane), so half the φ grid with doubled weights gives
     the same sum (its midpoints pair up across the plane: n_phi even); half the work.
-    The grid is evaluated by :func:`~sbrdf_core.brdf.evaluate` (compiled where the model has a fit kernel).
+    The grid is summed by the model's fit kernel where it has one (:func:`~sbrdf_core.engine.integrate`), else
+    evaluated by ``model.eval`` in chunks.
     """
     T = _texels(model, params)
     wi = np.broadcast_to(np.asarray(wi, dtype=np.float64), (T, 3))
@@ -108,6 +109,12 @@ def directional_albedo(model: BRDFModel, params: Mapping[str, np.ndarray], wi: n
     if mirror and n_phi % 2 == 0:
         half = (np.arange(n_theta * n_phi) % n_phi) < n_phi // 2  # φ in (0, π): rows are θ, n_phi φ each
         dirs, weights = dirs[half], 2.0 * weights[half]
+    from .engine import integrate
+
+    with np.errstate(all="ignore"):
+        summed = integrate(model, params, wi, dirs, weights)
+    if summed is not None:
+        return summed
     out = np.zeros((T, 3))
     step = max(1, CHUNK // max(T, 1))
     for start in range(0, len(dirs), step):

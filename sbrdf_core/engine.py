@@ -40,7 +40,7 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "over_texels", "solve_linear", "solver",
+__all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "integrate", "over_texels", "solve_linear", "solver",
            "threads"]
 
 _TEMPLATE = Path(__file__).with_name("engine_lm.py")
@@ -259,6 +259,23 @@ def evaluate(model, params, wi, wo) -> np.ndarray | None:
     out = np.empty((T, S, getattr(form, "channels", 3)))
     mod, cfg, x = solver(kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config()), _c(x)
     over_texels(T, lambda a, b: mod.evaluate(cfg, x[a:b], wi[a:b], wo[a:b], out[a:b]), T * S)
+    return out
+
+
+def integrate(model, params, wi, wo, weights) -> np.ndarray | None:
+    """``Σ_s weights[s] f_r(ω_i, wo[s])`` per texel and channel, ``(T, C)``, of the model-form ``params``, each
+    texel from its own ``wi`` ``(T, 3)`` over the shared directions ``wo`` ``(S, 3)``, by the model's fit kernel
+    (a quadrature, without the ``(T, S)`` arrays :func:`evaluate` would make); None where it has no kernel."""
+    form = model.fit_form()
+    kernel = getattr(form, "kernel", None)
+    if kernel is None or not params:
+        return None
+    T = np.shape(next(iter(params.values())))[0]
+    x = _c(form.pack(params if form is model else form.from_model(params)))
+    wi, wo, weights = _c(np.broadcast_to(wi, (T, 3))), _c(wo), _c(weights)
+    out = np.empty((T, getattr(form, "channels", 3)))
+    mod, cfg = solver(kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config())
+    over_texels(T, lambda a, b: mod.weighted_sums(cfg, x[a:b], wi[a:b], wo, weights, out[a:b]), T * len(wo))
     return out
 
 

@@ -456,6 +456,25 @@ def all_normal_equations(cfg, x, rows, free, f_r, w, wi, wo, A_out, g_out, cost_
 
 
 @njit(cache=True, nogil=True)
+def weighted_sums(cfg, x, wi, wo, weights, out):
+    """``out[t, c] = Σ_s weights[s] f_c(x[t]; wi[t], wo[s])``: a quadrature over outgoing directions ``wo``
+    ``(S, 3)`` shared by every texel, each from its own ``wi[t]``."""
+    T, K = x.shape
+    nc = out.shape[1]
+    f = np.empty(nc)
+    J = np.empty((nc, K))
+    for t in range(T):
+        for c in range(nc):
+            out[t, c] = 0.0
+        for s in range(wo.shape[0]):
+            if weights[s] == 0.0:
+                continue
+            kernel(x[t], cfg, wi[t], wo[s], f, J)
+            for c in range(nc):
+                out[t, c] += weights[s] * f[c]
+
+
+@njit(cache=True, nogil=True)
 def evaluate(cfg, x, wi, wo, out):
     """f_r of every texel at its row of ``x`` for each of its direction pairs: ``out[t, s, :]``."""
     T, S = wi.shape[0], wi.shape[1]

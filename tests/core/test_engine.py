@@ -186,3 +186,21 @@ def test_lafortune_magnitudes_solved_by_the_kernel_are_numpys(cfg):
     want = solve_magnitudes(form, start, f_r, valid, wi, wo)
     for name, value in want.items():
         np.testing.assert_allclose(got[name], value, rtol=1e-6, atol=1e-9, err_msg=name)
+
+
+@pytest.mark.parametrize("name,cfg", [("ggx-anisotropic", {}), ("cook-torrance", {"distribution": "beckmann"}),
+                                      ("lafortune", {"lobes": 2})])
+def test_albedo_by_the_kernel_is_the_quadrature_of_eval(name, cfg):
+    """The energy check's quadrature summed by the fit kernel (``engine.integrate``, what ``directional_albedo``
+    uses) equals the same grid of ``model.eval`` values, weighted and summed."""
+    from sbrdf_core.brdf_checks import directional_albedo, quadrature
+
+    model = Registry().create("brdf-model", name, cfg)
+    params = model.random_guess(np.random.default_rng(3), 16)
+    wi = np.array([np.sin(1.2), 0.0, np.cos(1.2)])
+    dirs, weights = quadrature(16, 32)
+    want = np.einsum("tsc,s->tc", model.eval(params, np.broadcast_to(wi, (16, len(dirs), 3)),
+                                             np.broadcast_to(dirs, (16, len(dirs), 3))), weights)
+    assert engine.integrate(model, params, np.broadcast_to(wi, (16, 3)), dirs, weights) is not None
+    np.testing.assert_allclose(directional_albedo(model, params, wi, n_theta=16, n_phi=32), want, rtol=1e-9,
+                               atol=1e-12)
