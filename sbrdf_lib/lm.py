@@ -402,7 +402,8 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
 
     best = None
     for x in x_starts:
-        best = keep_better(best, *descend(x), 1e-9)
+        xs, cost, converged = descend(x)
+        best = keep_better(best, xs, cost, converged, 1e-9)
     assert best is not None
     best = rescue(form, best, f_r, valid, wi, wo, base, seed, free, limits, descend, 1e-9)
     nested = optional(form, "nested", "brdf-model")
@@ -441,7 +442,8 @@ def compete(model, form, best, x_in, converged, objective, descend, limits, boun
     users read never grows with the model either.
     """
     keep_better(best, x_in, total_cost(objective, x_in), converged.copy(), 0.0)
-    keep_better(best, *descend(x_in), 0.0)
+    x_down, cost_down, converged_down = descend(x_in)
+    keep_better(best, x_down, cost_down, converged_down, 0.0)
     if limits is not None and limits.albedo is not None:
         best[0] = within_energy(model, form, best[0], limits.albedo, *bounds)
         best[1] = total_cost(objective, best[0])

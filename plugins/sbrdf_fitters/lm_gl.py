@@ -121,7 +121,7 @@ class GLLevenbergMarquardtFitter:
         in_shader = constrain is not None  # every trial point projected in the shader: no stepwise refit
         widths = getattr(form, "peak_widths", None)
         along = in_shader and widths is not None and widths() is not None
-        src = lm_gl_shader.source(glsl, K, constrain() if in_shader else None, along)
+        src = lm_gl_shader.source(glsl, K, constrain() if constrain is not None else None, along)
         packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
         plain_weight = valid.astype(np.float64)
         base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model
@@ -174,7 +174,8 @@ class GLLevenbergMarquardtFitter:
 
         best = None
         for x0 in x_starts:
-            best = keep_better(best, *descend(x0), 1e-6)  # float32 costs: a coarser margin than lm's
+            xs, cs, conv = descend(x0)
+            best = keep_better(best, xs, cs, conv, 1e-6)  # float32 costs: a coarser margin than lm's
         assert best is not None
         if project is None or in_shader:
             best = rescue(form, best, f_r, valid, wi, wo, base, self.seed, free, limits, descend, 1e-6)
@@ -186,6 +187,7 @@ class GLLevenbergMarquardtFitter:
             moved = np.flatnonzero((np.abs(project(x, everyone) - x) > 1e-6 * (1.0 + np.abs(x))).any(axis=1))
             if moved.size:
                 sub_project = projector(form, limits.take(moved))
+                assert sub_project is not None  # limits are set: project is not None
                 inside = None
                 for x0 in x_starts:
                     xs, cs, conv = gpu(x0[moved], base[moved], self.iterations, moved,

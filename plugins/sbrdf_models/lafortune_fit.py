@@ -215,16 +215,15 @@ class LafortuneFitForm(LafortuneModel):
             return params
         objective = least_squares(self, f_r, np.asarray(valid, np.float64), wi, wo)
         lo, hi = self.bounds()
-        best = best_cost = None
+        scored = []
         for log_n in np.log(START_EXPONENTS):
             guess = self.refine_linear({**params, "log_exponent_1": np.full((T, 1), log_n)}, f_r, valid, wi, wo)
             x = np.clip(self.pack(guess), lo, hi)
-            cost = np.nan_to_num(objective.cost(x, np.arange(T)), nan=np.inf)
-            if best is None:
-                best, best_cost = x, cost
-            else:
-                better = cost < best_cost
-                best[better], best_cost[better] = x[better], cost[better]
+            scored.append((x, np.nan_to_num(objective.cost(x, np.arange(T)), nan=np.inf)))
+        best, best_cost = scored[0]
+        for x, cost in scored[1:]:  # the first lowest cost wins a tie, as it did when scanned in order
+            better = cost < best_cost
+            best[better], best_cost[better] = x[better], cost[better]
         return self.unpack(best)
 
     def refine_linear(self, params, f_r, valid, wi, wo):
