@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import functools
 import logging
-import sys
 import time
 import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._compiled import worth_compiling
 from ..artifacts import ParamMaps, SampledReflectance
 from ..basis import MAX_MATERIALS, NO_LABEL
 from ..brdf import evaluate
@@ -176,10 +176,10 @@ def usable(f_r: np.ndarray, valid: np.ndarray, dtype=None) -> tuple[np.ndarray, 
     f_r, valid = np.asarray(f_r), np.asarray(valid)
     dtype = f_r.dtype if dtype is None else np.dtype(dtype)
     compiled_types = (np.float32, np.float64)  # what numba compiles (float16 and longdouble: NumPy below)
-    if ("numba" in sys.modules and f_r.ndim == 3 and valid.shape == f_r.shape[:2] and f_r.dtype in compiled_types
+    if (worth_compiling(f_r.size) and f_r.ndim == 3 and valid.shape == f_r.shape[:2] and f_r.dtype in compiled_types
             and dtype in compiled_types):
-        # Loaded already (a compiled fitter), so free to use: one pass for the test, the conversion and the copy,
-        # the same bits as the NumPy passes below (tests/core/test_usable.py).
+        # One pass for the test, the conversion and the copy, the same bits as the NumPy passes below
+        # (tests/core/test_usable.py).
         out = np.empty(f_r.shape, dtype)
         return out, _compiled_usable()(f_r, valid.astype(bool, copy=False), out)
     valid = usable_mask(f_r, valid)
@@ -258,9 +258,10 @@ def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[i
     """
     if fraction <= 0:
         return valid, np.zeros_like(valid)
-    rng = np.random.default_rng([seed, *offset])
+    bits = np.random.PCG64([seed, *offset])  # default_rng's generator, named: advance is PCG64's
     if skip:
-        rng.bit_generator.advance(skip)  # one 64-bit draw per double
+        bits.advance(skip)  # one 64-bit draw per double
+    rng = np.random.Generator(bits)
     test = valid & (rng.random(valid.shape) < fraction)
     enough = valid.sum(axis=1) >= 2 * max(min_train, 1)
     test &= enough[:, None]
@@ -475,7 +476,7 @@ class Fit(NodeKind):
 
     @classmethod
     def model(cls, ctx: BuildContext):
-        return ctx.registry.create("brdf-model", ctx.plugin.model_name, dict(ctx.plugin.model_config))
+        return ctx.plugins().create("brdf-model", ctx.plugin.model_name, dict(ctx.plugin.model_config))
 
     @classmethod
     def options(cls, ctx: BuildContext) -> FitOptions:
