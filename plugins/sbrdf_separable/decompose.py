@@ -202,6 +202,13 @@ def svd(fn: BRDF, param, size: int, terms: int = 1, clamp_max: float | None = No
     s = GridSampler(fn, param, size, clamp_max, block_pairs)
     if terms >= s.n:
         raise ValueError(f"terms = {terms} must be below K² = {s.n} for a {size}x{size} factor grid")
+    G, H, sigma = _svd_terms(s, terms, solver, impute)  # the matrix is released on return
+    return _factors(G, H, s, "svd", {"solver": solver, "impute": impute, "singular_values": sigma.tolist(),
+                                     "seconds": time.perf_counter() - t0})
+
+
+def _svd_terms(s: GridSampler, terms: int, solver: str, impute: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``G, H (terms, K², 3)`` and the singular values ``(terms, 3)`` of :func:`svd`, holding the matrix."""
     M = np.empty((3, s.n, s.n), np.float32)
     V = np.empty((s.n, s.n), bool)
     for r0, r1, f, valid in s.blocks():
@@ -237,9 +244,7 @@ def svd(fn: BRDF, param, size: int, terms: int = 1, clamp_max: float | None = No
             G[:k, :, c] = (U * root).T
             H[:k, :, c] = Vt * root[:, None]
             sigma[:k, c] = S
-    M = V = None  # release the matrix now (the closures above are done with it)
-    return _factors(G, H, s, "svd", {"solver": solver, "impute": impute, "singular_values": sigma.tolist(),
-                                     "seconds": time.perf_counter() - t0})
+    return G, H, sigma
 
 
 def matrix_mb(size: int, itemsize: int = 4) -> float:

@@ -10,6 +10,8 @@ measured on the same ones.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from sbrdf_core.brdf import luminance_weights
@@ -19,7 +21,7 @@ PAIRS = 8000
 #: §6.1's range limit; the study compares every approximation against the BRDF limited the same way.
 CLAMP = 5.0
 #: The study's BRDFs (§5.2): the text's anisotropic Ward, a copper-like Cook–Torrance, a velvet.
-STUDY = {
+STUDY: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "ward": ("ward", {"anisotropic": True}, {"rho_d": [1 / np.pi, 0, 0], "rho_s": [0.3] * 3, "alpha_x": [0.21],
                                              "alpha_y": [0.048]}),
     "copper": ("cook-torrance", {"distribution": "beckmann"}, {"rho_d": [0, 0, 0], "f0": [0.95, 0.64, 0.54],

@@ -24,6 +24,7 @@ import os
 import shutil
 import uuid
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -173,7 +174,7 @@ def load(url: str) -> Factors:
 
     try:
         group = zarr.open_group(store=url, mode="r")
-        attrs = dict(group.attrs)
+        attrs: dict[str, Any] = dict(group.attrs)  # JSON, checked below
     except Exception as e:
         raise FileNotFoundError(f"separable factors {url!r}: cannot open ({type(e).__name__}: {e}); "
                                 "re-run the fit that writes them") from None
@@ -181,11 +182,17 @@ def load(url: str) -> Factors:
         raise ValueError(f"{url!r} is not a {KIND} store (kind {attrs.get('kind')!r})")
     if attrs.get("version") != VERSION:
         raise ValueError(f"{url!r}: {KIND} version {attrs.get('version')!r}, this code reads {VERSION}")
+    def read(name: str) -> np.ndarray:
+        a = group[name]
+        if not isinstance(a, zarr.Array):
+            raise ValueError(f"{url!r}: {name!r} is a group, not an array; re-run the fit that writes the factors")
+        return np.asarray(a[...])
+
     out = {}
     for name in ("g", "h"):
-        a = group[name][...]
+        a = read(name)
         if attrs["encoding"] == "unorm8":
-            a = _decode(a, group[f"{name}_scale"][...], group[f"{name}_bias"][...])
+            a = _decode(a, read(f"{name}_scale"), read(f"{name}_bias"))
         out[name] = np.asarray(a, np.float64)
     meta = {k: v for k, v in attrs.items() if k not in ("kind", "version", "parameterization", "parameterization_config")}
     return Factors(out["g"], out["h"], attrs["parameterization"], dict(attrs.get("parameterization_config", {})), meta)

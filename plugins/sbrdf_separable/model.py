@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from sbrdf_core.brdf import BRDFModel, ModelParameter, above_horizon
+from sbrdf_core.contracts import Parameterization
 
 from .declarations import SEPARABLE
 from .factors import Factors, bilinear, load
@@ -51,7 +52,9 @@ class SeparableModel(BRDFModel):
     def __init__(self, *, factors: str | None = None, terms: int | None = None):
         self.factors_url, self.terms = factors, terms
         self._factors: Factors | None = None
-        self._param = None
+        self._param: Parameterization | None = None  # the factors' parameterization, set with them
+        #: Renderers need the tangent frame: every parameterization but a constant one (no factors) refers to t.
+        self.anisotropic = factors is not None
 
     # -- factors ------------------------------------------------------------------------------------
 
@@ -67,6 +70,7 @@ class SeparableModel(BRDFModel):
 
         self._factors = factors.truncated(self.terms) if self.terms else factors
         self._param = parameterization(factors.parameterization, factors.parameterization_config)
+        self.anisotropic = True
 
     def basis(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
         """Σ_k g_k h_k at ``(T, S)`` pairs, ``(T, S, 3)``; 0 below the horizon."""
@@ -74,6 +78,7 @@ class SeparableModel(BRDFModel):
         fac = self.factors
         if fac is None:
             return np.where(up[..., None], INV_PI, 0.0) * np.ones(wi.shape[:-1] + (3,))
+        assert self._param is not None, "set_factors() sets the parameterization with the factors"
         shape = wi.shape[:-1]
         safe_i = np.where(up[..., None], wi, (0.0, 0.0, 1.0)).reshape(-1, 3)
         safe_o = np.where(up[..., None], wo, (0.0, 0.0, 1.0)).reshape(-1, 3)
@@ -81,11 +86,6 @@ class SeparableModel(BRDFModel):
         wx, wy = self._param.wrap
         f = np.einsum("ksc,ksc->sc", bilinear(fac.g, x, wx), bilinear(fac.h, y, wy))
         return np.where(up[..., None], f.reshape(shape + (3,)), 0.0)
-
-    @property
-    def anisotropic(self) -> bool:
-        """Renderers need the tangent frame: every parameterization but a constant one refers to t."""
-        return self.factors_url is not None or self._factors is not None
 
     # -- BRDFModel ------------------------------------------------------------------------------------
 
@@ -122,6 +122,7 @@ class SeparableModel(BRDFModel):
             return ("vec3 brdf_separable(vec3 wi, vec3 wo, vec3 scale) {\n"
                     "    if (wi.z <= 0.0 || wo.z <= 0.0) return vec3(0.0);\n"
                     f"    return scale * {INV_PI:.10f};\n}}\n")
+        assert self._param is not None, "set_factors() sets the parameterization with the factors"
         (wxu, wxv), (wyu, wyv) = self._param.wrap
         b = lambda v: "true" if v else "false"  # noqa: E731
         decl = "".join(f"uniform sampler2D sep_g{k};\nuniform sampler2D sep_h{k};\n" for k in range(fac.terms))

@@ -85,6 +85,28 @@ def test_bad_stores_are_named_in_the_error(tmp_path):
     assert not (tmp_path / "nan.zarr").exists()
 
 
+def test_a_group_where_a_factor_array_should_be_is_named_in_the_error(ward_svd3, tmp_path):
+    import shutil
+
+    import zarr
+
+    fac, path = ward_svd3
+    copy = shutil.copytree(path, tmp_path / "damaged.zarr")
+    shutil.rmtree(copy / "h")
+    zarr.open_group(store=str(copy), mode="a").create_group("h")
+    with pytest.raises(ValueError, match=r"damaged\.zarr.*'h' is a group, not an array"):
+        load(str(copy))
+
+
+def test_only_the_constant_placeholder_skips_the_tangent_frame(ward_svd3):
+    fac, path = ward_svd3
+    assert REGISTRY.create("brdf-model", "separable", {}).anisotropic is False
+    assert REGISTRY.create("brdf-model", "separable", {"factors": path}).anisotropic is True
+    direct = REGISTRY.create("brdf-model", "separable", {})
+    direct.set_factors(Factors(fac.g, fac.h, "gram-schmidt", {"map": "xy"}))
+    assert direct.anisotropic is True
+
+
 # -- GLSL against numpy ---------------------------------------------------------------------------------------
 
 
