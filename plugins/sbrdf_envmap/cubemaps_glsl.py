@@ -143,6 +143,7 @@ class CubePass:
                 background.program["u_up"].value = tuple(float(x) for x in upv)
                 background.program["u_forward"].value = tuple(float(x) for x in forward)
                 ctx.disable(moderngl.DEPTH_TEST)
+                assert env_tex is not None, "a background is made only with an environment, with its texture"
                 env_tex.use(0)
                 background.render(moderngl.TRIANGLES)
             ctx.enable(moderngl.DEPTH_TEST)

@@ -19,12 +19,16 @@ from __future__ import annotations
 import logging
 import os
 import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
 
 from . import ENVIRONMENT_OPTIONS, cubemap, lobes, prefilter, sampling
+
+if TYPE_CHECKING:
+    from .glsl import GLResources
 
 logger = logging.getLogger(__name__)
 
@@ -78,7 +82,7 @@ class EnvironmentEffect:
         self.xi_border, self.ring_radius, self.line_threshold = xi_border, ring_radius, line_threshold
         self.mc_samples, self.seed = mc_samples, seed
         self.frame_index = 0  # progressive: which block of QMC points the next frame uses
-        self._gl = None
+        self._gl: GLResources | None = None  # gl_prepare() makes them, release() drops them
         self.reflectors: set[str] = set()  # materials whose specular lobes another effect draws (prepare)
         self.lightmapped = False  # diffuse from the scene's light maps (prepare)
 
@@ -347,9 +351,11 @@ class EnvironmentEffect:
             prog["u_env_light_dir"].write(dirs.astype("f4").tobytes())
             prog["u_env_light_radiance"].write(radiance.astype("f4").tobytes())
             return 0
+        assert self._gl is not None, "gl_prepare() comes first"
         return self._gl.uniforms(prog, first_unit)
 
     def gl_use(self, first_unit: int) -> int:
+        assert self._gl is not None, "gl_prepare() comes first"
         return self._gl.use(first_unit)
 
     def gl_camera(self, drawer) -> None:
@@ -359,6 +365,7 @@ class EnvironmentEffect:
     def gl_frame(self, drawer) -> None:
         """Before each frame of ``drawer`` (a GLScene): the progressive mode advances its block of points."""
         if self.method == "progressive":
+            assert self._gl is not None, "gl_prepare() comes first"
             self._gl.frame(drawer, self.frame_index)
             self.frame_index += 1
 

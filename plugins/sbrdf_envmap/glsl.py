@@ -226,8 +226,8 @@ def _progressive_block(effect, model, exprs) -> list[str]:
     call = model.glsl_call("wi", "wo", exprs)
     if getattr(effect, "lightmapped", False):  # the diffuse part is the light map's
         call = f"({call} - {exprs['rho_d']})"
-    strategies = ["hemisphere"]
-    setup = []
+    strategies: list[tuple[str, int]] = [("hemisphere", 0)]  # (sampler, lobe)
+    setup: list[str] = []
     if kind == "cosine":
         for j, (_rho, c, n, beta) in enumerate(lobes.glsl_cosine_lobes(model, exprs)):
             setup += [f"            vec3 pa{j} = lobe_peak({c}, {beta}, wo); pa{j} /= max(length(pa{j}), 1e-30);",
@@ -241,20 +241,18 @@ def _progressive_block(effect, model, exprs) -> list[str]:
         strategies.append(("beckmann", 0))
     # pdf of every strategy at wi (balance heuristic)
     pdf = ["max(wi.z, 0.0) / ENV_PI"]
-    for s in strategies[1:]:
-        if s[0] == "cosine":
-            j = s[1]
+    for strategy, j in strategies[1:]:
+        if strategy == "cosine":
             pdf.append(f"(pe{j} + 1.0) / (2.0 * ENV_PI) * pow(max(dot(wi, pa{j}), 0.0), pe{j})")
         else:
             pdf.append("env_beckmann_pdf(wi, wo, bmx, bmy)")
     gen = []
-    for j, s in enumerate(strategies):
+    for j, (strategy, i) in enumerate(strategies):
         u = f"fract(u_env_xi[k] + env_rotation({j}))"
-        if s == "hemisphere":
+        if strategy == "hemisphere":
             g = (f"vec2 u = {u}; float r = sqrt(u.x), ph = 2.0 * ENV_PI * u.y; "
                  "wi = vec3(r * cos(ph), r * sin(ph), sqrt(max(1.0 - u.x, 0.0)));")
-        elif s[0] == "cosine":
-            i = s[1]
+        elif strategy == "cosine":
             g = (f"vec2 u = clamp({u}, 1e-7, 1.0 - 1e-7); float ct = pow(u.x, 1.0 / (pe{i} + 1.0)), "
                  f"st = sqrt(max(1.0 - ct * ct, 0.0)), ph = 2.0 * ENV_PI * u.y; "
                  f"wi = st * (cos(ph) * pu{i} + sin(ph) * pv{i}) + ct * pa{i};")
@@ -337,7 +335,8 @@ class GLResources:
             unit += 1
         return unit - first
 
-    def use(self, first: int) -> None:
+    def use(self, first: int) -> int:
+        """Bind the textures from unit ``first`` on; returns how many units they take."""
         unit = first
         for _, tex in self.textures:
             tex.use(unit)

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from sbrdf_core.errors import SbrdfError
+from sbrdf_core.params import Param
 from sbrdf_lib.lightmap import diffuse_value, has_diffuse
 
 from . import MIRROR_PARAMS, cubemap, lobes, sampling
@@ -89,7 +90,7 @@ def exclusive_materials(scene, idx, shared, elsewhere) -> list[str]:
 class MirrorEffect:
     name = "mirror"
 
-    params = MIRROR_PARAMS
+    params: tuple[Param, ...] = MIRROR_PARAMS  # a subclass may declare fewer (cube maps: no refinements)
 
     def __init__(self, *, samples: int = 7, estimator: str = "4.25", xi_border: float = sampling.XI_BORDER,
                  ring_radius: float = sampling.RING_RADIUS, line_threshold: float = 4.0, refinements: int = 1,

@@ -310,6 +310,7 @@ class MirrorPass:
         W, H = camera.resolution
         right, up, forward = camera.basis()
         half = np.tan(np.radians(camera.fov_deg) / 2)
+        assert self.background is not None, "called only where there is an environment, hence a background"
         prog = self.background.program
         prog["u_right"].value = tuple(float(x) for x in right * half * W / H)
         prog["u_up"].value = tuple(float(x) for x in up * half)
@@ -338,6 +339,7 @@ class MirrorPass:
         self.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         if self.background is not None:
             ctx.disable(moderngl.DEPTH_TEST)
+            assert self.env_tex is not None, "a background is made only with an environment, with its texture"
             self.env_tex.use(0)
             self.background.render(moderngl.TRIANGLES)
         ctx.enable(moderngl.DEPTH_TEST)
