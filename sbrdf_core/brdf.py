@@ -165,6 +165,21 @@ class BRDFModel:
         """The model's parameters -> fit form (inverse of :meth:`to_model` up to equivalences)."""
         return dict(params)
 
+    def limit_box(self, limits, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The part of ``limits`` a box holds, for a model that is its own fit form: ρ_d at most the peak (``lo``,
+        ``hi`` ``(T, K)``, returned tightened).  The fitting engine iterates inside it."""
+        where = self.slices()
+        if limits.peak is not None and "rho_d" in where:
+            cap = np.asarray(limits.peak, np.float64).reshape(-1, 1)
+            hi[:, where["rho_d"]] = np.minimum(hi[:, where["rho_d"]], cap)
+        return np.minimum(lo, hi), hi
+
+    def peak_widths(self) -> np.ndarray | None:
+        """What the fitting engine widens to hold the peak bound in its loop: nothing (an empty array) for a model
+        that is its own fit form and keeps the default :meth:`constrain`, which :meth:`limit_box` holds whole;
+        None where ``constrain`` holds more (it is then projected after the loop)."""
+        return np.zeros(0, np.int64) if type(self).constrain is BRDFModel.constrain else None
+
     def canonical(self, params: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """One representative of each class of equivalent parameter sets, for comparing fits."""
         return dict(params)
@@ -380,11 +395,9 @@ class LogFitForm(BRDFModel):
         ``hi`` are ``(T, K)``, returned tightened); the peak's widening it holds too where :meth:`peak_widths`
         says how, else it is projected afterwards."""
         where = self.slices()
-        if limits.peak is not None and "rho_d" in where:
-            cap = np.asarray(limits.peak, np.float64).reshape(-1, 1)
-            hi[:, where["rho_d"]] = np.minimum(hi[:, where["rho_d"]], cap)
+        lo, hi = BRDFModel.limit_box(self, limits, lo, hi)
         if limits.resolution is None:
-            return np.minimum(lo, hi), hi
+            return lo, hi
         for name in self.model.roughness:
             k = where[f"log_{name}"] if f"log_{name}" in where else where[name]
             floor = np.asarray(limits.min_roughness(), np.float64)

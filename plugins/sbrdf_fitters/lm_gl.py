@@ -119,8 +119,8 @@ class GLLevenbergMarquardtFitter:
         everyone = np.arange(T)
         constrain = optional(model, "glsl_fit_constrain", "brdf-model") if project is not None else None
         in_shader = constrain is not None  # every trial point projected in the shader: no stepwise refit
-        widths = getattr(form, "peak_widths", None)
-        along = in_shader and widths is not None and widths() is not None
+        widths = getattr(form, "peak_widths", lambda: None)()
+        along = in_shader and widths is not None and widths.size > 0  # a widening model's bound
         src = lm_gl_shader.source(glsl, K, constrain() if constrain is not None else None, along)
         packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
         plain_weight = valid.astype(np.float64)
