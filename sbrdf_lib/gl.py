@@ -80,7 +80,7 @@ def check_size(ctx, scene) -> None:
 
 @dataclass
 class Frame:
-    image: np.ndarray  # (H, W, 3) float32 linear, row 0 at the top
+    image: np.ndarray | None  # (H, W, 3) float32 linear, row 0 at the top; None for a frame not read back
     gpu_ms: float  # GL time-elapsed query around the draw calls
     wall_ms: float  # including glFinish
     stats: dict = field(default_factory=dict)

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 from sbrdf_core import contracts
 from sbrdf_core.errors import SbrdfError
+from sbrdf_core.params import Param
 from sbrdf_core.types import RenderResult
 from sbrdf_lib.mesh import load_mesh
 from sbrdf_lib.scene import SceneError, load_scene, scene_fingerprint
 
 from . import materials as mat
 from .declarations import SCENE_RENDERER
+
+if TYPE_CHECKING:
+    from sbrdf_core.registry import Registry
 
 logger = logging.getLogger(__name__)
 
@@ -93,13 +98,13 @@ def effect_problems(scene, registry) -> list[str]:
 class SceneRenderer:
     """Base of Render plugins that draw a scene file; subclasses implement ``render``."""
 
-    params = SCENE_RENDERER
+    params: tuple[Param, ...] = SCENE_RENDERER  # a subclass adds its own
 
     def __init__(self, *, scene: str, exposure: float | None = None):
         self.scene_path, self.exposure = scene, exposure
-        self.registry = None
+        self.registry: Registry | None = None
 
-    def bind(self, registry) -> None:
+    def bind(self, registry: Registry) -> None:
         self.registry = registry
 
     @staticmethod
@@ -120,7 +125,7 @@ class SceneRenderer:
         scene = load_scene(self.scene_path, registry=self.registry)
         return scene, mat.resolve(scene, material, self._registry(), prepared)
 
-    def _registry(self):
+    def _registry(self) -> Registry:
         if self.registry is None:
             from sbrdf_core.registry import default_registry
 

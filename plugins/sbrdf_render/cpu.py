@@ -192,7 +192,10 @@ def render_scene(scene, materials: dict, meshes: dict | None = None, effects: li
         if sel.size == 0:
             continue
         sub = Hits(hits.t[sel], hits.position[sel], hits.normal[sel], hits.tangent[sel], hits.uv[sel])
-        lod = lod_all[sel] if material.trilinear else None
+        lod = None
+        if material.trilinear:
+            assert lod_all is not None, "computed when any material is trilinear"
+            lod = lod_all[sel]
         image[sel] = shade(material, scene.lights, sub, dirs[sel], shadow, lod, diffuse=not lit_maps)
         if lit_maps:
             image[sel] += diffuse[sel]

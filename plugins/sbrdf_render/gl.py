@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -44,6 +45,9 @@ from sbrdf_lib.surface import tessellate
 from . import materials as mat
 from .base import SceneRenderer
 from .declarations import GL
+
+if TYPE_CHECKING:
+    from .gf4 import GF4Scene
 
 __all__ = ["Drawer", "Frame", "GLRenderer", "GLScene", "SHADOW_LOOKUP", "VERTEX", "clip_planes", "context",
            "device_name", "fragment_source", "parameter_exprs"]
@@ -419,6 +423,7 @@ class GLRenderer(SceneRenderer):
 
     def render(self, material, prepared: dict | None = None) -> RenderResult:
         scene, materials = self.load(material, prepared)
+        drawer: GF4Scene | GLScene
         if self.pipeline == "geforce4":
             if scene.lightmapped:
                 raise SbrdfError(f"{scene.file}: the geforce4 pipeline draws no light maps; use pipeline: float")
@@ -440,6 +445,7 @@ class GLRenderer(SceneRenderer):
         logger.info("gl render of %s (%s): %d frame(s), median %.2f GPU ms", self.scene_path, self.pipeline,
                     len(frames), float(np.median(gpu)))
         image = frames[-1].image
+        assert image is not None, "the last frame is read back"
         if self.pipeline == "geforce4":
             image = downsample(image, scene.subpixels)
         return self.result(scene, image, {"antialias": scene.antialias,

@@ -152,8 +152,9 @@ def lazy_arrays(name: str, material: Material, filter: str) -> dict:
     out = {f"{name}/params/{p.name}": material.params[p.name] for p in model.parameters}
     if material.alpha is not None:
         out[f"{name}/alpha"] = material.alpha
-    for n in sorted((material.encoded or {}).get("textures", {})):
-        out[f"{name}/textures/{n}"] = material.encoded["textures"][n]
+    textures = (material.encoded or {}).get("textures", {})
+    for n in sorted(textures):
+        out[f"{name}/textures/{n}"] = textures[n]
     levels = list(getattr(material, "levels", None) or []) if filter == "trilinear" else []
     for l, lv in enumerate(levels, 1):
         out.update({f"{name}/mip/{l}/{k}": a for k, a in lv.items()})

@@ -84,6 +84,7 @@ def render_path(scene, materials: dict, out_dir: str, registry=None, formats: tu
             gpu_ms.append(frame.gpu_ms)
             kinds.append("progressive" if use_still else "deterministic")
             image = frame.image
+            assert image is not None, "drawn with read=True"
             if exposure is None:
                 exposure = display_exposure(image)
             name = f"frame_{f.index:04d}"
