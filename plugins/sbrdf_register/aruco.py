@@ -680,9 +680,9 @@ class ArucoRegistration:
         acc = np.zeros((V, U, 3), np.float32)
         weight = np.zeros((V, U), np.float32)  # sum over sub-samples of the filter weight on usable pixels
         badness = np.zeros((V, U), np.float32)
-        for j, (ou, ov) in enumerate(offsets):
+        for ou, ov in offsets:
             if maps is not None:
-                (mx, my), maps[j] = maps[j], None
+                mx, my = maps.pop(0)  # this sub-sample's (the list is in offsets' order), released as it is used
             else:
                 mx, my = maps_of(ou, ov)
             # Outside the (possibly reduced) image, with room for the bicubic kernel.
