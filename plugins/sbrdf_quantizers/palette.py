@@ -75,14 +75,14 @@ def kmeans(x: np.ndarray, k: int, iterations: int = 20, seed: int = 0, train: in
     sub = x[rng.choice(T, train, replace=False)] if T > train else x
     k = min(k, len(np.unique(sub, axis=0)))
     # k-means++ seeding
-    centres = [sub[rng.integers(len(sub))]]
-    d2 = ((sub - centres[0]) ** 2).sum(axis=1).astype(np.float64)
+    seeds = [sub[rng.integers(len(sub))]]
+    d2 = ((sub - seeds[0]) ** 2).sum(axis=1).astype(np.float64)
     for _ in range(1, k):
         p = d2 / d2.sum() if d2.sum() > 0 else None
         c = sub[rng.choice(len(sub), p=p)]
-        centres.append(c)
+        seeds.append(c)
         d2 = np.minimum(d2, ((sub - c) ** 2).sum(axis=1))
-    centres = np.array(centres, np.float64)
+    centres = np.array(seeds, np.float64)
     for _ in range(iterations):
         lab, _ = _nearest(sub, centres)
         counts = np.bincount(lab, minlength=k)
