@@ -25,6 +25,8 @@ from sbrdf_core.brdf import above_horizon, luminance_weights
 from sbrdf_core.errors import ParameterError
 from sbrdf_core.nodes.fit import NONFINITE_INPUT, NONFINITE_RESULT, NOT_CONVERGED, FitResult, rms_error
 from sbrdf_core.nodes.fit import usable as usable_samples
+from sbrdf_core.params import Param
+from sbrdf_core.types import PluginRegistry
 from sbrdf_lib.lm import diffuse_percentile, fit_model
 
 from .declarations import LINE_SEARCH, MCALLISTER
@@ -53,7 +55,7 @@ class McAllisterFitter:
     model_name = "lafortune"
     model_config: dict
 
-    params = MCALLISTER
+    params: tuple[Param, ...] = MCALLISTER  # the line-search fitter declares its own
 
     def __init__(self, *, model: str = "lafortune", model_params: dict = {}, diffuse: str = "percentile",  # noqa: B006
                  percentile: float = 10.0, colour_space: str = "mcallister", rho_s_guard: float = 0.05,
@@ -61,7 +63,7 @@ class McAllisterFitter:
                  starts: int = 1, objective: str = "root", root_floor: float = 0.01):
         # model_params' default equals the declaration (the registry checks) and is only read, never changed.
         self.model_config = dict(model_params)
-        self._registry = None
+        self._registry: PluginRegistry | None = None
         self.diffuse, self.percentile, self.colour_space = diffuse, percentile, colour_space
         self.lobe_fit, self.lobe_2_start, self.rho_s_guard = lobe_fit, lobe_2_start, rho_s_guard
         self.iterations, self.tolerance, self.starts, self.objective = iterations, tolerance, starts, objective
@@ -79,7 +81,7 @@ class McAllisterFitter:
                                      f"got model_params {dict(cfg)}")]
         return []
 
-    def bind(self, registry) -> None:
+    def bind(self, registry: PluginRegistry) -> None:
         """The registry the one-channel lobe models come from (the runner calls this after construction)."""
         self._registry = registry
 

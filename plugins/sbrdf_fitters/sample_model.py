@@ -71,7 +71,7 @@ def physical(model, maps: dict[str, np.ndarray], given=frozenset()) -> dict[str,
         return maps
     shape = next(iter(maps.values())).shape[:2]
     flat = {k: v.reshape(-1, v.shape[-1]) for k, v in maps.items()}
-    fixed = {}
+    fixed: dict[str, list[np.ndarray]] = {}
     step = 4096
     for s in range(0, flat[next(iter(flat))].shape[0], step):
         # coarse quadrature, so a margin below 1: the Fit node checks on a finer grid
@@ -158,7 +158,7 @@ class SampleModel(NodeKind):
         import dask.array as da
 
         p = ctx.params
-        model = ctx.registry.create("brdf-model", p["model"], dict(p["model_params"]))
+        model = ctx.plugins().create("brdf-model", p["model"], dict(p["model_params"]))
         texels, size_mm = tuple(p["texels"]), tuple(p["size_mm"])
         if p["light_pos"] is not None:
             light = np.asarray(p["light_pos"], float).reshape(-1, 3)
