@@ -87,6 +87,7 @@ def draw(text: str, frames: int, timed: int = 5):
             f = s.draw(read=(k == frames - 1))
             ms.append(f.wall_ms)  # llvmpipe's time queries miss deferred rasterisation: wall time incl. glFinish
             image = f.image if f.image is not None else image
+        assert image is not None, "the last frame is drawn with read=True"
         return image.astype(np.float64), float(np.min(ms[-timed:])), build  # min: the least disturbed frame
     finally:
         s.release()
@@ -167,7 +168,8 @@ def write_docs(results, pre, line, res, device, ref_desc):
                 label=f"{case}: prefiltered discrete")
         ax.plot(rows["prefiltered-mip"]["ms"], rows["prefiltered-mip"]["err"], "D", color=c, mfc="none", ms=7)
         ax.plot(rows["mc_equal_time"]["ms"], rows["mc_equal_time"]["err"], "x", color=c, ms=8)
-    ax.set_xscale("log"), ax.set_yscale("log")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
     ax.set_xlabel(f"ms per frame, wall, draw + glFinish ({device}, {res[0]}×{res[1]})")
     ax.set_ylabel("relative RMS error vs converged reference")
     ax.set_title("squares: prefiltered discrete, open diamonds: prefiltered MIP, x: unbiased at fis7's time",

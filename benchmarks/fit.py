@@ -174,7 +174,7 @@ def main(argv=None) -> int:
                     help="the Fit nodes' coherence (default: the node's own default), for a paired comparison")
     args = ap.parse_args(argv)
     size = QUICK if args.quick else FULL
-    n = size["texels"]
+    n = int(size["texels"])  # an int in both sizes; the dicts hold the float focal length too
     workdir = Path(args.keep).resolve() if args.keep else Path(tempfile.mkdtemp(prefix="sbrdf-fit-"))
     workdir.mkdir(parents=True, exist_ok=True)
     try:
@@ -195,7 +195,8 @@ def main(argv=None) -> int:
         log(f"capture: {size['orbit']} poses, {time.perf_counter() - t0:.1f} s")
         gpath = workdir / "graph.yaml"
         gpath.write_text(graph_text(folder, n, {"coherence": args.coherence} if args.coherence else None))
-        fidelity.FITS = {k: (None, (), m, mp) for k, (m, mp) in FITS.items()}
+        # warm() reads only each fit's model and model params: no truth material ("") or scans to name here
+        fidelity.FITS = {k: ("", (), m, mp) for k, (m, mp) in FITS.items()}
         fidelity.warm(workdir / "warm")  # compile (or load) every model's kernels off the clock
         t0 = time.perf_counter()
         Runner(progress=False).run(load_graph(gpath, reg), only=["refl"])
@@ -225,7 +226,7 @@ def main(argv=None) -> int:
         l1, l2 = rms_maps["laf1"], rms_maps["laf2"]
         nested_worse = int((l2 > l1 * (1 + 1e-6) + 1e-12).sum())
         ratios = []
-        for k in range(size["pairs"]):
+        for k in range(int(size["pairs"])):
             order = (1, 2) if k % 2 == 0 else (2, 1)
             walls = {w: run_node(gpath, "laf2", w)[0] for w in order}
             ratios.append(walls[1] / walls[2])

@@ -126,7 +126,7 @@ def run(samples_path: Path, out_path: Path, plugin: str, lobes: int) -> dict:
     f_store, v_store = art.array("f_r"), art.array("valid")
     V, U = f_store.shape[:2]
     K = model.size + len(EXTRA)
-    out = zarr.open(str(out_path), mode="w", shape=(V, U, K), chunks=(TILE, TILE, K), dtype="f4")
+    out = zarr.open_array(str(out_path), mode="w", shape=(V, U, K), chunks=(TILE, TILE, K), dtype="f4")
     t = {"read_s": 0.0, "fit_s": 0.0, "write_s": 0.0}
     rms = np.zeros((V, U))
     for v0 in range(0, V, TILE):

@@ -87,6 +87,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from report import machine, replace_section
@@ -449,7 +450,7 @@ def run(workdir: Path, texels, poses, fits) -> dict:
     reg = Registry()
     graph = load_graph(path, reg)
     report = Runner(reg, progress=False).run(graph)
-    out = {}
+    out: dict[str, Any] = {}  # per fit its record; under "samples" the samples store's url
     for name in fits:
         art = open_artifact(graph.url(name))
         out[name] = {"wall_s": report[name].wall_s, "rms": art.read("rms").astype(np.float64),
@@ -500,7 +501,8 @@ def write_docs(rows, main_line, pairs, sweep_texels):
         for p in pts:
             ax.annotate(str(p[2]), (p[0], p[1]), fontsize=6, xytext=(2, 2), textcoords="offset points")
     ax.axhline(NOISE, color="grey", lw=0.8, ls="--", label=f"noise σ = {NOISE} sr⁻¹")
-    ax.set_xscale("log"), ax.set_yscale("log")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
     ax.set_xlabel("wall time per texel, ms (2-core run, all texels in parallel)")
     ax.set_ylabel("mean per-texel RMS, sr⁻¹")
     date = datetime.date.today().isoformat()

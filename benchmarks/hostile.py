@@ -115,7 +115,8 @@ class Case:
     """One case's commands and what it found; ``verdict`` is the worst of them."""
 
     def __init__(self, root: Path, name: str):
-        self.root, self.name, self.found = root, name, set()
+        self.root, self.name = root, name
+        self.found: set[str] = set()  # what went wrong: names from WORST
         self.watched: list[tuple[Path, str]] = []
         self.log: list[str] = []
 

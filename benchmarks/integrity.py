@@ -191,7 +191,7 @@ def read_store(store: Path) -> dict[str, np.ndarray]:
     for node in sorted(p for p in store.iterdir() if (p / "zarr.json").exists()):
         for name, m in members(zarr.open_group(str(node), mode="r")):
             if isinstance(m, zarr.Array) and not name.startswith("_done") and name not in TIMINGS:
-                out[f"{node.name}/{name}"] = m[...]
+                out[f"{node.name}/{name}"] = np.asarray(m[...])
     return out
 
 

@@ -87,8 +87,8 @@ def main() -> int:
     graph = yaml.safe_load((ROOT / "graphs" / "merl-fit.yaml").read_text())
     if args.quick:
         graph["nodes"]["samples"]["params"].update(incident=16, exitant=128)
-    with tempfile.TemporaryDirectory(prefix="merl-bench-") as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory(prefix="merl-bench-") as tmp_name:
+        tmp = Path(tmp_name)
         graph.pop("store", None)
         (tmp / "graph.yaml").write_text(yaml.safe_dump(graph))
         t0 = time.perf_counter()

@@ -140,12 +140,12 @@ def compare(image: np.ndarray, ref: np.ndarray) -> dict:
     out = {"rel_err": float(np.abs(d)[inner].sum() / np.abs(r)[inner].sum()),
            "rms": float(np.sqrt((d**2)[inner].sum() / (r**2)[inner].sum())), "fireflies": int(firefly.sum())}
 
-    r = max(1, round(ref.shape[1] / 40))  # the box is 1/20 of the image wide whatever the resolution
+    half = max(1, round(ref.shape[1] / 40))  # the box is 1/20 of the image wide whatever the resolution
 
     def boxed(a):
         y = np.where(inner, a @ np.array([0.2126, 0.7152, 0.0722]), 0.0)
-        p = np.pad(y, r)
-        return sum(p[i:i + y.shape[0], j:j + y.shape[1]] for i in range(2 * r + 1) for j in range(2 * r + 1))
+        p = np.pad(y, half)
+        return sum(p[i:i + y.shape[0], j:j + y.shape[1]] for i in range(2 * half + 1) for j in range(2 * half + 1))
 
     b_image, b_ref = boxed(image), boxed(ref)
     at_image, at_ref = (np.unravel_index(np.argmax(b), b.shape) for b in (b_image, b_ref))
@@ -178,7 +178,7 @@ def measure(kind: str, texels: int, resolution, tmp: Path) -> dict:
     runner = Runner(registry=Registry(extra=["sbrdf_export"]), progress=False)
     t0 = time.perf_counter()
     runner.run(load_graph(text, runner.registry))
-    out = {"pipeline_s": time.perf_counter() - t0}
+    out: dict[str, float | np.ndarray] = {"pipeline_s": time.perf_counter() - t0}  # figures and images
     gltf = open_artifact(f"{store}/gltf")
     rough = gltf.read("maps/roughness")[..., 0]
     err = gltf.read("error")[..., 0]

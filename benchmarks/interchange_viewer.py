@@ -36,8 +36,8 @@ def main(argv=None) -> int:
 
     texels, poses = ((32, 32), 80) if args.quick else ((128, 128), 200)
     reg = Registry(extra=["sbrdf_viewer"])
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
         graph = tmp / "g.yaml"
         graph.write_text(f"""
 name: viewer-bench

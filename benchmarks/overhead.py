@@ -219,7 +219,8 @@ def run_plain_variant(workdir: Path, texels: tuple[int, int], poses: int) -> tup
     stages["register"] = t2 - t1
 
     # 3. reflectance: the node's kernel per texel tile -----------------------------------------
-    size_mm = tuple(float(s) for s in desc.sample["size_mm"])
+    width_mm, height_mm = (float(s) for s in desc.sample["size_mm"])
+    size_mm = (width_mm, height_mm)
     intensity = float(desc.light["intensity"])
     light_pos = np.asarray(desc.light_pos, float)
     camera_pos = camera_centre(desc.camera_R, desc.camera_t)
@@ -250,9 +251,14 @@ def compare(graph_store: Path, plain_store: Path, check_all: bool) -> tuple[bool
     """Compare reflectance f_r and valid tile by tile; return (equal, tiles compared)."""
     import zarr
 
+    def array(group: zarr.Group, name: str) -> zarr.Array:
+        z = group[name]
+        assert isinstance(z, zarr.Array), name  # Reflectance stores f_r and valid as arrays
+        return z
+
     a = zarr.open_group(store=str(graph_store / "reflectance"), mode="r")
     b = zarr.open_group(store=str(plain_store / "reflectance"), mode="r")
-    fa, fb = a["f_r"], b["f_r"]
+    fa, fb = array(a, "f_r"), array(b, "f_r")
     if fa.shape != fb.shape or fa.chunks != fb.chunks or fa.dtype != fb.dtype:
         log(f"f_r differs in layout: graph {fa.shape} {fa.chunks} {fa.dtype}, plain {fb.shape} {fb.chunks} {fb.dtype}")
         return False, 0
@@ -266,7 +272,7 @@ def compare(graph_store: Path, plain_store: Path, check_all: bool) -> tuple[bool
     for i, j in tiles:
         sl = (slice(i * tv, (i + 1) * tv), slice(j * tu, (j + 1) * tu))
         for name in ("f_r", "valid"):
-            x, y = a[name][sl], b[name][sl]
+            x, y = np.asarray(array(a, name)[sl]), np.asarray(array(b, name)[sl])
             if not np.array_equal(x, y, equal_nan=(name == "f_r")):
                 log(f"MISMATCH in reflectance/{name} tile ({i}, {j}): max |diff| = "
                     f"{np.nanmax(np.abs(x.astype(float) - y.astype(float)))}")
@@ -308,7 +314,8 @@ def main(argv: list[str] | None = None) -> int:
             log("FAIL: warm-up results differ")
             return 1
 
-        best = {"graph": (float("inf"), {}), "plain": (float("inf"), {})}
+        # per variant the fastest run: (seconds, seconds per stage)
+        best: dict[str, tuple[float, dict[str, float]]] = {"graph": (float("inf"), {}), "plain": (float("inf"), {})}
         runs: dict[str, list[float]] = {"graph": [], "plain": []}
         last: dict[str, Path] = {}
         for rep in range(args.repeat):

@@ -219,6 +219,7 @@ def read_child(artifact: str, names: list[str]) -> None:
     total = 0.0
     for name in names:
         z = g[name]
+        assert isinstance(z, zarr.Array), name  # the names are the artifact's arrays (the caller lists them)
         step = (z.shards or z.chunks)[0]
         for p0 in range(0, z.shape[0], step):
             total += float(np.asarray(z[p0:p0 + step]).ravel()[:1].sum())  # touch: the bytes are decoded
@@ -265,7 +266,7 @@ def floor_child(store: str, block: int = 32) -> None:
 
     def resample(job) -> None:
         k, maps = job
-        image = np.asarray(images[int(ids[k])], np.float32)
+        image: np.ndarray = np.asarray(images[int(ids[k])], np.float32)  # pyrDown below: any dtype, per cv2's stub
         np.asarray(valid[int(ids[k])])  # read, as Register reads it, though only the remaps' time is wanted of it
         for _ in range(int(levels[k])):
             image = cv2.pyrDown(image)
@@ -404,19 +405,20 @@ def lafortune(tmp: Path) -> dict:
     pp_scale = r_c**2 / (cam.intensity * lp[:, 2] / r_c)  # the sample centre's r² / (I cos θ_i), per pose
     wi_c, wo_c = lp / r_c[:, None], cp / np.linalg.norm(cp, axis=-1, keepdims=True)
     maps = cam.ground_truth()
-    rel, rel_pp = [], []
+    rel_parts: list[np.ndarray] = []
+    rel_pp_parts: list[np.ndarray] = []
     tv = f.chunks[0]
     for v0 in range(0, f.shape[0], tv):  # tile rows at a time
         v1 = min(v0 + tv, f.shape[0])
         vv = valid[v0:v1]
         truth = cam.reference_f_r((TEXELS, TEXELS), lp, cp, rows=(v0, v1))
-        rel.append(np.abs(f[v0:v1][vv] / truth[vv] - 1).ravel())
+        rel_parts.append(np.abs(f[v0:v1][vv] / truth[vv] - 1).ravel())
         T = (v1 - v0) * TEXELS
         params = {k: m[v0:v1].reshape(T, -1) for k, m in maps.items()}
         truth_pp = cam.model.eval(params, np.broadcast_to(wi_c, (T, P, 3)), np.broadcast_to(wo_c, (T, P, 3)))
         f_pp = np.moveaxis(rad[:, v0:v1] * pp_scale[:, None, None, None], 0, 2)
-        rel_pp.append(np.abs(f_pp[vv] / truth_pp.reshape(f_pp.shape)[vv] - 1).ravel())
-    rel, rel_pp = np.concatenate(rel), np.concatenate(rel_pp)
+        rel_pp_parts.append(np.abs(f_pp[vv] / truth_pp.reshape(f_pp.shape)[vv] - 1).ravel())
+    rel, rel_pp = np.concatenate(rel_parts), np.concatenate(rel_pp_parts)
     shutil.rmtree(store, ignore_errors=True)
     shutil.rmtree(folder, ignore_errors=True)
     return {"median": float(np.median(rel)), "p95": float(np.percentile(rel, 95)),

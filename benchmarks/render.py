@@ -146,7 +146,7 @@ def sbrdf_material(lobes: int, size: int = 256, seed: int = 0) -> mat.SceneMater
     return mat.SceneMaterial("s", model, maps, None, "bilinear")
 
 
-def scene_text(obj: str, lights: int, resolution, extra: str = "", background: float = 0.0) -> str:
+def scene_text(obj: str | Path, lights: int, resolution, extra: str = "", background: float = 0.0) -> str:
     lt = "\n".join(f"  - {{type: point, position: {LIGHT_POSITIONS[k]}, intensity: 4}}" for k in range(lights))
     return f"""
 camera: {{position: [0, -2.3, 1.9], look_at: [0, 0.1, 0], fov_deg: 42, resolution: {list(resolution)}}}
@@ -250,7 +250,8 @@ void main() { v_pos = in_pos; v_normal = in_normal; v_uv = in_uv; gl_Position = 
                 self.tex.use(0)
             self.vao.render(moderngl.TRIANGLES)
         image, gpu, wall = self._finish(self.fbo, t0, read)
-        return Frame(image, gpu, wall)
+        # image is None for a frame not read back; sbrdf_lib.gl.Frame annotates it as always an array
+        return Frame(image, gpu, wall)  # type: ignore[arg-type]
 
 
 def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> dict:
@@ -263,7 +264,7 @@ def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> 
     from sbrdf_lib.surface import tessellate
 
     meshes: dict = {}
-    drawers = {}
+    drawers: dict[tuple[str, int, int], Drawer] = {}  # (method, lobes, lights)
     try:
         for lights in (1, 2, 3):
             scene = load_scene(scene_text(obj, lights, resolution) + "antialias: 1\n")  # fps without antialiasing
@@ -277,7 +278,7 @@ def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> 
                 lit, textured = name.startswith("light"), name.endswith(" tex") and "no tex" not in name
                 if (lit or lights == 1) and (cells is None or (name, 0, lights) in cells):
                     drawers[name, 0, lights] = Baseline(scene, meshes[0], lit, textured)
-        times = {k: [] for k in drawers}
+        times: dict[tuple[str, int, int], list[float]] = {k: [] for k in drawers}
         for r in range(warmup + frames):
             for k, d in drawers.items():
                 ms = frame_ms(d)
@@ -361,7 +362,7 @@ def aa_edges(reference: int = 8) -> dict:
     ref, _ = render_scene(load_scene(AA_SCENE + f"antialias: {reference * reference}\n"), materials)
     edges = texel_edges(load_scene(AA_SCENE), materials, reference)
     scale = float(np.abs(ref[edges]).mean())
-    out = {"edge_pixels": int(edges.sum()), "pixels": int(edges.size)}
+    out: dict[str, float] = {"edge_pixels": int(edges.sum()), "pixels": int(edges.size)}
     for key, text in (("on", AA_SCENE), ("off", AA_SCENE + "antialias: 1\n")):
         t0 = time.perf_counter()
         img, _ = render_scene(load_scene(text), materials)

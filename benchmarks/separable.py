@@ -61,7 +61,7 @@ def rms(fn, fac) -> float:
     return radiance_rms(fn, factors_function(fac))
 
 
-CPU = {}  # (method, K) -> process CPU seconds of the last measurement
+CPU: dict[tuple[str, int], float] = {}  # (method, K) -> process CPU seconds of the last measurement
 
 
 def measured(call, key=None):
@@ -85,10 +85,11 @@ def terms_study(K, max_terms=8):
         for p in PARAMS:
             P = parameterization(p)
             S = svd(fn, P, K, terms=max_terms, clamp_max=CLAMP)
-            out[m, p] = {"svd": [rms(fn, S.truncated(k)) for k in range(1, max_terms + 1)],
-                         "nd1": rms(fn, nd(fn, P, K, clamp_max=CLAMP))}
-            print(f"  {m:<7} {p:<18} nd1 {out[m, p]['nd1']:.4f}  svd 1..{max_terms} "
-                  + " ".join(f"{e:.4f}" for e in out[m, p]["svd"]), flush=True)
+            svd_rms = [rms(fn, S.truncated(k)) for k in range(1, max_terms + 1)]
+            nd1_rms = rms(fn, nd(fn, P, K, clamp_max=CLAMP))
+            out[m, p] = {"svd": svd_rms, "nd1": nd1_rms}
+            print(f"  {m:<7} {p:<18} nd1 {nd1_rms:.4f}  svd 1..{max_terms} "
+                  + " ".join(f"{e:.4f}" for e in svd_rms), flush=True)
     return out
 
 

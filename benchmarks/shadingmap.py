@@ -36,6 +36,7 @@ import datetime
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -84,7 +85,7 @@ def run(texels: tuple[int, int], image: int) -> dict:
     from sbrdf_shading.linearize import linearize
     from sbrdf_shading.shade import VARIANTS, ShadingData, shade
 
-    out = {"materials": {}}
+    out: dict[str, Any] = {"materials": {}}  # one JSON-like record: timings, errors, renders
     for i, name in enumerate(MATERIALS):
         imgs = capture(name, texels)
         reps = 3 if i == 0 else 1
