@@ -3,7 +3,8 @@
 One virtual-camera capture (ArUco registration included) of ``benchmarks/fidelity.py``'s ``regions``
 material (ggx-anisotropic in four uniform quadrants: plastic, gold, matte, brushed metal) is fitted by
 every model a user would pick (``fidelity.REGION_FITS``) with ``coherence: none``, ``neighbours`` (the
-default) and ``pyramid``, all from one Reflectance artifact, in one run.  Per mode and model:
+default), ``pyramid`` and ``basis`` (or those ``--coherence`` names), all from one Reflectance artifact, in
+one run.  Per mode and model:
 
 - ``cv``: the worst quadrant's spatial coefficient of variation of the fitted f_r at unseen pairs
   (``fidelity.spatial_cv``); ``noise_cv`` the same for the noise floor (the generating model fitted by the
@@ -12,13 +13,14 @@ default) and ``pyramid``, all from one Reflectance artifact, in one run.  Per mo
   (``fidelity.SPECK_RENDERS``); ``noise_specks`` the floor's;
 - ``held``: the Fit node's mean held-out RMS (sr⁻¹); ``err``: median relative error at unseen pairs;
 - ``s``: the Fit node's wall seconds (each node runs alone, on every core), and ``moved``: the fraction
-  of texels whose solution came from a neighbour or parent.
+  of texels whose solution came from a neighbour, parent or basis material;
+- ``materials`` (``basis`` only): the most basis materials a tile kept (the summary's count).
 
 Last line: ``coherence: <mode>_<model>_cv=... <mode>_<model>_specks=... ... noise_cv=... noise_specks=...``.
 
 Run::
 
-    python benchmarks/coherence.py [--quick] [--keep DIR] [--docs]
+    python benchmarks/coherence.py [--quick] [--keep DIR] [--docs] [--coherence MODE ...]
 
 Full: 64² texels, 90 poses; ``--quick``: 32² texels, 40 poses (a few minutes on 2 cores).
 """
@@ -38,21 +40,28 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fidelity as F  # noqa: E402  (the materials, captures and figures this benchmark shares)
 
-MODES = ("none", "neighbours", "pyramid")
+MODES = ("none", "neighbours", "pyramid", "basis")
 
 
-def graph_text(folder: Path, texels: int) -> str:
+def graph_text(folder: Path, texels: int, modes=MODES) -> str:
     lines = ["name: coherence-benchmark", "store: ./store", "nodes:",
              f"  cap: {{kind: Capture, plugin: folder, params: {{path: {json.dumps(str(folder))}}}}}",
              f"  reg: {{kind: Register, plugin: aruco, in: {{capture: cap}}, "
              f"params: {{texels: [{texels}, {texels}], max_rms_mm: 0.5}}}}",
              "  refl_regions_orbit: {kind: Reflectance, in: {stack: reg}}"]
-    for mode in MODES:
+    for mode in modes:
         for name, (model, mp) in F.REGION_FITS.items():
             params = {"model": model, "model_params": mp, "coherence": mode}
             lines.append(f"  {mode}_{name}: {{kind: Fit, plugin: lm, in: {{samples: refl_regions_orbit}}, "
                          f"params: {json.dumps(params)}}}")
     return "\n".join(lines) + "\n"
+
+
+def coherence_modes() -> tuple[str, ...]:
+    """The Fit node's ``coherence`` choices, as its declaration lists them."""
+    from sbrdf_core.nodes.fit import FIT_PARAMS
+
+    return next(p.choices for p in FIT_PARAMS if p.name == "coherence")
 
 
 def write_docs(rows, line: str, size: dict, noise: tuple) -> None:
@@ -86,7 +95,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="32x32 texels, 40 poses (a few minutes)")
     ap.add_argument("--keep", metavar="DIR", default=None, help="write the capture and fits here and keep them")
     ap.add_argument("--docs", action="store_true", help="rewrite the coherence section of docs/accuracy-vs-time.md")
+    ap.add_argument("--coherence", nargs="+", metavar="MODE", default=list(MODES), choices=coherence_modes(),
+                    help=f"the Fit node's coherence modes to compare (default: {' '.join(MODES)})")
     args = ap.parse_args(argv)
+    modes = tuple(args.coherence)
     size = F.QUICK if args.quick else F.FULL
     n = size["texels"]
     workdir = Path(args.keep).resolve() if args.keep else Path(tempfile.mkdtemp(prefix="sbrdf-coherence-"))
@@ -103,7 +115,7 @@ def main(argv=None) -> int:
         if not (folder / "capture.json").exists():
             F.capture(folder, truth_url, "orbit", size, seed=3)
         gpath = workdir / "graph.yaml"
-        gpath.write_text(graph_text(folder, n))
+        gpath.write_text(graph_text(folder, n, modes))
         registry = Registry()
         graph = load_graph(gpath, registry)
         runner = Runner(registry, progress=False)
@@ -111,7 +123,7 @@ def main(argv=None) -> int:
         F.warm(workdir / "warm")
         region = F.region_interiors(n)
         figures, rows = {}, []
-        for mode in MODES:
+        for mode in modes:
             for name in F.REGION_FITS:
                 node = f"{mode}_{name}"
                 t0 = time.perf_counter()
@@ -125,11 +137,16 @@ def main(argv=None) -> int:
                 err = float(np.median(F.score(graph.url(node), truth_url)["rel"]))
                 figures.update({f"{node}_cv": cv, f"{node}_specks": sp, f"{node}_s": wall, f"{node}_moved": moved,
                                 f"{node}_held": held, f"{node}_err": err})
+                if "materials" in summary:
+                    figures[f"{node}_materials"] = int(summary["materials"])
                 rows.append((mode, name, wall, moved, cv, sp, held, err))
                 F.log(f"{node}: {wall:.1f} s, moved {moved:.3f}, cv {cv:.4f}, specks {sp}, held {held:.4g}, "
-                      f"unseen median {err:.4f}")
-        noise = F.spatial_cv(reg.create("brdf-model", "ggx-anisotropic", {}), F.noise_floor_fit(graph, truth_url),
-                             region)
+                      f"unseen median {err:.4f}, per quadrant cv {[round(c, 4) for c in F.region_cvs(model, params, region)]}"
+                      + (f", materials {summary['materials']}" if "materials" in summary else ""))
+        truth_model, floor_fit = reg.create("brdf-model", "ggx-anisotropic", {}), F.noise_floor_fit(graph, truth_url)
+        noise = F.spatial_cv(truth_model, floor_fit, region)
+        F.log(f"noise floor: cv {noise[0]:.4f}, specks {noise[1]}, per quadrant cv "
+              f"{[round(c, 4) for c in F.region_cvs(truth_model, floor_fit, region)]}")
         line = "coherence: " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                         for k, v in figures.items())
         line += f" noise_cv={noise[0]:.4g} noise_specks={noise[1]} texels={n * n} poses={size['orbit']}"

@@ -83,7 +83,8 @@ independently uniform in solid angle over θ ≤ 85°, plus ``PAIRS_MIRROR`` mir
   neighbourhood's median by more than 4× the neighbourhood's spread (:func:`sbrdf_core.coherence.specks`);
   ``noise_specks`` for the floor; ``specks``: their sum over the fits.  ``X_regions_median``: the median
   relative error at the scoring pairs.
-- ``--coherence none`` runs every Fit node with ``coherence: none``: the paired comparison.
+- ``--coherence MODE`` runs every Fit node with that ``coherence`` (``none``, ``neighbours``, ``pyramid``,
+  ``basis``: the Fit node's choices): the paired comparison.
 
 Sizes: full = 64×64 texels, 640×480 images, 90 orbit + 60 grazing poses (a few minutes on
 2 cores); ``--quick`` = 32×32 texels, 480×360 images, 40 + 30 poses (about a minute).
@@ -510,6 +511,22 @@ def region_interiors(n: int) -> np.ndarray:
     return np.where(inside, half[:, None] * 2 + half[None, :], -1)
 
 
+def region_cvs(model, params: dict, region: np.ndarray) -> list[float]:
+    """Per region (0..3) of parameter maps ``{name: (V, U, C)}``: the median over :func:`scoring_pairs` of the
+    coefficient of variation of luminance f_r across the region's texels (:func:`spatial_cv` takes the largest)."""
+    V, U = region.shape
+    T = V * U
+    flat = {k: v.reshape(T, -1) for k, v in params.items()}
+    wi, wo = scoring_pairs(1, seed=30)
+    y = _lum(model, flat, np.broadcast_to(wi, (T,) + wi.shape[1:]), np.broadcast_to(wo, (T,) + wo.shape[1:]))
+    y = y.reshape(V, U, -1)
+    cvs = []
+    for r in range(4):
+        vals = y[region == r]  # (texels, pairs)
+        cvs.append(float(np.median(vals.std(axis=0) / np.maximum(np.abs(vals.mean(axis=0)), 1e-12))))
+    return cvs
+
+
 def spatial_cv(model, params: dict, region: np.ndarray) -> tuple[float, int]:
     """``(cv, specks)`` of parameter maps ``{name: (V, U, C)}``: the largest over regions of the median over
     :func:`scoring_pairs` (128 pairs, unseen) of the coefficient of variation of luminance f_r across the
@@ -525,11 +542,7 @@ def spatial_cv(model, params: dict, region: np.ndarray) -> tuple[float, int]:
         return _lum(model, flat, np.broadcast_to(wi, (T,) + wi.shape[1:]),
                     np.broadcast_to(wo, (T,) + wo.shape[1:])).reshape(V, U, -1)
 
-    y = look(*scoring_pairs(1, seed=30))
-    cvs = []
-    for r in range(4):
-        vals = y[region == r]  # (texels, pairs)
-        cvs.append(float(np.median(vals.std(axis=0) / np.maximum(np.abs(vals.mean(axis=0)), 1e-12))))
+    cvs = region_cvs(model, params, region)
     t_i, t_o = np.radians(np.array(SPECK_RENDERS, np.float64)).T
     wi = np.stack([np.sin(t_i), np.zeros_like(t_i), np.cos(t_i)], axis=-1)[None]
     wo = np.stack([-np.sin(t_o), np.zeros_like(t_o), np.cos(t_o)], axis=-1)[None]
@@ -622,7 +635,9 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="32x32 texels, fewer poses and pixels (about a minute)")
     ap.add_argument("--keep", metavar="DIR", default=None, help="write materials, captures and fits here and keep them")
     ap.add_argument("--docs", action="store_true", help="rewrite the fidelity section of docs/accuracy-vs-time.md")
-    ap.add_argument("--coherence", choices=("neighbours", "none"), default=None,
+    from sbrdf_core.nodes.fit import FIT_PARAMS
+
+    ap.add_argument("--coherence", choices=next(p.choices for p in FIT_PARAMS if p.name == "coherence"), default=None,
                     help="the Fit nodes' coherence (default: the node's own default), for a paired comparison")
     args = ap.parse_args(argv)
     size = QUICK if args.quick else FULL
