@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import Any
 
 import numpy as np
 
 from sbrdf_core.errors import ParameterError
+from sbrdf_core.types import PluginRegistry
 
 from .declarations import LIGHT_ARC, MESOSTRUCTURE_ARC
 
@@ -78,14 +80,16 @@ class LightArcCapture:
         self.gonio_params = {"path": path, "motors": motors, "camera": camera, "light": light, "geometry": geometry,
                              "exposures": exposures, "read": read, "settle_s": settle_s, "image_format": image_format,
                              "durable": durable}
-        self.source = None
+        #: The ``gonio`` capture source (another plugin's, so reached through the registry), made in :meth:`bind`.
+        self.source: Any = None
 
-    def bind(self, registry) -> None:
+    def bind(self, registry: PluginRegistry) -> None:
         from sbrdf_lib.rig_geometry import RigGeometry
 
         geometry = self.gonio_params.get("geometry") or {}
         try:
-            g = RigGeometry(**{k: tuple(v) if isinstance(v, list) else v for k, v in geometry.items()})
+            values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in geometry.items()}
+            g = RigGeometry(**values)
             angles = light_arc_angles(self.theta_i_deg, g)
         except (TypeError, ValueError) as e:
             raise ParameterError(f"light-arc: {e}") from None

@@ -139,6 +139,7 @@ def lookup(data: ShadingData, uv: np.ndarray, value: np.ndarray, above_max: str 
             s = np.where(xc > 0, k * np.exp(K * np.log(np.where(xc > 0, xc, 1.0))), 0.0)
     else:
         S = data.slices
+        assert S is not None, "ShadingData holds the full stack when it is not compressed"
         N, V, U, C = S.shape
         f = xc * (N - 1)
         l0 = np.minimum(np.floor(f).astype(np.int64), N - 2) if N > 1 else np.zeros(f.shape, np.int64)

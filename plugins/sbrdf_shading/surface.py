@@ -77,8 +77,10 @@ class ShadingSurface:
 
         if self.data.compressed:
             return [("u_k_s_map", tex2d(self.data.k_s)), ("u_exponent_map", tex2d(self.data.exponent))]
-        N, V, U = self.data.slices.shape[:3]
-        t = ctx.texture3d((U, V, N), 3, np.ascontiguousarray(self.data.slices, np.float32).tobytes(), dtype="f4")
+        slices = self.data.slices
+        assert slices is not None, "ShadingData holds the full stack when it is not compressed"
+        N, V, U = slices.shape[:3]
+        t = ctx.texture3d((U, V, N), 3, np.ascontiguousarray(slices, np.float32).tobytes(), dtype="f4")
         t.filter = (moderngl.LINEAR, moderngl.LINEAR)
         t.repeat_x = t.repeat_y = True
         t.repeat_z = False
