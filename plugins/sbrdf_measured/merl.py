@@ -62,7 +62,8 @@ class MerlTable:
 
     @property
     def dims(self) -> tuple[int, int, int]:
-        return tuple(int(n) for n in self.f_r.shape[:3])
+        n_th, n_td, n_pd = self.f_r.shape[:3]
+        return int(n_th), int(n_td), int(n_pd)
 
     # -- lookups ---------------------------------------------------------------------------------------------
 
@@ -112,9 +113,9 @@ class MerlTable:
     def node_directions(self, stride=(1, 1, 1)) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
         """``(wi, wo, (i, j, k))``: the direction pair of every ``stride``-th entry (φh = 0), flattened."""
         n_th, n_td, n_pd = self.dims
-        i, j, k = np.meshgrid(np.arange(0, n_th, stride[0]), np.arange(0, n_td, stride[1]),
-                              np.arange(0, n_pd, stride[2]), indexing="ij")
-        i, j, k = i.ravel(), j.ravel(), k.ravel()
+        grids = np.meshgrid(np.arange(0, n_th, stride[0]), np.arange(0, n_td, stride[1]),
+                            np.arange(0, n_pd, stride[2]), indexing="ij")
+        i, j, k = (g.ravel() for g in grids)
         th, td, pd = node_angles(i, j, k, self.dims)
         wi, wo = half_diff_to_directions(th, td, pd)
         return wi, wo, (i, j, k)

@@ -70,7 +70,7 @@ class MerlFromModel(NodeKind):
         import dask.array as da
 
         p = ctx.params
-        model = ctx.registry.create("brdf-model", p["model"], dict(p["model_params"]))
+        model = ctx.plugins().create("brdf-model", p["model"], dict(p["model_params"]))
         values = model.defaults(1)
         for name, v in p["params"].items():
             if name not in values:
