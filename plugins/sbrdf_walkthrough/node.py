@@ -67,8 +67,9 @@ class Walkthrough(NodeKind):
         if scene.camera_path is None:
             raise ValueError(f"Walkthrough: {p['scene']} has no camera_path:")
         n = len(frames(scene))
-        renderer = ctx.registry.create("renderer", "gl", {"scene": p["scene"], "exposure": p["exposure"]})
-        renderer.bind(ctx.registry)
+        registry = ctx.plugins()
+        renderer = registry.create("renderer", "gl", {"scene": p["scene"], "exposure": p["exposure"]})
+        renderer.bind(registry)
         out: dict = {}
         work = tempfile.mkdtemp(prefix="sbrdf-walkthrough-")  # frames land beside the arrays in finalize
 
