@@ -61,7 +61,9 @@ def coherence_modes() -> tuple[str, ...]:
     """The Fit node's ``coherence`` choices, as its declaration lists them."""
     from sbrdf_core.nodes.fit import FIT_PARAMS
 
-    return next(p.choices for p in FIT_PARAMS if p.name == "coherence")
+    choices = next(p.choices for p in FIT_PARAMS if p.name == "coherence")
+    assert choices is not None  # declared as an enumeration
+    return choices
 
 
 def write_docs(rows, line: str, size: dict, noise: tuple) -> None:

@@ -120,6 +120,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -131,11 +132,11 @@ SIZE_MM = (100.0, 100.0)
 EFFECTS = ["falloff", "blur", "motor_error", "noise"]
 INTENSITY = 1.5e5
 
-FULL = {"texels": 64, "width": 640, "height": 480, "focal": 900.0, "orbit": 90, "grazing": 60, "render": [320, 240]}
-QUICK = {"texels": 32, "width": 480, "height": 360, "focal": 675.0, "orbit": 40, "grazing": 30, "render": [160, 120]}
+FULL: dict[str, Any] = {"texels": 64, "width": 640, "height": 480, "focal": 900.0, "orbit": 90, "grazing": 60, "render": [320, 240]}
+QUICK: dict[str, Any] = {"texels": 32, "width": 480, "height": 360, "focal": 675.0, "orbit": 40, "grazing": 30, "render": [160, 120]}
 
 #: fit name -> (truth material, scans, model, model_params)
-FITS = {
+FITS: dict[str, tuple[str, tuple[str, ...], str, dict]] = {
     "laf1": ("ct", ("orbit", "grazing"), "lafortune", {"lobes": 1}),
     "laf2": ("ct", ("orbit", "grazing"), "lafortune", {"lobes": 2}),
     "ward": ("ct", ("orbit", "grazing"), "ward", {}),
@@ -145,10 +146,10 @@ FITS = {
 #: Fit node parameters of a fit beyond the defaults: ``ct_fr`` is ``ct`` with its peak bound on f_r itself
 #: (``microfacet_peak: f_r``), the trade-off of fireflies against accuracy.  Extra keys only.
 NODE_PARAMS = {"ct_fr": {"microfacet_peak": "f_r"}}
-TRUTH = {"ct": ("cook-torrance", {"distribution": "ggx"}), "laf": ("lafortune", {"lobes": 2}),
+TRUTH: dict[str, tuple[str, dict]] = {"ct": ("cook-torrance", {"distribution": "ggx"}), "laf": ("lafortune", {"lobes": 2}),
          "regions": ("ggx-anisotropic", {})}
 #: Fits of the ``regions`` material (orbit scan), every model a user would pick: name -> (model, model_params).
-REGION_FITS = {"laf1": ("lafortune", {"lobes": 1}), "laf2": ("lafortune", {"lobes": 2}), "ward": ("ward", {}),
+REGION_FITS: dict[str, tuple[str, dict]] = {"laf1": ("lafortune", {"lobes": 1}), "laf2": ("lafortune", {"lobes": 2}), "ward": ("ward", {}),
                "ct": ("cook-torrance", {"distribution": "ggx"}), "ggxa": ("ggx-anisotropic", {})}
 #: The ``regions`` material's quadrants (v half, u half): plastic, gold, matte, brushed metal (ggx-anisotropic).
 REGIONS = {(0, 0): {"rho_d": (0.25, 0.08, 0.05), "f0": (0.04,) * 3, "alpha_t": 0.12, "alpha_b": 0.12, "phi": 0.0},
@@ -571,7 +572,7 @@ def noise_floor_fit(graph, truth_url: str) -> dict:
     lm = reg.create("fitter", "lm", {"model": model.name})
 
     class FromTruth:  # lm, started from the truth wherever it fits the whole grid
-        model_name, model_config = model.name, {}
+        model_name, model_config = model.name, dict[str, Any]()
 
         def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None):
             if initial is None and f_r.shape[0] == V * U:
