@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -10,6 +11,9 @@ from sbrdf_core.artifacts import ArraySpec, ArtifactKind
 from sbrdf_core.errors import SbrdfError
 from sbrdf_core.nodes.base import BuildContext, NodeKind, Output, Port
 from sbrdf_core.params import Param
+
+if TYPE_CHECKING:
+    from sbrdf_lib.scene import Scene
 
 LIGHT_MAPS = ArtifactKind(
     "LightMaps",
@@ -37,7 +41,7 @@ def environment(registry, scene, materials):
     return env
 
 
-def bake_scene(registry, scene_path: str, material=None) -> tuple[dict, dict, object]:
+def bake_scene(registry, scene_path: str, material=None) -> tuple[dict, dict, Scene]:
     """Bake and write the maps of the scene file; returns the maps, statistics and the scene."""
     from sbrdf_core.io import write_exr
     from sbrdf_lib.lightmap import map_path
