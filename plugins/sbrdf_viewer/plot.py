@@ -410,7 +410,8 @@ def plot_views(samples_url: str, out_dir: str | Path, params_url: str | None = N
 
 
 def error_maps(maps, path: Path) -> Path:
-    """``fit-error.png``: training RMS beside held-out RMS (one colour scale) and the texels each flag marks.
+    """``fit-error.png``: training RMS beside held-out RMS (one colour scale) and the texels each flag marks, and
+    with ``coherence: basis`` each texel's basis material.
 
     Held-out error is what the fit does where it was not trained; a texel much
     brighter on the right than on the left is overfit.
@@ -424,7 +425,11 @@ def error_maps(maps, path: Path) -> Path:
     bits = {int(b): text for b, text in maps.attrs.get("flag_bits", {}).items()}
     finite = np.concatenate([rms[np.isfinite(rms)], held[np.isfinite(held)]])
     vmax = float(np.percentile(finite, 99)) if finite.size else 1.0
-    fig, ax = plt.subplots(1, 3, figsize=(14, 4.4))
+    material = maps.read("material") if "material" in names else None
+    if material is None:
+        fig, ax = plt.subplots(1, 3, figsize=(14, 4.4))
+    else:  # room right of the flags for their legend
+        fig, ax = plt.subplots(1, 4, figsize=(20, 4.4), gridspec_kw={"wspace": 0.7})
     for a, data, title in ((ax[0], rms, "training RMS"), (ax[1], held, "held-out RMS (NaN: none held out)")):
         im = a.imshow(data, origin="lower", cmap="magma", vmin=0, vmax=vmax, interpolation="nearest")
         shown = data[np.isfinite(data)]
@@ -440,6 +445,12 @@ def error_maps(maps, path: Path) -> Path:
     ax[2].set_title("flags (highest bit per texel)", fontsize=9)
     handles = [plt.Rectangle((0, 0), 1, 1, color=plt.cm.tab10(i)) for i in range(len(labels))]
     ax[2].legend(handles, labels, fontsize=6, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    if material is not None:  # 255: no training samples, nothing clustered
+        shown = np.ma.masked_equal(np.asarray(material, int), 255)
+        ax[3].imshow(shown, origin="lower", cmap="tab20", vmin=-0.5, vmax=19.5, interpolation="nearest")
+        ax[3].set_title(f"basis material (labels per tile; up to {int(shown.max()) + 1 if shown.count() else 0})",
+                        fontsize=9)
+        ax[3].set_xlabel("u")
     fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return path

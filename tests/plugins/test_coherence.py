@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -313,3 +314,8 @@ def test_basis_writes_the_material_map_and_counts_it(write_graph, registry, tmp_
     fitted = np.asarray(art.read("samples")) > 0
     assert (label[fitted] < 2).all() and (label[~fitted] == 255).all()
     assert art.attrs["summary"]["materials"] == int(label[fitted].max()) + 1
+    assert json.dumps(art.attrs["summary"]).startswith('{"materials"')  # in what `sbrdf info` prints of it
+
+    from sbrdf_viewer.plot import error_maps  # `sbrdf plot` shows the map beside the flags
+
+    assert error_maps(art, tmp_path / "fit-error.png").stat().st_size > 0
