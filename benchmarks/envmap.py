@@ -136,7 +136,8 @@ def run(env: Path, res: tuple[int, int], ref_samples: int = 256, ref_frames: int
 
 def prefilter_times(env: Path) -> dict:
     """Building the five maps S(·, n) at 32² from the 32² cube (D is S with n = 1): GL pass against NumPy float64."""
-    from sbrdf_envmap import cubemap, prefilter
+    import sbrdf_envmap.cubemap as cubemap
+    import sbrdf_envmap.prefilter as prefilter
     from sbrdf_lib.gl import context
 
     src = cubemap.mip_chain(cubemap.load_environment(str(env), "latlong", 32))[0]

@@ -60,7 +60,7 @@ FULL = {"texels": 64, "width": 640, "height": 480, "focal": 900.0, "orbit": 160,
 QUICK = {"texels": 32, "width": 400, "height": 300, "focal": 560.0, "orbit": 150, "pairs": 1}
 
 #: fit name -> (model, model_params)
-FITS = {
+FITS: dict[str, tuple[str, dict]] = {
     "lambert": ("lambert", {}),
     "phong": ("phong", {}),
     "laf1": ("lafortune", {"lobes": 1}),

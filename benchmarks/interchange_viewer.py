@@ -16,9 +16,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-VIEW = {"eye": [0.3, -2.2, 1.6], "light": [0.8, -1.0, 1.5], "intensity": 6.0, "width": 480, "height": 360}
+VIEW: dict[str, Any] = {"eye": [0.3, -2.2, 1.6], "light": [0.8, -1.0, 1.5], "intensity": 6.0, "width": 480,
+                        "height": 360}
 
 
 def main(argv=None) -> int:

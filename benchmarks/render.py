@@ -251,7 +251,7 @@ void main() { v_pos = in_pos; v_normal = in_normal; v_uv = in_uv; gl_Position = 
             self.vao.render(moderngl.TRIANGLES)
         image, gpu, wall = self._finish(self.fbo, t0, read)
         # image is None for a frame not read back; sbrdf_lib.gl.Frame annotates it as always an array
-        return Frame(image, gpu, wall)  # type: ignore[arg-type]
+        return Frame(image, gpu, wall)
 
 
 def measure(obj: Path, resolution, frames: int, cells=None, warmup: int = 2) -> dict:
@@ -304,7 +304,9 @@ def gl_vs_cpu(obj: Path) -> tuple[float, float, int, float, float]:
     meshes: dict = {}
     d = GLScene(scene, materials, meshes)
     try:
-        img = d.draw().image.astype(np.float64)
+        frame = d.draw()
+        assert frame.image is not None  # draw() reads its frame back
+        img = frame.image.astype(np.float64)
         gl_ms = float(np.median([frame_ms(d) for _ in range(3)]))
     finally:
         d.release()

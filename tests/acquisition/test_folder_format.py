@@ -456,10 +456,12 @@ def test_a_pose_whose_every_pixel_is_negative_is_an_error_naming_pose_and_file(r
 
 def test_capture_modules_use_the_library_layer():
     """The format is in sbrdf_lib (writers in other packages share it); the capture plugins use those objects."""
+    import sbrdf_capture.folder as folder
+    import sbrdf_capture.response as response
+    import sbrdf_capture.synthetic as synthetic
     import sbrdf_lib.capture_folder as lib
     import sbrdf_lib.patterns
     import sbrdf_lib.response
-    from sbrdf_capture import folder, response, synthetic
 
     assert folder.manifest_sections is lib.manifest_sections and folder.read_image is lib.read_image
     assert response.ResponseCurve is sbrdf_lib.response.ResponseCurve
