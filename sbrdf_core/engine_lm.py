@@ -303,6 +303,76 @@ ON_BOUND = 1e-3
 
 
 @njit(cache=True, nogil=True)
+def project_moves(x, cfg, lim, lo, hi, before):
+    """Project ``x`` in place (the form's kernel); True if that moved it (``before``: scratch)."""
+    for k in range(x.size):
+        before[k] = x[k]
+    project(x, cfg, lim, lo, hi)
+    for k in range(x.size):
+        if abs(x[k] - before[k]) > 1e-9 * (1.0 + abs(before[k])):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def held_to_peak(x, cfg, widths, hi, log_bound, mi, mo, cos2, f, J, grad, scratch):
+    """``x`` widened to the peak bound (in place, :func:`widen`); True where the bound is active there, with
+    ``grad`` its log's gradient.  No ``widths``: no bound, False."""
+    if widths.size == 0:
+        return False
+    widen(x, cfg, widths, hi, log_bound, mi, mo, cos2, f, J, scratch)
+    return mirror_peak(x, cfg, mi, mo, cos2, f, J, grad) > log_bound - ON_BOUND
+
+
+@njit(cache=True, nogil=True)
+def descend(t, x, cfg, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, tolerance, damping, max_damping,
+            widths, log_bound, mi, mo, cos2, proj, lim, work):
+    """One Levenberg–Marquardt run of texel ``t`` from ``x`` (updated in place) inside its box ``lo``, ``hi``, as
+    :func:`solve` describes; ``widths`` empty: no peak bound.  Returns ``(cost, converged, iterations)``."""
+    A, A2, M, g, g2, step, trial, pinned, f, J, grad, grad2, y = work
+    K = x.size
+    on_bound = held_to_peak(x, cfg, widths, hi, log_bound, mi, mo, cos2, f, J, grad, trial)
+    cost = normal_equations(x, cfg, f_r, w, wi, wo, t, free, A, g, f, J)
+    lam = damping
+    done = not (cost > exact) or not math.isfinite(cost)
+    n = 0
+    while not done and n < iterations:
+        n += 1
+        if not box_step(x, A, g, lam, free, lo, hi, pinned, M, step):
+            lam *= 4.0
+            done = lam > max_damping
+            continue
+        if on_bound:
+            along_bound(M, grad, free, pinned, step, y)
+        trial_point(x, step, lo, hi, max_step, trial)
+        if proj:
+            projected_step(x, A, g, lam, free, lo, hi, max_step, cfg, lim, pinned, M, step, trial)
+        trial_on_bound = held_to_peak(trial, cfg, widths, hi, log_bound, mi, mo, cos2, f, J, grad2, y)
+        new_cost = normal_equations(trial, cfg, f_r, w, wi, wo, t, free, A2, g2, f, J)
+        if math.isfinite(new_cost) and new_cost < cost:
+            gain = (cost - new_cost) / max(cost, 1e-300)
+            for k in range(K):
+                x[k] = trial[k]
+                g[k] = g2[k]
+                grad[k] = grad2[k]
+                for b in range(K):
+                    A[k, b] = A2[k, b]
+            on_bound = trial_on_bound
+            cost = new_cost
+            lam = max(lam / 3.0, 1e-12)
+            done = gain < tolerance or cost <= exact
+        else:
+            size = 0.0
+            scale = 1e-12
+            for k in range(K):
+                size = max(size, abs(trial[k] - x[k]))
+                scale = max(scale, abs(x[k]))
+            lam *= 4.0
+            done = size <= 1e-9 * scale or lam > max_damping
+    return cost, done, n
+
+
+@njit(cache=True, nogil=True)
 def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, tolerance, damping, max_damping,
           widths, log_bound, mi, mo, cos2, projecting, lim, x_out, cost_out, converged_out, iterations_out):
     """Levenberg–Marquardt from ``x0`` for every texel, inside its box ``[lo, hi]``.
@@ -340,66 +410,18 @@ def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, to
         grad2 = np.empty(K)
         y = np.empty(K)
         bounded = widths.size > 0 and math.isfinite(log_bound[t])
+        work = (A, A2, M, g, g2, step, trial, pinned, f, J, grad, grad2, y)
         cost, done, used = 0.0, False, 0
         # With a projection: a pass inside the box first, then, where the projection moves its result, a pass
         # with every iterate projected from there.  Why: LM that projects from the start stops early, each
         # projected step gaining little, far from the point the unprojected pass reaches.
         for stage in range(2 if projecting else 1):
             proj = projecting and stage == 1
-            if proj:
-                for k in range(K):
-                    y[k] = x[k]
-                project(x, cfg, lim[t], lo[t], hi[t])
-                moved = False
-                for k in range(K):
-                    moved = moved or abs(x[k] - y[k]) > 1e-9 * (1.0 + abs(y[k]))
-                if not moved:
-                    break
-            on_bound = False
-            if bounded:
-                widen(x, cfg, widths, hi[t], log_bound[t], mi, mo, cos2, f, J, trial)
-                on_bound = mirror_peak(x, cfg, mi, mo, cos2, f, J, grad) > log_bound[t] - ON_BOUND
-            cost = normal_equations(x, cfg, f_r, w, wi, wo, t, free, A, g, f, J)
-            lam = damping
-            done = not (cost > exact[t]) or not math.isfinite(cost)
-            n = 0
-            while not done and n < iterations:
-                n += 1
-                if not box_step(x, A, g, lam, free, lo[t], hi[t], pinned, M, step):
-                    lam *= 4.0
-                    if lam > max_damping:
-                        done = True
-                    continue
-                if on_bound:
-                    along_bound(M, grad, free, pinned, step, y)
-                trial_point(x, step, lo[t], hi[t], max_step, trial)
-                if proj:
-                    projected_step(x, A, g, lam, free, lo[t], hi[t], max_step, cfg, lim[t], pinned, M, step, trial)
-                trial_on_bound = False
-                if bounded:
-                    widen(trial, cfg, widths, hi[t], log_bound[t], mi, mo, cos2, f, J, y)
-                    trial_on_bound = mirror_peak(trial, cfg, mi, mo, cos2, f, J, grad2) > log_bound[t] - ON_BOUND
-                new_cost = normal_equations(trial, cfg, f_r, w, wi, wo, t, free, A2, g2, f, J)
-                if math.isfinite(new_cost) and new_cost < cost:
-                    gain = (cost - new_cost) / max(cost, 1e-300)
-                    for k in range(K):
-                        x[k] = trial[k]
-                        g[k] = g2[k]
-                        grad[k] = grad2[k]
-                        for b in range(K):
-                            A[k, b] = A2[k, b]
-                    on_bound = trial_on_bound
-                    cost = new_cost
-                    lam = max(lam / 3.0, 1e-12)
-                    done = gain < tolerance or cost <= exact[t]
-                else:
-                    size = 0.0
-                    scale = 1e-12
-                    for k in range(K):
-                        size = max(size, abs(trial[k] - x[k]))
-                        scale = max(scale, abs(x[k]))
-                    lam *= 4.0
-                    done = size <= 1e-9 * scale or lam > max_damping
+            if proj and not project_moves(x, cfg, lim[t], lo[t], hi[t], y):
+                break
+            cost, done, n = descend(t, x, cfg, lo[t], hi[t], free, max_step, f_r, w, exact[t], wi, wo, iterations,
+                                    tolerance, damping, max_damping, widths if bounded else widths[:0], log_bound[t],
+                                    mi, mo, cos2, proj, lim[t], work)
             used += n
         for k in range(K):
             x_out[t, k] = x[k]
