@@ -199,16 +199,7 @@ class _Translator:
     def infer(self, stmts) -> None:
         for s in stmts:
             if isinstance(s, ast.Assign):
-                for target, value in self.pairs(s):
-                    if isinstance(target, ast.Name):
-                        try:
-                            e = self.ex(value)
-                        except _Pending:
-                            continue
-                        if target.id in self.once and e.value is not None:
-                            self.consts[target.id] = e.value
-                        else:
-                            self.unify(target.id, e.type, s)
+                self._infer_assign(s)
             elif isinstance(s, ast.AugAssign) and isinstance(s.target, ast.Name):
                 try:
                     self.unify(s.target.id, self.binop(s.op, self.ex(s.target), self.ex(s.value), s).type, s)
@@ -225,20 +216,35 @@ class _Translator:
                     self.infer(s.body)
                     self.infer(s.orelse)
             elif isinstance(s, ast.For):
-                name = s.target.id if isinstance(s.target, ast.Name) else ""
-                if self.is_range(s.iter) or not name:
-                    if name and name not in self.counters:  # also assigned outside its loops: declared
-                        self.unify(name, "int", s)
-                    self.loops.append(name)
-                    self.infer(s.body)
-                    self.loops.pop()
+                self._infer_for(s)
+
+    def _infer_assign(self, s: ast.Assign) -> None:
+        for target, value in self.pairs(s):
+            if isinstance(target, ast.Name):
+                try:
+                    e = self.ex(value)
+                except _Pending:
+                    continue
+                if target.id in self.once and e.value is not None:
+                    self.consts[target.id] = e.value
                 else:
-                    try:
-                        for e in self.items(s):
-                            self.unify(name, e.type, s)
-                    except _Pending:
-                        pass
-                    self.infer(s.body)
+                    self.unify(target.id, e.type, s)
+
+    def _infer_for(self, s: ast.For) -> None:
+        name = s.target.id if isinstance(s.target, ast.Name) else ""
+        if self.is_range(s.iter) or not name:
+            if name and name not in self.counters:  # also assigned outside its loops: declared
+                self.unify(name, "int", s)
+            self.loops.append(name)
+            self.infer(s.body)
+            self.loops.pop()
+            return
+        try:
+            for e in self.items(s):
+                self.unify(name, e.type, s)
+        except _Pending:
+            pass
+        self.infer(s.body)
 
     # -- expressions --------------------------------------------------------------------------------
 
@@ -450,11 +456,8 @@ class _Translator:
             self.fail(node, f"{ast.unparse(node)!r} mixing {', '.join(sorted(types))}")
         return es
 
-    def _Call(self, n):
-        fn = self.callee(n.func)
-        name = next((glsl for py, glsl in _CALLS.items() if py is fn), None)
-        if name is None or n.keywords:
-            self.fail(n, f"the call {ast.unparse(n)!r}")
+    def call_args(self, n: ast.Call, name: str) -> list[E]:
+        """The arguments of a call of the GLSL function ``name``: as many as it takes, of the types it takes."""
         args = [self.ex(a) for a in n.args]
         arity = _ARITY.get(name, 1)
         if (len(args) < 2) if arity is None else len(args) != arity:
@@ -462,6 +465,14 @@ class _Translator:
         for a, node in zip(args, n.args):
             if a.type not in (("int", "float", "bool") if name in ("int", "float") else ("int", "float")):
                 self.fail(node, f"{ast.unparse(n.func)} of a {a.type}")
+        return args
+
+    def _Call(self, n):
+        fn = self.callee(n.func)
+        name = next((glsl for py, glsl in _CALLS.items() if py is fn), None)
+        if name is None or n.keywords:
+            self.fail(n, f"the call {ast.unparse(n)!r}")
+        args = self.call_args(n, name)
         if all(a.value is not None for a in args):
             try:
                 return self.lit(fn(*(a.value for a in args)), n)
@@ -602,28 +613,29 @@ class _Translator:
     def _s_For(self, s):
         if s.orelse or not isinstance(s.target, ast.Name):
             self.fail(s, "for with else, or with more than one name")
-        v = s.target.id
+        if self.is_range(s.iter):
+            self._for_range(s, s.target.id)
+        else:
+            self._for_items(s, s.target.id)
+
+    def _for_items(self, s: ast.For, v: str) -> None:
+        """``for v in (a, b, ...)``: a GLSL array of the items and an index over it."""
+        es = self.items(s)
+        self.serial += 1
+        seq, i = f"py_items{self.serial}", f"py_i{self.serial}"
+        t, n = self.types[v], len(es)
+        self.emit(f"{t} {seq}[{n}] = {t}[{n}](" + ", ".join(self.to(t, e, s).code for e in es) + ");")
+        self.emit(f"for (int {i} = 0; {i} < {n}; ++{i}) {{")
+        self.emit(f"    {glsl_name(v)} = {seq}[{i}];")
+        self.block(s.body, indent=True)
+        self.emit("}")
+
+    def _for_range(self, s: ast.For, v: str) -> None:
+        """``for v in range(...)``: a counted GLSL loop, its bounds and counter not changed in the body."""
         name = glsl_name(v)
         body_stores = {n.id for b in s.body for n in ast.walk(b) if isinstance(n, ast.Name)
                        and isinstance(n.ctx, ast.Store)}
-        if not self.is_range(s.iter):
-            es = self.items(s)
-            self.serial += 1
-            seq, i = f"py_items{self.serial}", f"py_i{self.serial}"
-            t, n = self.types[v], len(es)
-            self.emit(f"{t} {seq}[{n}] = {t}[{n}](" + ", ".join(self.to(t, e, s).code for e in es) + ");")
-            self.emit(f"for (int {i} = 0; {i} < {n}; ++{i}) {{")
-            self.emit(f"    {name} = {seq}[{i}];")
-            self.block(s.body, indent=True)
-            self.emit("}")
-            return
-        args = [self.ex(a) for a in s.iter.args]
-        if not 1 <= len(args) <= 3 or s.iter.keywords or any(a.type != "int" for a in args):
-            self.fail(s, f"{ast.unparse(s.iter)!r} (range of one to three ints)")
-        start, stop, step = (self.lit(0, s), args[0], self.lit(1, s)) if len(args) == 1 else (*args[:2], (
-            args[2] if len(args) == 3 else self.lit(1, s)))
-        if not step.value:
-            self.fail(s, "a range whose step is not a nonzero constant")
+        start, stop, step = self._range(s)
         if v in body_stores:
             self.fail(s, f"assigning to the loop counter {v!r} in its loop")
         if {n.id for n in ast.walk(s.iter) if isinstance(n, ast.Name)} & body_stores:
@@ -638,6 +650,19 @@ class _Translator:
         self.block(s.body, indent=True)
         self.loops.pop()
         self.emit("}")
+
+    def _range(self, s: ast.For) -> tuple[E, E, E]:
+        """``(start, stop, step)`` of ``for _ in range(...)``: one to three ints, the step a nonzero constant."""
+        call = s.iter
+        assert isinstance(call, ast.Call)  # is_range
+        args = [self.ex(a) for a in call.args]
+        if not 1 <= len(args) <= 3 or call.keywords or any(a.type != "int" for a in args):
+            self.fail(s, f"{ast.unparse(call)!r} (range of one to three ints)")
+        start, stop, step = (self.lit(0, s), args[0], self.lit(1, s)) if len(args) == 1 else (*args[:2], (
+            args[2] if len(args) == 3 else self.lit(1, s)))
+        if not step.value:
+            self.fail(s, "a range whose step is not a nonzero constant")
+        return start, stop, step
 
     def _s_Return(self, s):
         if s.value is not None and not (isinstance(s.value, ast.Constant) and s.value.value is None):
