@@ -23,6 +23,34 @@ from .lafortune_bounds import EXPONENT_BOUNDS
 LIMITS = ("peak", "has_peak", "n_cap", "growth", "sin2_max_theta", "cos2_max_theta")
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _bound_lobe(x, at, C, A, budget, n_cap, growth, s2, c2, scales):
+    """One lobe of :func:`project_kernel` (its ρ_s at ``x[at]``, then C and log n): the exponent capped, ρ_s
+    within the budget, |C| within what the peak allows at the horizon.  Writes ``scales`` = (ρ_s scale, C scale,
+    new n) and returns the lobe's peak."""
+    n_lo, n_hi = EXPONENT_BOUNDS
+    n = math.exp(x[at + C + A])
+    nn = min(max(min(n, n_cap), n_lo), n_hi)
+    rmax = -np.inf
+    for c in range(C):
+        rmax = max(rmax, x[at + c])
+    rs = budget / (rmax if rmax > 0.0 else 1.0) if rmax > budget else 1.0
+    r = rmax * rs
+    log_m = math.log(budget / r) / nn if (r > 0.0 and budget < np.inf) else np.inf
+    if growth >= 0.0:
+        log_m = min(log_m, math.log(max(growth, 1.0)) / nn)
+    m_allowed = math.exp(min(log_m, 50.0))
+    # at a horizon of 0° only C_z = 1 counts: no bound on C
+    c_allowed = max((m_allowed - c2) / s2, 1.0) if s2 > 0.0 else np.inf
+    cabs = 0.0
+    for a in range(A):
+        cabs = max(cabs, abs(x[at + C + a]))
+    cs = c_allowed / (cabs if cabs > 0.0 else 1.0) if cabs > c_allowed else 1.0
+    m = max(1.0, cabs * cs * s2 + c2)
+    scales[0], scales[1], scales[2] = rs, cs, nn
+    return r * math.exp(min(nn * math.log(m), 700.0))
+
+
 def project_kernel(x, cfg, lim, lo, hi):
     """:meth:`LafortuneFitForm.constrain` on one packed row ``x``, in place: the fitting engine's projection.
 
@@ -34,9 +62,8 @@ def project_kernel(x, cfg, lim, lo, hi):
     K = x.shape[0]
     L, A, C = int(cfg[0]), 2 if cfg[1] != 0.0 else 1, 3
     peak, has_peak, n_cap, growth, s2, c2 = lim[0], lim[1] != 0.0, lim[2], lim[3], lim[4], lim[5]
-    n_lo, n_hi = EXPONENT_BOUNDS
-    work = np.empty((4, L))
-    r_scale, c_scale, n_new, peaks = work[0], work[1], work[2], work[3]
+    work = np.empty((3, L))  # per lobe: ρ_s scale, C scale, new n
+    r_scale, c_scale, n_new = work[0], work[1], work[2]
     for k in range(K):
         x[k] = min(max(x[k], lo[k]), hi[k])
     budget = np.inf
@@ -46,31 +73,9 @@ def project_kernel(x, cfg, lim, lo, hi):
             x[c] = min(x[c], peak)
             rmax_d = max(rmax_d, x[c])
         budget = max(peak - rmax_d, 0.0)
-    finite = budget < np.inf
     total = 0.0
     for j in range(L):
-        at = C + j * (C + A + 1)  # this lobe's rho_s; then its C and log n
-        n = math.exp(x[at + C + A])
-        nn = min(max(min(n, n_cap), n_lo), n_hi)
-        rmax = -np.inf
-        for c in range(C):
-            rmax = max(rmax, x[at + c])
-        rs = budget / (rmax if rmax > 0.0 else 1.0) if rmax > budget else 1.0
-        r = rmax * rs
-        log_m = math.log(budget / r) / nn if (r > 0.0 and finite) else np.inf
-        if growth >= 0.0:
-            log_m = min(log_m, math.log(max(growth, 1.0)) / nn)
-        m_allowed = math.exp(min(log_m, 50.0))
-        # at a horizon of 0° only C_z = 1 counts: no bound on C
-        c_allowed = max((m_allowed - c2) / s2, 1.0) if s2 > 0.0 else np.inf
-        cabs = 0.0
-        for a in range(A):
-            cabs = max(cabs, abs(x[at + C + a]))
-        cs = c_allowed / (cabs if cabs > 0.0 else 1.0) if cabs > c_allowed else 1.0
-        m = max(1.0, cabs * cs * s2 + c2)
-        peaks[j] = r * math.exp(min(nn * math.log(m), 700.0))
-        total += peaks[j]
-        r_scale[j], c_scale[j], n_new[j] = rs, cs, nn
+        total += _bound_lobe(x, C + j * (C + A + 1), C, A, budget, n_cap, growth, s2, c2, work[:, j])
     share = budget / (total if total > 0.0 else 1.0) if total > budget else 1.0
     for j in range(L):
         at = C + j * (C + A + 1)
