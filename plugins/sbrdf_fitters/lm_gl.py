@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -72,6 +73,49 @@ def gradient_glsl(model) -> str:
     return glsl
 
 
+@dataclass
+class _Device:
+    """LM on the GPU for a set of texels: every trial point projected in the shader (``constrained``), or by a
+    ``project`` on the CPU (stepwise); costs come back in sr⁻² (residuals are scaled by each texel's RMS,
+    ``scale``, on the device)."""
+
+    src: str
+    f_r: np.ndarray
+    wi: np.ndarray
+    wo: np.ndarray
+    scale: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    free: np.ndarray
+    max_step: np.ndarray | None
+    packed: tuple | None
+    tile: int
+    tolerance: float
+    damping: float
+    timings: dict
+    in_shader: bool
+
+    def __call__(self, x, weight, iterations, idx, project=None, constrained=None):
+        """Texels ``idx`` from ``x`` (``weight``: their rows) for up to ``iterations``: ``(x, cost, converged)``."""
+        constrained = self.in_shader if constrained is None else constrained
+        w = weight / self.scale[idx, None]
+        status = (~(w > 0).any(axis=1)).astype(np.float32)
+        fw = self.f_r[idx] * w[..., None]
+        exact = EXACT32 * np.einsum("tsc,tsc->t", fw, fw)
+        opts = dict(lo=self.lo, hi=self.hi, free=self.free, iterations=iterations, tolerance=self.tolerance,
+                    damping=self.damping, timings=self.timings, max_step=self.max_step)
+        if project is None:
+            lim = (self.packed[0][idx], self.packed[1], self.packed[2]) if constrained and self.packed else None
+            x, cost, converged, _ = lm_gl_device.call(lm_gl_device.run_tiles, self.src, x, status, exact,
+                                                      self.f_r[idx], w, self.wi[idx], self.wo[idx], tile=self.tile,
+                                                      limits=lim, **opts)
+        else:
+            x, cost, converged, _ = lm_gl_device.call(lm_gl_device.run_stepwise, self.src, x, status, exact,
+                                                      self.f_r[idx], w, self.wi[idx], self.wo[idx], project=project,
+                                                      **opts)
+        return x, cost * self.scale[idx] ** 2, converged
+
+
 class GLLevenbergMarquardtFitter:
     """The ``lm-gl`` fitter: ``lm``'s fit, with the per-texel iterations in OpenGL compute shaders."""
 
@@ -97,31 +141,18 @@ class GLLevenbergMarquardtFitter:
 
     def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None) -> FitResult:
         """``initial`` (model form): one LM run from it, no other starts."""
-        if self.loss not in LOSSES:
-            raise ValueError(f"lm-gl: loss {self.loss!r} is not one of {', '.join(LOSSES)}")
-        if self.weighting not in WEIGHTINGS:
-            raise ValueError(f"lm-gl: weighting {self.weighting!r} is not one of {', '.join(WEIGHTINGS)}")
+        self._check()
         glsl = gradient_glsl(model)
         t0 = time.perf_counter()
         f_r, valid = usable_samples(f_r, valid)
         form = model.fit_form()
-        T, K = f_r.shape[0], form.size
+        T = f_r.shape[0]
         lo, hi = form.bounds()
         max_step = optional(form, "max_step", "brdf-model")
-        free = np.ones(K, bool)
-        slices = form.slices()
-        for name in self.fixed:
-            if name not in slices:
-                raise ValueError(f"lm-gl: fixed parameter {name!r} is not a parameter of {form.name}; "
-                                 f"known: {', '.join(slices)}")
-            free[slices[name]] = False
+        free = self._free(form)
         project = projector(form, limits)
         everyone = np.arange(T)
-        constrain = optional(model, "glsl_fit_constrain", "brdf-model") if project is not None else None
-        in_shader = constrain is not None  # every trial point projected in the shader: no stepwise refit
-        widths = getattr(form, "peak_widths", lambda: None)()
-        along = in_shader and widths is not None and widths.size > 0  # a widening model's bound
-        src = lm_gl_shader.source(glsl, K, constrain() if constrain is not None else None, along)
+        src, in_shader = self._shader(model, form, glsl, project is not None)
         packed = (pack_limits(limits, T), *scalars(limits)) if in_shader else None
         plain_weight = valid.astype(np.float64)
         base = sample_weights(f_r, valid, WEIGHTINGS[self.weighting])  # lm's objective: sbrdf_lib.lm.fit_model
@@ -134,43 +165,11 @@ class GLLevenbergMarquardtFitter:
         scale = np.maximum(np.sqrt(energy / np.maximum(3 * n, 1)), 1e-6)  # residuals in units of the texel's RMS
         self._add("starts_s", time.perf_counter() - t0)
 
-        def gpu(x, weight, iterations, idx=everyone, project=None, constrained=in_shader):
-            """LM on the GPU for texels ``idx`` (``weight``: their rows): every trial point projected in the shader
-            (``constrained``), or by ``project`` on the CPU (stepwise); the cost comes back in sr⁻² (unscaled)."""
-            w = weight / scale[idx, None]
-            status = (~(w > 0).any(axis=1)).astype(np.float32)
-            fw = f_r[idx] * w[..., None]
-            exact = EXACT32 * np.einsum("tsc,tsc->t", fw, fw)
-            opts = dict(lo=lo, hi=hi, free=free, iterations=iterations, tolerance=self.tolerance, damping=self.damping,
-                        timings=self.timings, max_step=max_step)
-            if project is None:
-                lim = (packed[0][idx], packed[1], packed[2]) if constrained and packed is not None else None
-                x, cost, converged, _ = lm_gl_device.call(lm_gl_device.run_tiles, src, x, status, exact, f_r[idx], w,
-                                                          wi[idx], wo[idx], tile=self.tile, limits=lim, **opts)
-            else:
-                x, cost, converged, _ = lm_gl_device.call(lm_gl_device.run_stepwise, src, x, status, exact, f_r[idx],
-                                                          w, wi[idx], wo[idx], project=project, **opts)
-            return x, cost * scale[idx] ** 2, converged
+        gpu = _Device(src, f_r, wi, wo, scale, lo, hi, free, max_step, packed, self.tile, self.tolerance, self.damping,
+                      self.timings, in_shader)
 
         def descend(x0, idx=everyone):
-            """The GPU fit of texels ``idx`` from ``x0`` (with the robust loss's reweighting); a texel float32 could
-            not follow keeps its start, flagged."""
-            x, weight = x0, base[idx]
-            for _ in range(1 if self.loss == "linear" else IRLS_ROUNDS):
-                x, cost, converged = gpu(x, weight, self.iterations, idx)
-                if self.loss != "linear":
-                    weight = robust_weights(form, x, f_r[idx], valid[idx], wi[idx], wo[idx], self.loss,
-                                            self.loss_scale) * base[idx]
-            if self.loss != "linear":
-                cost = gpu(x, base[idx], 0, idx, constrained=False)[1]
-            broken = ~(np.isfinite(x).all(axis=1) & np.isfinite(cost))
-            if broken.any():
-                b = np.flatnonzero(broken)
-                x[b], converged[b] = x0[b], False
-                t = idx[b]
-                cost[b] = np.nan_to_num(total_cost(least_squares(form, f_r[t], base[t], wi[t], wo[t]), x0[b]),
-                                        nan=np.inf)
-            return x, cost, converged
+            return self._descend(gpu, form, f_r, valid, wi, wo, base, x0, idx)
 
         best = None
         for x0 in x_starts:
@@ -181,26 +180,7 @@ class GLLevenbergMarquardtFitter:
             best = rescue(form, best, f_r, valid, wi, wo, base, self.seed, free, limits, descend, 1e-6)
         x, cost, converged, restarted = best
         if project is not None and self.loss == "linear" and not in_shader:
-            # A model without glsl_fit_constrain: texels whose fit left their limits get lm's constrained fit
-            # (every trial point projected on the CPU) on the GPU, stepwise, from the same starts.
-            t1 = time.perf_counter()
-            moved = np.flatnonzero((np.abs(project(x, everyone) - x) > 1e-6 * (1.0 + np.abs(x))).any(axis=1))
-            if moved.size:
-                sub_project = projector(form, limits.take(moved))
-                assert sub_project is not None  # limits are set: project is not None
-                inside = None
-                for x0 in x_starts:
-                    xs, cs, conv = gpu(x0[moved], base[moved], self.iterations, moved,
-                                       lambda v, i: sub_project(v, i))
-                    if inside is None:
-                        inside = [xs, cs, conv]
-                    else:
-                        b = cs < inside[1] * (1 - 1e-6)
-                        inside[0][b], inside[1][b], inside[2][b] = xs[b], cs[b], conv[b]
-                assert inside is not None
-                x[moved], cost[moved], converged[moved] = inside
-            self._add("stepwise_texels", moved.size)
-            self._add("stepwise_s", time.perf_counter() - t1)
+            self._stepwise(form, gpu, project, limits, x_starts, base, x, cost, converged)
         if self.cpu_finish and self.loss == "linear" and (project is None or in_shader):
             # Texels still improving after `iterations` (lm leaves as many unconverged): another `iterations` on the
             # GPU from where they stopped, as the CPU finish would run them; only what is left goes to the CPU.
@@ -217,6 +197,75 @@ class GLLevenbergMarquardtFitter:
         flags = np.where(converged, 0, NOT_CONVERGED).astype(np.uint8)
         rms = np.sqrt(np.maximum(cost, 0.0) / np.maximum(f_r.shape[-1] * n, 1))
         return FitResult(form.to_model(form.unpack(x)), rms, n, flags, restarted=restarted)
+
+    def _check(self) -> None:
+        if self.loss not in LOSSES:
+            raise ValueError(f"lm-gl: loss {self.loss!r} is not one of {', '.join(LOSSES)}")
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"lm-gl: weighting {self.weighting!r} is not one of {', '.join(WEIGHTINGS)}")
+
+    @staticmethod
+    def _shader(model, form, glsl: str, limited: bool) -> tuple[str, bool]:
+        """The compute shader's source, and whether it projects every trial point onto the limits itself (a model
+        with ``glsl_fit_constrain``, where there are ``limited``) rather than the CPU, stepwise."""
+        constrain = optional(model, "glsl_fit_constrain", "brdf-model") if limited else None
+        widths = getattr(form, "peak_widths", lambda: None)()
+        along = constrain is not None and widths is not None and widths.size > 0  # a widening model's bound
+        return lm_gl_shader.source(glsl, form.size, constrain() if constrain is not None else None, along), \
+            constrain is not None
+
+    def _descend(self, gpu, form, f_r, valid, wi, wo, base, x0, idx):
+        """The GPU fit of texels ``idx`` from ``x0`` (with the robust loss's reweighting); a texel float32 could
+        not follow keeps its start, flagged."""
+        x, weight = x0, base[idx]
+        for _ in range(1 if self.loss == "linear" else IRLS_ROUNDS):
+            x, cost, converged = gpu(x, weight, self.iterations, idx)
+            if self.loss != "linear":
+                weight = robust_weights(form, x, f_r[idx], valid[idx], wi[idx], wo[idx], self.loss,
+                                        self.loss_scale) * base[idx]
+        if self.loss != "linear":
+            cost = gpu(x, base[idx], 0, idx, constrained=False)[1]
+        broken = ~(np.isfinite(x).all(axis=1) & np.isfinite(cost))
+        if broken.any():
+            b = np.flatnonzero(broken)
+            x[b], converged[b] = x0[b], False
+            t = idx[b]
+            cost[b] = np.nan_to_num(total_cost(least_squares(form, f_r[t], base[t], wi[t], wo[t]), x0[b]), nan=np.inf)
+        return x, cost, converged
+
+    def _free(self, form) -> np.ndarray:
+        """``(K,)`` True where a packed parameter is fitted, False for those named in ``fixed``."""
+        free = np.ones(form.size, bool)
+        slices = form.slices()
+        for name in self.fixed:
+            if name not in slices:
+                raise ValueError(f"lm-gl: fixed parameter {name!r} is not a parameter of {form.name}; "
+                                 f"known: {', '.join(slices)}")
+            free[slices[name]] = False
+        return free
+
+    def _stepwise(self, form, gpu, project, limits, x_starts, base, x, cost, converged) -> None:
+        """A model without glsl_fit_constrain: texels whose fit left their limits get lm's constrained fit (every
+        trial point projected on the CPU) on the GPU, stepwise, from the same starts; ``x``, ``cost``,
+        ``converged`` updated in place."""
+        t1 = time.perf_counter()
+        everyone = np.arange(x.shape[0])
+        moved = np.flatnonzero((np.abs(project(x, everyone) - x) > 1e-6 * (1.0 + np.abs(x))).any(axis=1))
+        if moved.size:
+            sub_project = projector(form, limits.take(moved))
+            assert sub_project is not None  # limits are set: project is not None
+            inside = None
+            for x0 in x_starts:
+                xs, cs, conv = gpu(x0[moved], base[moved], self.iterations, moved, lambda v, i: sub_project(v, i))
+                if inside is None:
+                    inside = [xs, cs, conv]
+                else:
+                    b = cs < inside[1] * (1 - 1e-6)
+                    inside[0][b], inside[1][b], inside[2][b] = xs[b], cs[b], conv[b]
+            assert inside is not None
+            x[moved], cost[moved], converged[moved] = inside
+        self._add("stepwise_texels", moved.size)
+        self._add("stepwise_s", time.perf_counter() - t1)
 
     def _add(self, key: str, seconds: float) -> None:
         self.timings[key] = self.timings.get(key, 0.0) + seconds
