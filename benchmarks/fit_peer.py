@@ -318,11 +318,12 @@ class TimedFitter:
 
     def __init__(self, fitter):
         self.fitter, self.cpu_s = fitter, 0.0
+        self.model_name, self.model_config = fitter.model_name, fitter.model_config
 
-    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False):
+    def fit(self, model, f_r, valid, wi, wo, *, limits=None, rms=True, usable=False, initial=None):
         c0 = time.process_time()
         try:
-            return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms, usable=usable)
+            return self.fitter.fit(model, f_r, valid, wi, wo, limits=limits, rms=rms, usable=usable, initial=initial)
         finally:
             self.cpu_s += time.process_time() - c0
 

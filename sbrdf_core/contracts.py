@@ -139,6 +139,10 @@ class BRDFModel(Protocol):
     def unpack(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """The inverse of :meth:`pack`."""
 
+    @property
+    def size(self) -> int:
+        """Length of the packed per-texel vector (the base class: the sum of the parameters' channels)."""
+
 
 @runtime_checkable
 class Fitter(Protocol):

@@ -46,7 +46,7 @@ from ..constraints import (
     neighbourhood_min,
     sample_support,
 )
-from ..contracts import optional
+from ..contracts import BRDFModel, Fitter, optional
 from ..geometry import tile_directions
 from ..params import Param
 from .base import BuildContext, NodeKind, Output, Port, shared
@@ -281,7 +281,8 @@ def _neighbour_pool(grid: tuple[int, int], texels: np.ndarray, *arrays):
     return out
 
 
-def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, options=FitOptions(), block_info=None,
+def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter, model: BRDFModel,
+             options=FitOptions(), block_info=None,
              holdout_at: tuple[tuple[int, int], int] | None = None):
     """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + len(EXTRA))`` = packed parameters and :data:`EXTRA`.
 
@@ -428,7 +429,8 @@ def fit_block(poses: int, tile: tuple[int, int], budget: int | None = None) -> i
     return int(min(rows, max(1, samples // (max(cols, 1) * max(poses, 1)))))
 
 
-def _fit_rows(grid, f_r, valid, light_pos, camera_pos, texels, size_mm, fitter, model, options, tile,
+def _fit_rows(grid, f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter, model: BRDFModel, options,
+              tile,
               block_info=None) -> np.ndarray:
     """Kernel: rows ``v0:v1`` of a stored tile -> what :func:`fit_tile` gives those rows of the whole tile.
 
