@@ -92,6 +92,22 @@ def texel_cost(x, cfg, f_r, w, wi, wo, t, f, J):
 
 
 @njit(cache=True, nogil=True)
+def cholesky_solve(M, v):
+    """Solve ``L Lᵀ u = v`` in place, ``L`` the lower triangle of ``M`` (a Cholesky factor)."""
+    K = v.size
+    for i in range(K):
+        a = v[i]
+        for k in range(i):
+            a -= M[i, k] * v[k]
+        v[i] = a / M[i, i]
+    for i in range(K - 1, -1, -1):
+        a = v[i]
+        for k in range(i + 1, K):
+            a -= M[k, i] * v[k]
+        v[i] = a / M[i, i]
+
+
+@njit(cache=True, nogil=True)
 def damped_step(A, g, lam, free, pinned, M, step):
     """Solve ``(A + λ diag A) step = −g`` over the free, unpinned parameters by Cholesky; False if it fails."""
     K = g.size
@@ -119,16 +135,7 @@ def damped_step(A, g, lam, free, pinned, M, step):
             for k in range(j):
                 v -= M[i, k] * M[j, k]
             M[i, j] = v / d
-    for i in range(K):
-        v = step[i]
-        for k in range(i):
-            v -= M[i, k] * step[k]
-        step[i] = v / M[i, i]
-    for i in range(K - 1, -1, -1):
-        v = step[i]
-        for k in range(i + 1, K):
-            v -= M[k, i] * step[k]
-        step[i] = v / M[i, i]
+    cholesky_solve(M, step)
     for i in range(K):
         if not math.isfinite(step[i]):
             return False
@@ -263,16 +270,7 @@ def along_bound(M, grad, free, pinned, step, y):
         along += y[k] * step[k]
     if not along > 0.0:
         return
-    for i in range(K):
-        v = y[i]
-        for k in range(i):
-            v -= M[i, k] * y[k]
-        y[i] = v / M[i, i]
-    for i in range(K - 1, -1, -1):
-        v = y[i]
-        for k in range(i + 1, K):
-            v -= M[k, i] * y[k]
-        y[i] = v / M[i, i]
+    cholesky_solve(M, y)
     denom = 0.0
     for k in range(K):
         denom += (grad[k] if (free[k] != 0 and not pinned[k]) else 0.0) * y[k]
