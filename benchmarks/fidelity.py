@@ -1,4 +1,4 @@
-"""Fidelity of fitted materials at directions the fit never saw (issue 20, "Show").
+"""Fidelity of fitted materials at directions the fit never saw.
 
 What it measures
 ----------------
@@ -356,7 +356,7 @@ def hemisphere_max(model, params, wi_s, wo_s) -> np.ndarray:
     return np.maximum(out, _lum(model, params, wi, wo).max(axis=1))
 
 
-#: Today's main before issue 20 (9a90d69), this script at full size on the 2-core VM, 2026-11-25.
+#: main at 9a90d69, before the held-out scoring and the bounds, this script at full size on the 2-core VM.
 BEFORE_WEIGHTING = ("laf1 median 0.184 / p90 0.966, laf2 0.153 / 0.950, ward 0.131 / 0.850, ct 0.365 / 1.615; "
                     "fireflies 3325 (all ct)")
 BASELINE = ("laf1 median 0.164 / p90 1.07, laf2 0.175 / 1.12, ward 0.210 / 1.09, ct 0.421 / 3.98; fireflies 4134 "
@@ -404,7 +404,7 @@ def write_docs(rows, line: str, size: dict, wall_s: float, figures: dict) -> Non
         "",
         f"`{line}`",
         "",
-        f"Before issue 20 (same script, same data): {BASELINE}.",
+        f"At 9a90d69, before the held-out scoring and the bounds (same script, same data): {BASELINE}.",
         "",
         f"Before `weighting: shot-noise` became `lm`'s default (absolute least squares; same data, same "
         f"registration): {BEFORE_WEIGHTING}.",

@@ -1,4 +1,4 @@
-"""Fitting: the project's LM against what a scientist writes without it, paired, per CPU second (issue 27).
+"""Fitting: the project's LM against what a scientist writes without it, paired, per CPU second.
 
 What it measures
 ----------------

@@ -1,4 +1,4 @@
-"""Materials in and out (issue 24): conversion errors and times of every import and export path, in one line.
+"""Materials in and out: conversion errors and times of every import and export path, in one line.
 
 Runs the four measurements, each a script of its own that can also be run alone:
 
