@@ -99,6 +99,7 @@ from sbrdf_lib.rig_geometry import RigGeometry, forward
 from sbrdf_lib.serial.errors import DeviceError, LinkLost, SoftLimitError
 
 from .declarations import GONIO
+from .read_back import ReadBack
 
 if TYPE_CHECKING:
     from sbrdf_core.registry import Registry
@@ -193,9 +194,10 @@ def _fmt_angles(angles: dict) -> str:
     return ", ".join(f"{k}={v:.4f}" for k, v in angles.items())
 
 
-class GonioCapture:
+class GonioCapture(ReadBack):
     """Capture source driving motors + camera through a pose plan (see the module docstring)."""
 
+    source = "gonio"
     #: Hardware: the runner takes poses one at a time, in plan order, in this process.
     sequential = True
 
@@ -470,16 +472,6 @@ class GonioCapture:
             sample=sample, camera=camera, light=light,
         )
 
-    def calibrate(self, *, dark_offset: np.ndarray | None = None, dark_rate: np.ndarray | None = None,
-                  flat: np.ndarray | None = None) -> None:
-        """Dark model and flat field of the Capture node's ``dark``/``flat`` inputs: the folder reader applies them
-        (:meth:`sbrdf_capture.folder.FolderCapture.calibrate`)."""
-        if self.reader is None:
-            from sbrdf_core.registry import default_registry
-
-            self.bind(default_registry())
-        self._folder_reader().calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
-
     def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Take the poses up to ``index`` that the folder lacks, then read pose ``index`` back from the folder."""
         angles, times = self.planned()
@@ -494,10 +486,6 @@ class GonioCapture:
         if self._complete:
             return self._folder_reader().read_pose(int(index))
         return self._folder_reader().read_record(self._folder_writer().poses[int(index)], f"pose {int(index)}")
-
-    def read_report(self) -> tuple[str, dict] | None:
-        """What reading the poses back found (the folder plugin's :meth:`~sbrdf_capture.folder.FolderCapture.read_report`)."""
-        return self.reader.read_report() if self.reader is not None else None
 
     # -- session ------------------------------------------------------------------------------------
 
@@ -542,11 +530,6 @@ class GonioCapture:
             section["response"] = "linear"
         section["device"] = info
         return section
-
-    def _folder_reader(self) -> FolderCapture:
-        """The ``folder`` reader every pose is read back through; :meth:`bind` creates it."""
-        assert self.reader is not None, "gonio: the folder reader is used before bind()"
-        return self.reader
 
     def _folder_writer(self) -> CaptureFolderWriter:
         """The folder writer; poses are taken only after :meth:`_start` opened it (an unfinished capture)."""

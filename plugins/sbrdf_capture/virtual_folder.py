@@ -53,6 +53,7 @@ from sbrdf_core.errors import ParameterError
 from sbrdf_core.nodes.capture import CaptureDescription
 
 from .declarations import VIRTUAL_FOLDER
+from .read_back import ReadBack
 
 if TYPE_CHECKING:
     from sbrdf_core.registry import Registry
@@ -69,9 +70,10 @@ def _jsonable(value: Any) -> Any:
     return json.loads(json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
-class VirtualFolderCapture:
+class VirtualFolderCapture(ReadBack):
     """Capture source: render a camera device's photographs into a capture folder, read it back (module docstring)."""
 
+    source = SOURCE
     params = VIRTUAL_FOLDER
 
     def __init__(self, *, path: str, camera: dict = {"device": "virtual-camera", "params": {}},  # noqa: B006
@@ -263,26 +265,7 @@ class VirtualFolderCapture:
         reader.manifest = None  # (re)read the finished folder as the folder plugin would
         return reader.describe()
 
-    def calibrate(self, *, dark_offset: np.ndarray | None = None, dark_rate: np.ndarray | None = None,
-                  flat: np.ndarray | None = None) -> None:
-        """Dark model and flat field of the Capture node's ``dark``/``flat`` inputs: the folder reader applies them
-        (:meth:`sbrdf_capture.folder.FolderCapture.calibrate`)."""
-        if self.reader is None:
-            from sbrdf_core.registry import default_registry
-
-            self.bind(default_registry())
-        self._folder_reader().calibrate(dark_offset=dark_offset, dark_rate=dark_rate, flat=flat)
-
     def read_pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         if not self._ready:
             self.describe()
         return self._folder_reader().read_pose(int(index))
-
-    def _folder_reader(self) -> FolderCapture:
-        """The ``folder`` reader the finished folder is read through; :meth:`bind` creates it."""
-        assert self.reader is not None, f"{SOURCE}: the folder reader is used before bind()"
-        return self.reader
-
-    def read_report(self) -> tuple[str, dict] | None:
-        """What reading the folder back found (the folder plugin's :meth:`~sbrdf_capture.folder.FolderCapture.read_report`)."""
-        return self.reader.read_report() if self.reader is not None else None
