@@ -32,7 +32,7 @@ def _note(name: str) -> str:
 
 
 def _kernel_name(dispatcher) -> str:
-    """``lafortune_kernels.constrain_packed``: the module's last part and the function's name; for the fitting
+    """``geometry_compiled.kernel``: the module's last part and the function's name; for the fitting
     engine's loops (``sbrdf_core.engine``), which loop and the model whose kernel it is compiled around."""
     func = getattr(dispatcher, "py_func", None)
     if func is None:

@@ -357,10 +357,6 @@ OPTIONAL: dict[str, dict[str, OptionalMember]] = {
                                    "step along its direction (`sbrdf_lib.lm.limit_step`), so a Gauss–Newton step "
                                    "far past where the model is near linear does not cost a run of rejected "
                                    "trials.", None),
-        "constrain_packed": OptionalMember("`constrain_packed(x, limits) -> x` (on the fit form): `constrain` on packed "
-                                           "fit-form rows `(T, K)`, compiled; `lm` projects every trial point with "
-                                           "it. Without it: `constrain` on the unpacked parameters (NumPy passes "
-                                           "over every row at every trial, a visible share of a Fit tile).", None),
         "project_kernel": OptionalMember("`project_kernel(x, cfg, lim, lo, hi)` (a module-level function, on the fit "
                                          "form): `constrain` on one packed row `x` in place, inside the box `lo`, `hi`, "
                                          "with `lim` the texel's row of `project_limits(limits, T) -> (T, m)`; the "

@@ -40,7 +40,7 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "integrate", "over_texels", "solve_linear", "solver",
+__all__ = ["CompiledProblem", "cache_dir", "compiled_problem", "evaluate", "integrate", "over_texels", "project", "solve_linear", "solver",
            "threads"]
 
 _TEMPLATE = Path(__file__).with_name("engine_lm.py")
@@ -143,6 +143,20 @@ def _c(a, dtype=np.float64):
     return np.ascontiguousarray(a, dtype=dtype)
 
 
+def _box(form, bounds, limits, T: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each texel's box ``(T, K)``: ``bounds`` tightened by the part of ``limits`` the form's ``limit_box`` holds."""
+    K = len(bounds[0])
+    lo = np.broadcast_to(np.asarray(bounds[0], np.float64), (T, K)).copy()
+    hi = np.broadcast_to(np.asarray(bounds[1], np.float64), (T, K)).copy()
+    box = getattr(form, "limit_box", None)
+    return box(limits, lo, hi) if limits is not None and box is not None else (lo, hi)
+
+
+def _compiled(form):
+    """The solver module of ``form``'s kernels (:func:`solver`) and its kernel configuration."""
+    return solver(form.kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config())
+
+
 class CompiledProblem:
     """The least-squares problem of a fit form with a ``kernel``, for :func:`sbrdf_lib.lm.levenberg_marquardt`.
 
@@ -154,9 +168,8 @@ class CompiledProblem:
         self.form = form
         self.f_r, self.wi, self.wo = _c(f_r), _c(wi), _c(wo)
         self.weight = _c(np.broadcast_to(weight, f_r.shape[:2]))
-        self.cfg = _c(form.kernel_config())
         self._project = getattr(form, "project_kernel", None)
-        self._mod = solver(form.kernel, self._project)
+        self._mod, self.cfg = _compiled(form)
         widths = getattr(form, "peak_widths", None)
         self._widths = None if widths is None else widths()
         #: Whether the compiled loop holds the whole of ``form.constrain`` (its box, and its peak widening or the
@@ -192,17 +205,12 @@ class CompiledProblem:
                             max_step):
         """Every texel's LM in the compiled loop, inside the box the form's bounds and ``limits`` make.
 
-        Returns ``(x, cost, converged)``, or None where ``limits`` ask for more
-        than a box can hold and the form has no ``limit_box`` to say how
-        (the caller then projects the result and refines what moved).
+        Returns ``(x, cost, converged)``.  Where the form's ``constrain`` holds more than the box, its peak
+        widening and its projection kernel (``projects`` False), the caller projects the result and refines what
+        moved.
         """
         T, K = x0.shape
-        lo = np.broadcast_to(np.asarray(bounds[0], np.float64), (T, K)).copy()
-        hi = np.broadcast_to(np.asarray(bounds[1], np.float64), (T, K)).copy()
-        if limits is not None:
-            box = getattr(self.form, "limit_box", None)
-            if box is not None:
-                lo, hi = box(limits, lo, hi)
+        lo, hi = _box(self.form, bounds, limits, T)
         step = np.full(K, np.inf) if max_step is None else np.asarray(max_step, np.float64)
         x, cost, converged = np.empty((T, K)), np.empty(T), np.empty(T, np.bool_)
         used = np.empty(T, np.int64)
@@ -257,7 +265,7 @@ def evaluate(model, params, wi, wo) -> np.ndarray | None:
     x = form.pack(params if form is model else form.from_model(params))
     wi, wo = _c(np.broadcast_to(wi, (T, S, 3))), _c(np.broadcast_to(wo, (T, S, 3)))
     out = np.empty((T, S, getattr(form, "channels", 3)))
-    mod, cfg, x = solver(kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config()), _c(x)
+    (mod, cfg), x = _compiled(form), _c(x)
     over_texels(T, lambda a, b: mod.evaluate(cfg, x[a:b], wi[a:b], wo[a:b], out[a:b]), T * S)
     return out
 
@@ -274,8 +282,23 @@ def integrate(model, params, wi, wo, weights) -> np.ndarray | None:
     x = _c(form.pack(params if form is model else form.from_model(params)))
     wi, wo, weights = _c(np.broadcast_to(wi, (T, 3))), _c(wo), _c(weights)
     out = np.empty((T, getattr(form, "channels", 3)))
-    mod, cfg = solver(kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config())
+    mod, cfg = _compiled(form)
     over_texels(T, lambda a, b: mod.weighted_sums(cfg, x[a:b], wi[a:b], wo, weights, out[a:b]), T * len(wo))
+    return out
+
+
+def project(form, x, limits) -> np.ndarray | None:
+    """Packed fit-form rows ``x`` ``(T, K)`` onto each texel's ``limits`` by the form's ``project_kernel`` inside its
+    box: ``form.constrain``, compiled (what the starting points and LM's NumPy loop project with).  None where the
+    form has no projection kernel."""
+    if getattr(form, "project_kernel", None) is None or getattr(form, "kernel", None) is None:
+        return None
+    T = x.shape[0]
+    lo, hi = (_c(b) for b in _box(form, form.bounds(), limits, T))
+    out = np.empty((T, x.shape[1]))
+    x, lim = _c(x), _c(form.project_limits(limits, T))
+    mod, cfg = _compiled(form)
+    over_texels(T, lambda a, b: mod.project_rows(cfg, x[a:b], lim[a:b], lo[a:b], hi[a:b], out[a:b]), T * x.shape[1])
     return out
 
 
@@ -288,7 +311,7 @@ def solve_linear(form, x, free, f_r, weight, wi, wo) -> np.ndarray:
     out = np.empty((T, K))
     x, free = _c(x), _c(free, np.uint8)
     f_r, wi, wo, w = _c(f_r), _c(wi), _c(wo), _c(np.broadcast_to(weight, np.shape(f_r)[:2]))
-    mod, cfg = solver(form.kernel, getattr(form, "project_kernel", None)), _c(form.kernel_config())
+    mod, cfg = _compiled(form)
     over_texels(T, lambda a, b: mod.linear_solve(cfg, x[a:b], free, lo, hi, f_r[a:b], w[a:b], wi[a:b], wo[a:b],
                                                  out[a:b]), T * f_r.shape[1])
     return out

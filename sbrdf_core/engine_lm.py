@@ -429,6 +429,15 @@ def solve(cfg, x0, lo, hi, free, max_step, f_r, w, exact, wi, wo, iterations, to
 
 
 @njit(cache=True, nogil=True)
+def project_rows(cfg, x, lim, lo, hi, out):
+    """The form's projection kernel on every row of ``x`` inside its box row, into ``out``."""
+    for t in range(x.shape[0]):
+        for k in range(x.shape[1]):
+            out[t, k] = x[t, k]
+        project(out[t], cfg, lim[t], lo[t], hi[t])
+
+
+@njit(cache=True, nogil=True)
 def linear_solve(cfg, x, free, lo, hi, f_r, w, wi, wo, out):
     """Each texel's ``free`` parameters solved by weighted least squares with the others held, clipped to
     ``[lo, hi]``, into ``out``: one Gauss–Newton step, exact where f_r is affine in them (the magnitudes).  A

@@ -88,29 +88,27 @@ def levenberg_marquardt(problem, x0: np.ndarray, bounds: tuple[np.ndarray, np.nd
     step may move each parameter (the form's optional ``max_step``): a longer
     step is shortened along its direction (:func:`limit_step`).  Returns ``(x, cost, converged)``; texels whose
     weights are all zero stay at ``x0``.  A problem with its own
-    ``levenberg_marquardt`` (the compiled Lafortune one) runs this same
-    iteration per texel in its kernel where the projection is the form's own
-    (:class:`Projection`).
+    ``levenberg_marquardt`` (the fitting engine's, :mod:`sbrdf_core.engine`)
+    runs this same iteration per texel in its compiled loop where the
+    projection is the form's own (:class:`Projection`).
     """
     T, K = x0.shape
     lo, hi = bounds
     free = np.ones(K, bool) if free is None else np.asarray(free, bool)
     compiled = getattr(problem, "levenberg_marquardt", None)
     if compiled is not None and (project is None or (isinstance(project, Projection) and project.form is problem.form)):
-        out = compiled(x0, bounds, iterations=iterations, tolerance=tolerance, damping=damping, free=free,
-                       limits=None if project is None else project.limits, exact=EXACT, max_damping=MAX_DAMPING,
-                       max_step=max_step)
-        if out is not None:
-            if project is None or getattr(problem, "projects", True):
-                return out
-            # The engine held the box; project onto the rest of the limits and refine, inside them, what moved.
-            x, cost, converged = out
-            xp = project(x, np.arange(T))
-            moved = np.flatnonzero(np.abs(xp - x).max(axis=1) > 1e-9 * (1.0 + np.abs(x).max(axis=1)))
-            if moved.size:
-                x[moved], cost[moved], converged[moved] = _lm_loop(
-                    problem, xp[moved], moved, bounds, iterations, tolerance, damping, free, project, max_step)
+        x, cost, converged = compiled(x0, bounds, iterations=iterations, tolerance=tolerance, damping=damping,
+                                      free=free, limits=None if project is None else project.limits, exact=EXACT,
+                                      max_damping=MAX_DAMPING, max_step=max_step)
+        if project is None or getattr(problem, "projects", True):
             return x, cost, converged
+        # The engine held the box; project onto the rest of the limits and refine, inside them, what moved.
+        xp = project(x, np.arange(T))
+        moved = np.flatnonzero(np.abs(xp - x).max(axis=1) > 1e-9 * (1.0 + np.abs(x).max(axis=1)))
+        if moved.size:
+            x[moved], cost[moved], converged[moved] = _lm_loop(
+                problem, xp[moved], moved, bounds, iterations, tolerance, damping, free, project, max_step)
+        return x, cost, converged
     return _lm_loop(problem, x0, np.arange(T), bounds, iterations, tolerance, damping, free, project, max_step)
 
 
@@ -207,17 +205,21 @@ def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx
 
 class Projection:
     """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows of texels ``idx`` through
-    ``form.constrain`` onto their ``limits``, or the form's compiled ``constrain_packed`` where it has one.  A
-    problem that solves LM itself (``levenberg_marquardt``) reads ``form`` and ``limits`` to project there."""
+    ``form.constrain`` onto their ``limits``, compiled where the form has a projection kernel
+    (:func:`sbrdf_core.engine.project`).  A problem that solves LM itself (``levenberg_marquardt``) reads ``form``
+    and ``limits`` to project there."""
 
     def __init__(self, form, limits):
         self.form, self.limits = form, limits
-        self._packed = optional(form, "constrain_packed", "brdf-model")
 
     def __call__(self, x, idx):
-        if self._packed is not None:
-            return self._packed(x, self.limits.take(idx))
-        params, _ = self.form.constrain(self.form.unpack(x), self.limits.take(idx))
+        from sbrdf_core.engine import project
+
+        limits = self.limits.take(idx)
+        out = project(self.form, x, limits)
+        if out is not None:
+            return out
+        params, _ = self.form.constrain(self.form.unpack(x), limits)
         return self.form.pack(params)
 
 

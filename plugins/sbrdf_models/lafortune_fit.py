@@ -267,18 +267,6 @@ class LafortuneFitForm(LafortuneModel):
         out[:, 3] = -1.0 if limits.growth is None else float(limits.growth)
         return out
 
-    def constrain_packed(self, x, limits):
-        """:meth:`constrain` on packed rows ``x`` ``(T, K)``, compiled (:attr:`project_kernel` row by row): how the
-        starting points and LM's NumPy loop project."""
-        if not self.lobes:
-            return self.pack(self.constrain(self.unpack(x), limits)[0])
-        from .lafortune_kernels import constrain_packed
-
-        lo, hi = self.bounds()
-        return constrain_packed(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(self.kernel_config()),
-                                self.project_limits(limits, x.shape[0]), np.asarray(lo, np.float64),
-                                np.asarray(hi, np.float64))
-
     def constrain(self, params, limits):
         """:func:`bound_lobes` directly on the fit form (C_z = 1 already, log n)."""
         out, changed = BRDFModel.constrain(self, params, limits)

@@ -1,9 +1,8 @@
 """The projection of packed Lafortune fit-form rows onto a texel's limits, as a kernel.
 
 The fitting engine compiles :func:`project_kernel` into its loop and projects
-every iterate with it;
-:meth:`~sbrdf_models.lafortune_fit.LafortuneFitForm.constrain_packed` runs it
-over rows for the starting points.  Its bounds are the peak a lobe may reach
+every iterate with it, and the starting points through it
+(:func:`sbrdf_core.engine.project`).  Its bounds are the peak a lobe may reach
 anywhere on the hemisphere and the sharpness the samples resolve: the same numbers as
 :meth:`~sbrdf_models.lafortune_fit.LafortuneFitForm.constrain`, which the tests
 compare it with.  Packed layout (as :meth:`LafortuneFitForm.pack`):
@@ -86,16 +85,3 @@ def project_kernel(x, cfg, lim, lo, hi):
             x[at + C + a] *= c_scale[j]
         x[at + C + A] = math.log(n_new[j])
     return True
-
-
-_compiled_row = njit(cache=True, nogil=True, error_model="numpy")(project_kernel)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def constrain_packed(x, cfg, lim, lo, hi):
-    """:func:`project_kernel` on every packed row of ``x`` ``(T, K)`` with its row of ``lim`` ``(T, 6)``, as a
-    new array: the projection of LM's NumPy loop and of the starting points."""
-    out = x.copy()
-    for t in range(x.shape[0]):
-        _compiled_row(out[t], cfg, lim[t], lo, hi)
-    return out

@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy.ndimage import maximum_filter
 
+from sbrdf_core import engine
 from sbrdf_core.brdf_checks import energy_report, energy_violations, hemisphere_max
 from sbrdf_core.constraints import Limits, _compiled_negated_cosines, angular_resolution, enforce, mirror_peak
 from sbrdf_core.geometry import fibonacci_hemisphere
@@ -433,7 +434,7 @@ def test_lafortune_albedo_bound_is_reached_by_a_lobe_about_the_normal(registry, 
        growth=st.one_of(st.none(), st.floats(0.0, 10.0)), max_theta=st.floats(0.5, 90.0), spread=st.floats(0.0, 3.0))
 def test_compiled_fit_form_projection_equals_constrain(registry, lobes, aniso, seed, peak, resolution, growth,
                                                        max_theta, spread):
-    """What LM projects every trial point with (``constrain_packed``, compiled) is the fit form's ``constrain``,
+    """What LM projects with (the fit form's ``project_kernel`` compiled, ``engine.project``) is its ``constrain``,
     to round-off: over points far outside the bounds (magnitudes to 10^±spread, exponents to 10^9, |C| to 40),
     each bound on or off, the horizon bound from 0.5° to 90°."""
     form = registry.create("brdf-model", "lafortune", {"lobes": lobes, "anisotropic": aniso}).fit_form()
@@ -450,7 +451,7 @@ def test_compiled_fit_form_projection_equals_constrain(registry, lobes, aniso, s
                     resolution=None if resolution is None else rng.uniform(resolution / 10, resolution, T),
                     growth=growth, max_theta=float(np.radians(max_theta)))
     want = form.pack(form.constrain(form.unpack(x), limits)[0])
-    got = form.constrain_packed(x, limits)
+    got = engine.project(form, x, limits)
     assert np.isfinite(got).all()
     # libm's exp and log against NumPy's differ by an ulp; |C|'s bound divides by sin² θ_max (3e-4 at 1°), so the
     # difference grows to ~1e-12 there.
