@@ -31,7 +31,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .coherence import _cost, appearance
+from .coherence import appearance, training_cost
 
 #: Clusters a tile may have (the ``materials`` parameter's bound), and the most tried when it is 0.
 MAX_MATERIALS = 16
@@ -209,10 +209,10 @@ def basis(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarr
         pf, pw, pi, po = pool(groups, f_r, train, wi, wo)
         starts = [np.asarray(fit(pf, pw, pi, po, typical, None), np.float64),
                   np.asarray(fit(pf, pw, pi, po, typical, x[typical]), np.float64)]
-        cost = [np.where(np.isfinite(c), c, np.inf) for c in (_cost(model, s, pf, pw, pi, po) for s in starts)]
+        cost = [np.where(np.isfinite(c), c, np.inf) for c in (training_cost(model, s, pf, pw, pi, po) for s in starts)]
         solution = np.where((cost[1] < cost[0])[:, None], starts[1], starts[0])
         m = solution.shape[0]
-        cross = np.stack([_cost(model, np.broadcast_to(solution[i], (m, solution.shape[1])), pf, pw, pi, po)
+        cross = np.stack([training_cost(model, np.broadcast_to(solution[i], (m, solution.shape[1])), pf, pw, pi, po)
                           for i in range(m)])
         return solution, np.where(np.isfinite(cross), cross, np.inf)
 
@@ -236,7 +236,7 @@ def basis(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarr
     # texels left out of the clustering (a non-finite fit of their own): the cluster whose solution fits them best
     rest = np.flatnonzero(has & (label == NO_LABEL))
     if rest.size:
-        costs = np.stack([_cost(model, np.broadcast_to(solution[j], (rest.size, x.shape[1])), f_r[rest], train[rest],
+        costs = np.stack([training_cost(model, np.broadcast_to(solution[j], (rest.size, x.shape[1])), f_r[rest], train[rest],
                                 wi[rest], wo[rest]) for j in range(m)], axis=1)
         label[rest] = np.argmin(np.where(np.isfinite(costs) & ok[None], costs, np.inf), axis=1)
     cand = np.flatnonzero(has & ok[np.maximum(label, 0)])
@@ -246,7 +246,7 @@ def basis(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarr
     refined = np.asarray(refit(cand, model.unpack(start)), np.float64)
 
     def cost(rows: np.ndarray, v: np.ndarray) -> np.ndarray:
-        c = _cost(model, v, f_r[rows], train[rows], wi[rows], wo[rows])
+        c = training_cost(model, v, f_r[rows], train[rows], wi[rows], wo[rows])
         return np.where(np.isfinite(c), c, np.inf)
 
     # judged as they will leave the node: held to the texel's bounds, its own solution as `coherence: none` leaves

@@ -79,7 +79,7 @@ def _appearance_pairs(n: int = 32) -> tuple[np.ndarray, np.ndarray]:
 APPEARANCE_PAIRS = _appearance_pairs()
 
 
-def _cost(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+def training_cost(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """Each texel's plain training cost Σ (f_r(x) − f_r)² at its packed model-form row of ``x``: by the fit kernel
     in one compiled pass where the model has one (no ``(T, S, C)`` arrays), else by ``eval``."""
     from .engine import compiled_problem
@@ -149,7 +149,7 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
     x = np.array(x, np.float64)
     T, K = x.shape
     has = np.asarray(train.any(axis=1), bool)
-    own = _cost(model, x, f_r, train, wi, wo)
+    own = training_cost(model, x, f_r, train, wi, wo)
     cost = np.where(has & np.isfinite(own), own, np.inf)
     dof = np.maximum(train.sum(axis=1) * f_r.shape[-1] - K, 1)
     # the noise allowance is the texel's own fit's, once: sweeps must not add it up
@@ -157,20 +157,24 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
     moved = np.zeros(T, bool)
     look = appearance(model, x)
     dev = np.zeros(T)
+    # Texels whose outcome can differ from the last sweep's: at first all; then those within two texels of one
+    # that moved (a candidate is a neighbour's solution, and oddness reads the neighbours' consensus, which
+    # reads theirs).  Elsewhere the sweep would score the same candidates against the same costs again.
+    active = np.ones(T, bool)
     for sweep in range(sweeps + 1):
         middle = consensus(look, grid)
         dev = distance(look, middle)
-        odd = _odd(dev, has, grid, outlier_distance)
+        odd = _odd(dev, has, grid, outlier_distance) & active
         best_cost, best_x = cost * (1 - margin), x.copy()
         near, near_x = np.full(T, np.inf), np.full_like(x, np.nan)
         # the coherent candidates: the parent's solution (coarse to fine, first sweep only), then each neighbour's
         candidates = [(parent, None)] if parent is not None and sweep == 0 else []
         candidates += zip(ring(x, grid, fill=np.nan), ring(look, grid, fill=np.nan))
         for xn, ln in candidates:
-            rows = np.flatnonzero(has & np.isfinite(xn).all(axis=1))
+            rows = np.flatnonzero(active & has & np.isfinite(xn).all(axis=1))
             if rows.size == 0:
                 continue
-            c = _cost(model, xn[rows], f_r[rows], train[rows], wi[rows], wo[rows])
+            c = training_cost(model, xn[rows], f_r[rows], train[rows], wi[rows], wo[rows])
             better = c < best_cost[rows]
             best_cost[rows[better]], best_x[rows[better]] = c[better], xn[rows[better]]
             if ln is None:  # the parent is no neighbour to look like
@@ -188,7 +192,7 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
         refined = np.asarray(refit(cand, model.unpack(start), prior), np.float64)
         if project is not None:  # judged as they will leave the node: inside the texel's own bounds
             start, refined = project(cand, start), project(cand, refined)
-        c_r, c_s = (_cost(model, v, f_r[cand], train[cand], wi[cand], wo[cand]) for v in (refined, start))
+        c_r, c_s = (training_cost(model, v, f_r[cand], train[cand], wi[cand], wo[cand]) for v in (refined, start))
         c_r, c_s = (np.where(np.isfinite(v), v, np.inf) for v in (c_r, c_s))
         b = better[cand]
         # a worse minimum: the lower of the refit and the neighbour's solution, if lower than the texel's own
@@ -208,7 +212,15 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
         cost[rows] = np.where(take_refit, c_r, c_s)[take_refit | take_start]
         look[rows] = appearance(model, new_x)
         moved[rows] = True
+        active = np.zeros(T, bool)
+        active[rows] = True
+        active = _near(_near(active, grid), grid)
     return x, moved, _odd(dev, has, grid, outlier_distance)
+
+
+def _near(mask: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """``mask`` grown by one texel in each direction (diagonals included)."""
+    return mask | ring(mask, grid, fill=False).any(axis=0)
 
 
 def _odd(dev: np.ndarray, has: np.ndarray, grid: tuple[int, int], threshold: float) -> np.ndarray:

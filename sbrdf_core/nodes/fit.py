@@ -29,6 +29,7 @@ import logging
 import time
 import warnings
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -47,6 +48,7 @@ from ..constraints import (
     sample_support,
 )
 from ..contracts import BRDFModel, Fitter, optional
+from ..errors import SbrdfError
 from ..geometry import tile_directions
 from ..params import Param
 from .base import BuildContext, NodeKind, Output, Port, shared
@@ -283,14 +285,15 @@ def _neighbour_pool(grid: tuple[int, int], texels: np.ndarray, *arrays):
 
 def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter, model: BRDFModel,
              options=FitOptions(), block_info=None,
-             holdout_at: tuple[tuple[int, int], int] | None = None):
+             holdout_at: tuple[tuple[int, int], int] | None = None, start: tuple | None = None):
     """Kernel: a ``(v, u, P, 3)`` tile -> ``(v, u, K + len(EXTRA))`` = packed parameters and :data:`EXTRA`.
 
     Non-finite samples are dropped before the fitter sees them, and whatever
     the fitter returns, no NaN or inf reaches the parameter maps: such texels
     get the model's defaults and a flag saying why.  ``rms_holdout`` is NaN
     where a texel had no held-out sample.  ``holdout_at`` = ``(tile origin, draws to skip)`` seeds the
-    held-out split of a block that is part of a stored tile (:func:`_fit_rows`).
+    held-out split of a block that is part of a stored tile (:func:`_fit_rows`).  ``start`` =
+    ``(start model, {parameter: stored map})``: the ``start`` input's maps, read at this block (:func:`keep_start`).
     """
     t0 = time.perf_counter()
     (v0, v1), (u0, u1) = block_info[0]["array-location"][:2]
@@ -335,6 +338,10 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter,
         flags[sparse[helped]] |= BORROWED
     from_neighbour = np.zeros(T, bool)
     material = np.full(T, NO_LABEL)
+
+    def project(rows, x):
+        return model.pack(enforce(model, model.unpack(x), limits.take(rows))[0])
+
     if options.coherence != "none" and (T > 1 or options.coherence == "basis"):  # a lone texel has a label
         from ..basis import basis
         from ..coherence import APPEARANCE_PAIRS, cohere, pyramid  # the kernel's work, not the node's listing
@@ -354,9 +361,6 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter,
 
         def coarse(f, w, a, b, lim, initial):
             return packed(run(f, w, a, b, lim, None if initial is None else model.unpack(initial)))
-
-        def project(rows, x):
-            return model.pack(enforce(model, model.unpack(x), limits.take(rows))[0])
 
         x = model.pack(params)
         if options.coherence == "basis":
@@ -380,6 +384,10 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter,
             from_neighbour |= from_basis
         params = model.unpack(x)
         flags |= np.where(outlier, OUTLIER, 0).astype(np.uint16)
+    if start is not None:
+        start_model, maps = start
+        given = read_start(model, start_model, maps, (slice(v0, v1), slice(u0, u1)))
+        params = keep_start(model, params, given, f_r, train, wi, wo, project)
     params, changed, bounded_by = enforce(model, params, limits, why=True)
     flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint16)
     x = model.pack(params)
@@ -403,6 +411,55 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter,
     out = np.concatenate([x, np.stack([rms, rms_holdout, own, flags, restarted, bounded_by, seconds, from_neighbour,
                                        material], axis=1)], axis=1)
     return out.reshape(grid + (-1,)).astype(np.float32)
+
+
+def start_embedding(model: BRDFModel, start: BRDFModel):
+    """Packed rows of ``start``'s parameters -> packed rows of ``model``, or None where ``start`` is neither
+    ``model`` (the same parameters) nor a model its fit form contains through ``nested()``, once or more (a
+    1-lobe Lafortune in a 3-lobe one): the smaller model's solution with the extra parts dead."""
+    if start.name == model.name and [p.name for p in start.parameters] == [p.name for p in model.parameters]:
+        return lambda x: x
+    form: Any = model.fit_form()  # the contract's BRDFModel lists no fit-form conversions
+    nested = optional(form, "nested", "brdf-model")
+    inner = nested() if nested is not None else None
+    if inner is None:
+        return None
+    smaller, embed = inner
+    below = start_embedding(smaller, start)
+    if below is None:
+        return None
+    sform: Any = smaller.fit_form()
+    return lambda x: model.pack(form.to_model(form.unpack(embed(sform.pack(sform.from_model(smaller.unpack(below(x))))))))
+
+
+def read_start(model: BRDFModel, start_model: BRDFModel, maps: dict, where: tuple[slice, slice]) -> np.ndarray:
+    """``(T, K)``: the ``start`` input's maps at ``where`` (rows, columns), as packed rows of ``model``."""
+    x = start_model.pack({p.name: maps[p.name][where] for p in start_model.parameters})
+    embed = start_embedding(model, start_model)
+    assert embed is not None  # Fit.build refused any other start
+    return embed(x)
+
+
+def keep_start(model: BRDFModel, params: dict, start: np.ndarray, f_r, train, wi, wo, project) -> dict:
+    """``params`` with each texel's solution replaced by ``start``'s (``(T, K)`` packed) where that fits the
+    texel's training samples better, both as they will leave the node (``project``ed onto its bounds).
+
+    Why: two Fit nodes search apart (their coherence sweeps take different neighbours' solutions), so a
+    2-lobe fit alone can end above a 1-lobe fit of the same samples on a few texels; given the 1-lobe maps
+    as its ``start``, it never does.
+    """
+    from ..coherence import training_cost
+
+    x = model.pack(params)
+    rows = np.flatnonzero(np.isfinite(start).all(axis=1) & train.any(axis=1))
+    if rows.size == 0:
+        return params
+    mine, theirs = project(rows, x[rows]), project(rows, start[rows])
+    args = (f_r[rows], train[rows], wi[rows], wo[rows])
+    c_mine, c_theirs = training_cost(model, mine, *args), training_cost(model, theirs, *args)
+    take = np.isfinite(c_theirs) & ~(c_mine <= c_theirs)
+    x[rows] = np.where(take[:, None], theirs, mine)
+    return model.unpack(x)
 
 
 #: Working memory of one Fit task (a tile and its fit), from which its texels are chosen: a budget in
@@ -430,8 +487,7 @@ def fit_block(poses: int, tile: tuple[int, int], budget: int | None = None) -> i
 
 
 def _fit_rows(grid, f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter, model: BRDFModel, options,
-              tile,
-              block_info=None) -> np.ndarray:
+              tile, start=None, block_info=None) -> np.ndarray:
     """Kernel: rows ``v0:v1`` of a stored tile -> what :func:`fit_tile` gives those rows of the whole tile.
 
     Reads the rows and one more on each side within the tile (the 3×3 neighbourhood bounds and the
@@ -444,7 +500,8 @@ def _fit_rows(grid, f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: 
     P = f_r.shape[2]
     info = {0: {"array-location": [(e0, e1), (u0, u1), (0, P), (0, 3)]}}
     out = fit_tile(f_r[e0:e1, u0:u1], valid[e0:e1, u0:u1][..., None], light_pos, camera_pos, texels, size_mm, fitter,
-                   model, options, block_info=info, holdout_at=((tile_v0, u0), (e0 - tile_v0) * (u1 - u0) * P))
+                   model, options, block_info=info, holdout_at=((tile_v0, u0), (e0 - tile_v0) * (u1 - u0) * P),
+                   start=start)
     return out[v0 - e0:v1 - e0]
 
 
@@ -471,7 +528,10 @@ class Fit(NodeKind):
     name = "Fit"
     doc = ("Fit a BRDF model per texel inside its physical bounds; writes parameter maps, training and held-out "
            "RMS maps, sample counts and flags.")
-    inputs = (Port("samples", (SampledReflectance,), "sampled reflectance (a single BRDF is a 1x1 grid)"),)
+    inputs = (Port("samples", (SampledReflectance,), "sampled reflectance (a single BRDF is a 1x1 grid)"),
+              Port("start", (ParamMaps,), "a fit of the same samples with this model or one it contains (fewer "
+                   "Lafortune lobes): each texel keeps whichever of its own fit and that one fits its training "
+                   "samples better, so a larger model never ends above the smaller one", optional=True))
     output = ParamMaps
     plugin_category = "fitter"
     params = FIT_PARAMS
@@ -497,6 +557,23 @@ class Fit(NodeKind):
         return opts
 
     @classmethod
+    def start(cls, ctx: BuildContext, model: BRDFModel, samples):
+        """The ``start`` input as :func:`fit_tile` reads it (its model and stored maps, one graph key), or None;
+        a start of another model or another grid is refused with both named."""
+        given = ctx.inputs.get("start")
+        if given is None:
+            return None
+        start_model = ctx.plugins().create("brdf-model", given.attrs["model"], dict(given.attrs.get("model_config", {})))
+        if start_embedding(model, start_model) is None:
+            raise SbrdfError(f"node {ctx.node!r}: its start fitted {start_model.name} "
+                             f"{given.attrs.get('model_config', {})}, which {model.name} {dict(ctx.plugin.model_config)} "
+                             "does not contain: start from a fit of the same model or of fewer lobes")
+        if list(given.attrs["texels"]) != list(samples.attrs["texels"]):
+            raise SbrdfError(f"node {ctx.node!r}: its start has {list(given.attrs['texels'])} texels, its samples "
+                             f"{list(samples.attrs['texels'])}: start from a fit of the same samples")
+        return shared((start_model, {p.name: given.zarr_array(f"params/{p.name}") for p in start_model.parameters}))
+
+    @classmethod
     def build(cls, ctx: BuildContext) -> Output:
         import dask.array as da
 
@@ -507,11 +584,13 @@ class Fit(NodeKind):
         K = model.size
         tile = (f_r.chunks[0][0], f_r.chunks[1][0])
         rows = fit_block(f_r.shape[2], tile)
+        start = cls.start(ctx, model, samples)
         if rows >= tile[0]:  # a stored tile per task
             packed = da.map_blocks(
                 fit_tile, f_r, valid[..., None], samples.read("light_pos"), samples.read("camera_pos"),
                 tuple(samples.attrs["texels"]), tuple(samples.attrs["size_mm"]), ctx.plugin, model, options,
-                drop_axis=[3], chunks=f_r.chunks[:2] + ((K + len(EXTRA),),), dtype=np.float32, name=ctx.key("fit"),
+                start=start, drop_axis=[3], chunks=f_r.chunks[:2] + ((K + len(EXTRA),),), dtype=np.float32,
+                name=ctx.key("fit"),
             )
         else:  # rows of a tile per task, read by the task (tile chunks would be held while their parts wait)
             V, U = f_r.shape[:2]
@@ -520,7 +599,7 @@ class Fit(NodeKind):
                 _fit_rows, grid, shared(samples.zarr_array("f_r")), shared(samples.zarr_array("valid")),
                 shared(samples.read("light_pos")), shared(samples.read("camera_pos")),
                 tuple(samples.attrs["texels"]), tuple(samples.attrs["size_mm"]), ctx.plugin, model, options, tile,
-                new_axis=[2], chunks=grid.chunks + ((K + len(EXTRA),),), dtype=np.float32, name=ctx.key("fit"),
+                start, new_axis=[2], chunks=grid.chunks + ((K + len(EXTRA),),), dtype=np.float32, name=ctx.key("fit"),
             )
         arrays = {f"params/{name}": packed[..., s] for name, s in model.slices().items()}
         column = {name: packed[..., K + i] for i, name in enumerate(EXTRA)}
