@@ -185,13 +185,17 @@ def energy_report(model: BRDFModel, params: Mapping[str, np.ndarray],
     ph = np.asarray(incident_phis, dtype=np.float64)
     th, ph = np.meshgrid(th, ph, indexing="ij")
     dirs = polar_direction(th.ravel(), ph.ravel())
+    # At θ_i = 0 every φ_i is one direction: integrated once
+    once, first = np.unique(dirs, axis=0, return_inverse=True)
+    first = np.asarray(first).reshape(-1)
     # An isotropic model's albedo at φ_i = 0 is symmetric in φ_o: half the grid (directional_albedo's mirror).
-    mirror = (dirs[:, 1] == 0.0) & (not optional(model, "anisotropic", "brdf-model"))
-    parts = [(pick, _albedo_at(model, params, dirs[pick], m, n_theta, n_phi))
+    mirror = (once[:, 1] == 0.0) & (not optional(model, "anisotropic", "brdf-model"))
+    parts = [(pick, _albedo_at(model, params, once[pick], m, n_theta, n_phi))
              for m in (False, True) if (pick := np.flatnonzero(mirror == m)).size]
-    albedo = np.empty((_texels(model, params), len(dirs), parts[0][1].shape[-1]))  # the model's channels
+    unique = np.empty((_texels(model, params), len(once), parts[0][1].shape[-1]))  # the model's channels
     for pick, part in parts:
-        albedo[:, pick] = part
+        unique[:, pick] = part
+    albedo = unique[:, first]
     per_dir = albedo.max(axis=2)  # (T, D)
     worst = per_dir.argmax(axis=1)
     max_albedo = per_dir.max(axis=1)

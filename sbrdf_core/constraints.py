@@ -245,7 +245,8 @@ class WidenedRoughness:
         return out, changed | finer | wider
 
 
-def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi: int = 48):
+def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi: int = 48,
+                   cleared: set | None = None):
     """Scale each texel's ``magnitude`` parameters so its directional albedo stays ≤ ``albedo``.
 
     Albedo by :func:`~sbrdf_core.brdf_checks.energy_report` at
@@ -253,7 +254,10 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
     coarse grid: exact for the diffuse term and smooth lobes, approximate for
     lobes sharper than the grid (whose albedo is small once their peak is
     bounded).  Texels the model's :meth:`~sbrdf_core.brdf.BRDFModel.albedo_bound`
-    already clears are not integrated.  Returns ``(params, changed)``.
+    already clears are not integrated, nor those whose parameters are in ``cleared``: a set of packed rows
+    (as bytes) this bound already returned for the same ``albedo``, to which the rows it returns are added.
+    Why: the bound depends on the parameters alone, not the texel, and a Fit tile checks many a solution
+    more than once (a neighbour's, taken; then the tile's result).  Returns ``(params, changed)``.
     """
     T = next(iter(params.values())).shape[0]
     out = {k: np.array(v, np.float64) for k, v in params.items()}
@@ -263,6 +267,8 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
         return out, changed
     phis = energy_azimuths(model)
     todo = uncleared(model, out, albedo)  # texels the analytic bound clears need no quadrature
+    if cleared is not None:
+        todo = todo[[_row(model, out, t) not in cleared for t in todo]].astype(np.intp)
     for _ in range(6):  # F0 is affine, not linear: later passes (on the texels still over) catch what is left
         if todo.size == 0:
             break
@@ -276,7 +282,14 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
         for name in mags:
             out[name][todo] = out[name][todo] * (albedo / a)[:, None]
         changed[todo] = True
+    if cleared is not None:
+        cleared.update(_row(model, out, t) for t in range(T))
     return out, changed
+
+
+def _row(model, params, t: int) -> bytes:
+    """Texel ``t``'s parameters as bytes: :func:`enforce_energy`'s ``cleared`` key."""
+    return b"".join(np.ascontiguousarray(params[p.name][t], np.float64).tobytes() for p in model.parameters)
 
 
 #: Bits of the Fit node's ``bounded_by`` map: which bound moved a texel.
@@ -302,17 +315,18 @@ def reasons(model, params, limits: Limits, energy: np.ndarray) -> np.ndarray:
     return out
 
 
-def enforce(model, params, limits: Limits, why: bool = False):
+def enforce(model, params, limits: Limits, why: bool = False, cleared: set | None = None):
     """All three bounds on model-form ``params``: ``model.constrain`` then the energy bound.
 
     Returns ``(params, changed)``, and with ``why`` a third item: the
     :func:`reasons` of each moved texel (0 elsewhere).  What every fitted
     texel goes through in the Fit node, whatever fitter produced it.
+    ``cleared``: :func:`enforce_energy`'s, shared by calls with the same ``limits.albedo``.
     """
     out, changed = model.constrain(params, limits)
     if changed.size == 0:
         changed = np.zeros(next(iter(out.values())).shape[0], bool)
-    out, energy = enforce_energy(model, out, limits.albedo)
+    out, energy = enforce_energy(model, out, limits.albedo, cleared=cleared)
     changed = changed | energy
     if not why:
         return out, changed

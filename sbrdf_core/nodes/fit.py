@@ -339,8 +339,10 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter,
     from_neighbour = np.zeros(T, bool)
     material = np.full(T, NO_LABEL)
 
+    cleared: set = set()  # solutions the energy bound holds already: it need not integrate them again
+
     def project(rows, x):
-        return model.pack(enforce(model, model.unpack(x), limits.take(rows))[0])
+        return model.pack(enforce(model, model.unpack(x), limits.take(rows), cleared=cleared)[0])
 
     if options.coherence != "none" and (T > 1 or options.coherence == "basis"):  # a lone texel has a label
         from ..basis import basis
@@ -388,7 +390,7 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter,
         start_model, maps = start
         given = read_start(model, start_model, maps, (slice(v0, v1), slice(u0, u1)))
         params = keep_start(model, params, given, f_r, train, wi, wo, project)
-    params, changed, bounded_by = enforce(model, params, limits, why=True)
+    params, changed, bounded_by = enforce(model, params, limits, why=True, cleared=cleared)
     flags |= rflags | np.where(changed, CONSTRAINED, 0).astype(np.uint16)
     x = model.pack(params)
     squares = residual_squares(model, params, wi, wo, f_r)  # one evaluation for both errors
