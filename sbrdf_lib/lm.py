@@ -456,7 +456,8 @@ def compete(model, form, best, x_in, converged, objective, descend, limits, boun
     keep_better(best, x_in, c_in, converged.copy(), 0.0)
     if rows.size:
         sub = [v[rows].copy() for v in best]
-        keep_better(sub, *descend(x_in[rows], rows), 0.0)
+        x_down, cost_down, converged_down = descend(x_in[rows], rows)
+        keep_better(sub, x_down, cost_down, converged_down, 0.0)
         for v, part in zip(best, sub):
             v[rows] = part
     if limits is not None and limits.albedo is not None:
