@@ -239,6 +239,36 @@ class WidenedRoughness:
     widens_to_peak = True
 
     def constrain(self, params, limits):
+        """Compiled (:func:`~sbrdf_core.engine.project`) for the texels with finite parameters where the model
+        has a fit kernel; the rest, and models without one, by NumPy (:func:`widen_to_peak`, the reference)."""
+        from .engine import project
+
+        form = self.fit_form()  # type: ignore[attr-defined]
+        T = next(iter(params.values())).shape[0]
+        x = form.pack(form.from_model(params))
+        ok = np.flatnonzero(np.isfinite(x).all(axis=1))
+        moved = project(form, x[ok], limits.take(ok)) if ok.size else None
+        if moved is None:
+            return self._constrain_numpy(params, limits)
+        changed = np.zeros(T, bool)
+        out = {k: np.array(v, np.float64) for k, v in params.items()}
+        rest = np.setdiff1d(np.arange(T), ok)
+        if rest.size:
+            sub, changed[rest] = self._constrain_numpy({k: v[rest] for k, v in out.items()}, limits.take(rest))
+            for k in out:
+                out[k][rest] = sub[k]
+        new = {k: np.asarray(v, np.float64) for k, v in form.to_model(form.unpack(moved)).items()}
+        differs = np.zeros(ok.size, bool)  # judged in the model's own parameters: from_model clipped them
+        for k, v in new.items():
+            old = out[k][ok]
+            differs |= (np.abs(v - old) > 1e-9 * (1.0 + np.abs(old))).reshape(ok.size, -1).any(axis=1)
+        rows = ok[differs]
+        changed[rows] = True
+        for k, v in new.items():
+            out[k][rows] = v[differs]
+        return out, changed
+
+    def _constrain_numpy(self, params, limits):
         out, changed = super().constrain(params, limits)  # type: ignore[misc]
         out, finer = clip_shape(out, self.roughness, low=limits.min_roughness())  # type: ignore[attr-defined]
         out, wider = widen_to_peak(self, out, self.roughness, limits)  # type: ignore[attr-defined]

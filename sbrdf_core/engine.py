@@ -216,7 +216,7 @@ class CompiledProblem:
         used = np.empty(T, np.int64)
         x0, lo, hi, free, exact = _c(x0), _c(lo), _c(hi), _c(free, np.uint8), _c(exact * self.data_energy())
         step = _c(step)
-        widths, log_bound, mi, mo, cos2 = self._peak(limits, T)
+        widths, log_bound, mi, mo, cos2 = peak_bound(self._widths, limits, T)
         projecting = self._project is not None and limits is not None
         lim = _c(self.form.project_limits(limits, T)) if projecting else np.zeros((T, 0))
         over_texels(T, lambda a, b: self._mod.solve(
@@ -226,21 +226,22 @@ class CompiledProblem:
             used[a:b]), T * self.f_r.shape[1] * int(iterations))
         return x, cost, converged
 
-    def _peak(self, limits, T: int):
-        """The peak bound as the compiled loop reads it: the packed indices it widens, each texel's log bound
-        (inf: none), the mirror pairs and their weights (cos² θ for ``limits.peak_cosine``)."""
-        from .geometry import mirror_pairs
 
-        bound = None if limits is None or self._widths is None else (
-            limits.peak_cosine if limits.peak_cosine is not None else limits.peak)
-        if bound is None:
-            none = np.zeros((0, 3))
-            return np.zeros(0, np.int64), np.full(T, np.inf), none, none, np.zeros(0)
-        mi, mo = mirror_pairs(limits.max_theta)
-        cos2 = mi[:, 2] ** 2 if limits.peak_cosine is not None else np.ones(len(mi))
-        with np.errstate(divide="ignore"):
-            log_bound = np.log(np.broadcast_to(np.asarray(bound, np.float64).reshape(-1), (T,)))
-        return _c(self._widths, np.int64), _c(log_bound), _c(mi), _c(mo), _c(cos2)
+def peak_bound(widths, limits, T: int):
+    """The peak bound as the compiled loops read it: the packed indices ``widths`` they widen (None: no bound),
+    each texel's log bound (inf: none), the mirror pairs and their weights (cos² θ for ``limits.peak_cosine``)."""
+    from .geometry import mirror_pairs
+
+    bound = None if limits is None or widths is None else (
+        limits.peak_cosine if limits.peak_cosine is not None else limits.peak)
+    if bound is None:
+        none = np.zeros((0, 3))
+        return np.zeros(0, np.int64), np.full(T, np.inf), none, none, np.zeros(0)
+    mi, mo = mirror_pairs(limits.max_theta)
+    cos2 = mi[:, 2] ** 2 if limits.peak_cosine is not None else np.ones(len(mi))
+    with np.errstate(divide="ignore"):
+        log_bound = np.log(np.broadcast_to(np.asarray(bound, np.float64).reshape(-1), (T,)))
+    return _c(widths, np.int64), _c(log_bound), _c(mi), _c(mo), _c(cos2)
 
 
 #: Direction pairs (texels × pairs) from which :func:`evaluate` runs compiled: below, NumPy costs less.
@@ -288,17 +289,30 @@ def integrate(model, params, wi, wo, weights) -> np.ndarray | None:
 
 
 def project(form, x, limits) -> np.ndarray | None:
-    """Packed fit-form rows ``x`` ``(T, K)`` onto each texel's ``limits`` by the form's ``project_kernel`` inside its
-    box: ``form.constrain``, compiled (what the starting points and LM's NumPy loop project with).  None where the
-    form has no projection kernel."""
-    if getattr(form, "project_kernel", None) is None or getattr(form, "kernel", None) is None:
+    """Packed fit-form rows ``x`` ``(T, K)`` onto each texel's ``limits``: ``form.constrain``, compiled (what the
+    starting points, LM's NumPy loop and the Fit node's bounds project with).  By the form's ``project_kernel``
+    inside its box, or, for a form whose box and peak widening are the whole of it (``peak_widths``), the box
+    and the compiled widening.  None where the form has neither, or no fit kernel."""
+    if getattr(form, "kernel", None) is None:
+        return None
+    widths = getattr(form, "peak_widths", None)
+    widths = None if widths is None else widths()
+    if getattr(form, "project_kernel", None) is None and widths is None:
         return None
     T = x.shape[0]
     lo, hi = (_c(b) for b in _box(form, form.bounds(), limits, T))
     out = np.empty((T, x.shape[1]))
-    x, lim = _c(x), _c(form.project_limits(limits, T))
+    x = _c(x)
     mod, cfg = _compiled(form)
-    over_texels(T, lambda a, b: mod.project_rows(cfg, x[a:b], lim[a:b], lo[a:b], hi[a:b], out[a:b]), T * x.shape[1])
+    if getattr(form, "project_kernel", None) is not None:
+        lim = _c(form.project_limits(limits, T))
+        over_texels(T, lambda a, b: mod.project_rows(cfg, x[a:b], lim[a:b], lo[a:b], hi[a:b], out[a:b]),
+                    T * x.shape[1])
+        return out
+    w, log_bound, mi, mo, cos2 = peak_bound(widths, limits, T)
+    channels = getattr(form, "channels", 3)
+    over_texels(T, lambda a, b: mod.widen_rows(cfg, x[a:b], lo[a:b], hi[a:b], w, log_bound[a:b], mi, mo, cos2,
+                                               channels, out[a:b]), T * max(len(mi), 1) * 8)
     return out
 
 

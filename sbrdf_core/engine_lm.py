@@ -438,6 +438,21 @@ def project_rows(cfg, x, lim, lo, hi, out):
 
 
 @njit(cache=True, nogil=True)
+def widen_rows(cfg, x, lo, hi, widths, log_bound, mi, mo, cos2, channels, out):
+    """Every row of ``x`` inside its box row and widened to its peak bound (:func:`widen`; ``log_bound[t]``
+    inf: none), into ``out``: the form's ``constrain`` where those two are the whole of it."""
+    T, K = x.shape
+    f = np.empty(channels)
+    J = np.empty((channels, K))
+    trial = np.empty(K)
+    for t in range(T):
+        for k in range(K):
+            out[t, k] = min(max(x[t, k], lo[t, k]), hi[t, k])
+        if widths.size > 0 and math.isfinite(log_bound[t]):
+            widen(out[t], cfg, widths, hi[t], log_bound[t], mi, mo, cos2, f, J, trial)
+
+
+@njit(cache=True, nogil=True)
 def linear_solve(cfg, x, free, lo, hi, f_r, w, wi, wo, out):
     """Each texel's ``free`` parameters solved by weighted least squares with the others held, clipped to
     ``[lo, hi]``, into ``out``: one Gauss–Newton step, exact where f_r is affine in them (the magnitudes).  A
