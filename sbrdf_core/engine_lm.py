@@ -440,7 +440,8 @@ def project_rows(cfg, x, lim, lo, hi, out):
 @njit(cache=True, nogil=True)
 def widen_rows(cfg, x, lo, hi, widths, log_bound, mi, mo, cos2, channels, out):
     """Every row of ``x`` inside its box row and widened to its peak bound (:func:`widen`; ``log_bound[t]``
-    inf: none), into ``out``: the form's ``constrain`` where those two are the whole of it."""
+    inf: none; −inf, a texel with no support: the widest lobe), into ``out``: the form's ``constrain`` where
+    those two are the whole of it."""
     T, K = x.shape
     f = np.empty(channels)
     J = np.empty((channels, K))
@@ -448,7 +449,7 @@ def widen_rows(cfg, x, lo, hi, widths, log_bound, mi, mo, cos2, channels, out):
     for t in range(T):
         for k in range(K):
             out[t, k] = min(max(x[t, k], lo[t, k]), hi[t, k])
-        if widths.size > 0 and math.isfinite(log_bound[t]):
+        if widths.size > 0 and log_bound[t] < math.inf:
             widen(out[t], cfg, widths, hi[t], log_bound[t], mi, mo, cos2, f, J, trial)
 
 
