@@ -91,7 +91,8 @@ class FitResult:
 
 FIT_PARAMS = (
     Param("holdout", "float", 0.1, "fraction of each texel's valid samples kept from the fitter and scored as "
-          "held-out RMS (0 = fit all, no held-out error)", bounds=(0.0, 0.5)),
+          "held-out RMS (0 = fit all, no held-out error); a texel with fewer than 2 × min_samples (32 when 0) "
+          "keeps all, whatever the model, so fits of one scan are scored on the same samples", bounds=(0.0, 0.5)),
     Param("holdout_seed", "int", 0, "seed of the held-out split"),
     Param("peak_factor", "float", 4.0, "a texel's lobes may peak at most this times the largest sample of the texel "
           "and its 8 neighbours, anywhere on the hemisphere (0 = unbounded: warns)", bounds=(0.0, None)),
@@ -248,6 +249,11 @@ def squares_rms(squares: np.ndarray, mask: np.ndarray, channels: int) -> np.ndar
     return np.sqrt(np.where(mask, squares, 0.0).sum(axis=1) / np.maximum(mask.sum(axis=1) * channels, 1))
 
 
+#: Training samples a texel keeps at least for any sample to be held out from it (where ``min_samples`` is 0):
+#: a count, not the model's parameter count, so the split is the same for every model.
+HOLDOUT_MIN_TRAIN = 16
+
+
 def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[int, int], min_train: int,
                   skip: int = 0):
     """``(train, test)`` masks: a seeded ``fraction`` of each texel's valid samples held out.
@@ -306,7 +312,9 @@ def fit_tile(f_r, valid, light_pos, camera_pos, texels, size_mm, fitter: Fitter,
     min_samples = options.min_samples or model.size
     support = neighbourhood_max(sample_support(f_r, valid).reshape(grid)).ravel()
     origin, skip = holdout_at if holdout_at is not None else ((v0, u0), 0)
-    train, test = holdout_split(valid, options.holdout, options.holdout_seed, origin, min_samples, skip)
+    # the split reads no model: fits of one scan with different models (Select, a start) see the same samples
+    train, test = holdout_split(valid, options.holdout, options.holdout_seed, origin,
+                                options.min_samples or HOLDOUT_MIN_TRAIN, skip)
     resolution = angular_resolution(wi, wo, train)
     sparse = np.flatnonzero(train.sum(axis=1) < min_samples)
     if sparse.size:  # fitted to the pooled samples: bounded by what the pool resolves

@@ -24,7 +24,8 @@ nodes:
   capture: {{kind: Capture, plugin: synthetic, params: {{texels: [8, 6], poses: 6, noise: 0.01, seed: "${{seed}}"}}}}
   register: {{kind: Register, plugin: texel-aligned, in: {{capture: capture}}}}
   reflectance: {{kind: Reflectance, in: {{stack: register}}, params: {{tile: 8}}}}
-  fit: {{kind: Fit, plugin: lm, in: {{samples: reflectance}}, params: {{model: lambert, iterations: 20}}}}
+  fit: {{kind: Fit, plugin: lm, in: {{samples: reflectance}}, params: {{model: lambert, iterations: 20,
+         min_samples: 3}}}}  # 6 poses: hold 10 % out of texels with 6 samples or more
 """
 
 

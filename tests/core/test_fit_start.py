@@ -15,15 +15,14 @@ GRAPH = """\
 name: start
 store: {store}
 nodes:
-  capture: {{kind: Capture, plugin: synthetic, params: {{texels: [10, 8], poses: 24, noise: 0.02, seed: 3,
+  capture: {{kind: Capture, plugin: synthetic, params: {{texels: [10, 8], poses: 40, noise: 0.02, seed: 3,
              model: lafortune, model_params: {{lobes: 1}}}}}}
   register: {{kind: Register, plugin: texel-aligned, in: {{capture: capture}}}}
   reflectance: {{kind: Reflectance, in: {{stack: register}}, params: {{tile: 8}}}}
   small: {{kind: Fit, plugin: lm, in: {{samples: reflectance}}, params: {{model: lafortune,
-           model_params: {{lobes: 1}}, holdout: 0}}}}
+           model_params: {{lobes: 1}}}}}}
   large: {{kind: Fit, plugin: lm, in: {{samples: reflectance{start}}}, params: {{model: lafortune,
-           model_params: {{lobes: {lobes}}}, iterations: 1, starts: 1, coherence: none,
-           holdout: 0}}}}
+           model_params: {{lobes: {lobes}}}, iterations: 1, starts: 1, coherence: none}}}}
 """
 
 
@@ -32,8 +31,7 @@ def _rms(store, node):
 
 
 def test_a_larger_model_never_ends_above_its_start(tmp_path, registry, monkeypatch):
-    # one LM iteration leaves the 2-lobe fit far from its minimum: alone it ends above the 1-lobe fit.  No
-    # held-out samples: the two models' splits differ where a texel has too few samples for the larger one
+    # one LM iteration leaves the 2-lobe fit far from its minimum: alone it ends above the 1-lobe fit
     runner = Runner(registry, progress=False)
     g = tmp_path / "g.yaml"
     g.write_text(GRAPH.format(store=tmp_path / "alone", start="", lobes=2))
@@ -41,7 +39,7 @@ def test_a_larger_model_never_ends_above_its_start(tmp_path, registry, monkeypat
     small, alone = _rms(tmp_path / "alone", "small"), _rms(tmp_path / "alone", "large")
     assert (alone > small * (1 + 1e-6)).sum() > 5
     # given the 1-lobe maps, whole tiles and strips of rows (the two ways a task reads them) never do
-    for name, budget in (("tiles", None), ("rows", 2 * 8 * 24 * fit_node.FIT_SAMPLE_BYTES)):
+    for name, budget in (("tiles", None), ("rows", 2 * 8 * 40 * fit_node.FIT_SAMPLE_BYTES)):
         if budget is not None:
             monkeypatch.setattr(fit_node, "FIT_TASK_BYTES", budget)
         g.write_text(GRAPH.format(store=tmp_path / name, start=", start: small", lobes=3))
@@ -49,6 +47,9 @@ def test_a_larger_model_never_ends_above_its_start(tmp_path, registry, monkeypat
         small, large = _rms(tmp_path / name, "small"), _rms(tmp_path / name, "large")
         assert np.all(large <= small * (1 + 1e-6) + 1e-9)
         assert (large < small * (1 - 1e-3)).any()  # and its own fit is kept where it is better
+        # both scored on the same held-out samples: the split reads no model
+        held = [np.isfinite(open_artifact(str(tmp_path / name / n)).read("rms_holdout")) for n in ("small", "large")]
+        assert held[0].any() and np.array_equal(*held)
 
 
 def test_a_start_of_another_model_is_refused_with_both_named(tmp_path, registry):
