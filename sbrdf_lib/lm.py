@@ -434,32 +434,18 @@ def fit_model(model, f_r, valid, wi, wo, *, initial=None, iterations=50, toleran
     return form.to_model(form.unpack(x)), converged, cost
 
 
-#: The smaller model's solution starts one more LM run of the larger where its cost is below ``1 + WAKE_MARGIN``
-#: times the larger fit's (:func:`compete`).
-WAKE_MARGIN = 0.1
-
-
 def compete(model, form, best, x_in, converged, objective, descend, limits, bounds, plain) -> None:
     """The smaller model's embedded solution ``x_in`` against :func:`fit_model`'s ``best`` (updated in place): as it
-    is, and, where it fits within :data:`WAKE_MARGIN` of the larger fit or better (the larger fit made little of
-    its extra lobe), as the start of one more LM run (``descend``; the dead lobe's magnitude has a gradient, so it
-    can wake).  Elsewhere that run lands in the minimum the larger fit found: on a 2-lobe fit of 1,024 texels
-    it gained over 1 % on 2 and cost as much as the fit's own LM.
+    is, and as the start of one more LM run (``descend``; the dead lobe's magnitude has a gradient, so it can wake).
 
     Where the Fit node will hold an energy bound (``limits.albedo``) both compete as they will leave the node,
     else the larger model's scaled-down solution could end above the smaller one's.  ``plain``: the unweighted
     problem, when the objective is weighted: where ``x_in`` has the lower plain error it is kept, so the error
     users read never grows with the model either.
     """
-    c_in = total_cost(objective, x_in)
-    rows = np.flatnonzero(c_in <= best[1] * (1 + WAKE_MARGIN))
-    keep_better(best, x_in, c_in, converged.copy(), 0.0)
-    if rows.size:
-        sub = [v[rows].copy() for v in best]
-        x_down, cost_down, converged_down = descend(x_in[rows], rows)
-        keep_better(sub, x_down, cost_down, converged_down, 0.0)
-        for v, part in zip(best, sub):
-            v[rows] = part
+    keep_better(best, x_in, total_cost(objective, x_in), converged.copy(), 0.0)
+    x_down, cost_down, converged_down = descend(x_in)
+    keep_better(best, x_down, cost_down, converged_down, 0.0)
     if limits is not None and limits.albedo is not None:
         best[0] = within_energy(model, form, best[0], limits.albedo, *bounds)
         best[1] = total_cost(objective, best[0])
