@@ -91,7 +91,7 @@ class FitResult:
 
 FIT_PARAMS = (
     Param("holdout", "float", 0.1, "fraction of each texel's valid samples kept from the fitter and scored as "
-          "held-out RMS (0 = fit all, no held-out error); a texel with fewer than 2 × min_samples (32 when 0) "
+          "held-out RMS (0 = fit all, no held-out error); a texel with fewer than 2 × min_samples (16 when 0) "
           "keeps all, whatever the model, so fits of one scan are scored on the same samples", bounds=(0.0, 0.5)),
     Param("holdout_seed", "int", 0, "seed of the held-out split"),
     Param("peak_factor", "float", 4.0, "a texel's lobes may peak at most this times the largest sample of the texel "
@@ -251,7 +251,7 @@ def squares_rms(squares: np.ndarray, mask: np.ndarray, channels: int) -> np.ndar
 
 #: Training samples a texel keeps at least for any sample to be held out from it (where ``min_samples`` is 0):
 #: a count, not the model's parameter count, so the split is the same for every model.
-HOLDOUT_MIN_TRAIN = 16
+HOLDOUT_MIN_TRAIN = 8
 
 
 def holdout_split(valid: np.ndarray, fraction: float, seed: int, offset: tuple[int, int], min_train: int,
