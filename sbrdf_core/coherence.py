@@ -79,18 +79,28 @@ def _appearance_pairs(n: int = 32) -> tuple[np.ndarray, np.ndarray]:
 APPEARANCE_PAIRS = _appearance_pairs()
 
 
-def training_cost(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-    """Each texel's plain training cost Σ (f_r(x) − f_r)² at its packed model-form row of ``x``: by the fit kernel
-    in one compiled pass where the model has one (no ``(T, S, C)`` arrays), else by ``eval``."""
+def training_costs(model, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray):
+    """``cost(x, rows)``: the plain training cost Σ (f_r(x[i]) − f_r)² of each texel ``rows[i]`` at its packed
+    model-form row ``x[i]``; by the fit kernel in one compiled pass, the samples read in place, where the model
+    has one (no ``(T, S, C)`` arrays), else by ``eval``."""
     from .engine import compiled_problem
 
     form = model.fit_form()
     problem = compiled_problem(form, f_r, train, wi, wo)
-    if problem is not None:
-        xf = x if form is model else form.pack(form.from_model(model.unpack(x)))
-        return problem.cost(xf, np.arange(x.shape[0]))
-    diff = _predict(model, x, wi, wo) - f_r
-    return np.where(train, (diff * diff).sum(axis=-1), 0.0).sum(axis=1)
+
+    def cost(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        if problem is not None:
+            return problem.cost(x if form is model else form.pack(form.from_model(model.unpack(x))), rows)
+        diff = _predict(model, x, wi[rows], wo[rows]) - f_r[rows]
+        return np.where(train[rows], (diff * diff).sum(axis=-1), 0.0).sum(axis=1)
+
+    return cost
+
+
+def training_cost(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndarray, wo: np.ndarray
+                  ) -> np.ndarray:
+    """Each texel's plain training cost at its packed model-form row of ``x`` (:func:`training_costs`)."""
+    return training_costs(model, f_r, train, wi, wo)(x, np.arange(x.shape[0]))
 
 
 def _predict(model, x: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -149,7 +159,8 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
     x = np.array(x, np.float64)
     T, K = x.shape
     has = np.asarray(train.any(axis=1), bool)
-    own = training_cost(model, x, f_r, train, wi, wo)
+    cost_of = training_costs(model, f_r, train, wi, wo)
+    own = cost_of(x, np.arange(T))
     cost = np.where(has & np.isfinite(own), own, np.inf)
     dof = np.maximum(train.sum(axis=1) * f_r.shape[-1] - K, 1)
     # the noise allowance is the texel's own fit's, once: sweeps must not add it up
@@ -174,7 +185,7 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
             rows = np.flatnonzero(active & has & np.isfinite(xn).all(axis=1))
             if rows.size == 0:
                 continue
-            c = training_cost(model, xn[rows], f_r[rows], train[rows], wi[rows], wo[rows])
+            c = cost_of(xn[rows], rows)
             better = c < best_cost[rows]
             best_cost[rows[better]], best_x[rows[better]] = c[better], xn[rows[better]]
             if ln is None:  # the parent is no neighbour to look like
@@ -192,7 +203,7 @@ def cohere(model, x: np.ndarray, f_r: np.ndarray, train: np.ndarray, wi: np.ndar
         refined = np.asarray(refit(cand, model.unpack(start), prior), np.float64)
         if project is not None:  # judged as they will leave the node: inside the texel's own bounds
             start, refined = project(cand, start), project(cand, refined)
-        c_r, c_s = (training_cost(model, v, f_r[cand], train[cand], wi[cand], wo[cand]) for v in (refined, start))
+        c_r, c_s = (cost_of(v, cand) for v in (refined, start))
         c_r, c_s = (np.where(np.isfinite(v), v, np.inf) for v in (c_r, c_s))
         b = better[cand]
         # a worse minimum: the lower of the refit and the neighbour's solution, if lower than the texel's own

@@ -182,14 +182,12 @@ class CompiledProblem:
         return np.einsum("tsc,tsc->t", wf, wf)
 
     def cost(self, x, idx) -> np.ndarray:
-        idx = np.asarray(idx)
-        out = np.empty(len(idx))
-        sub = (self.f_r, self.weight, self.wi, self.wo)
-        if len(idx) != self.f_r.shape[0] or not np.array_equal(idx, np.arange(len(idx))):
-            sub = tuple(a[idx] for a in sub)
+        """The objective of texels ``idx`` at the rows of ``x``, read in place (no copy of their samples)."""
+        rows = _c(idx, np.int64)
+        out = np.empty(len(rows))
         x = _c(x)
-        over_texels(len(idx), lambda a, b: self._mod.costs(self.cfg, x[a:b], *(v[a:b] for v in sub), out[a:b]),
-                    self.f_r.shape[1] * len(idx))
+        over_texels(len(rows), lambda a, b: self._mod.costs(self.cfg, x[a:b], rows[a:b], self.f_r, self.weight,
+                                                            self.wi, self.wo, out[a:b]), self.f_r.shape[1] * len(rows))
         return out
 
     def normal_equations(self, x, idx):

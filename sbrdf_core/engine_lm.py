@@ -479,14 +479,14 @@ def linear_solve(cfg, x, free, lo, hi, f_r, w, wi, wo, out):
 
 
 @njit(cache=True, nogil=True)
-def costs(cfg, x, f_r, w, wi, wo, out):
-    """The objective of every texel at its row of ``x``: ``out[t]``."""
+def costs(cfg, x, rows, f_r, w, wi, wo, out):
+    """The objective of texel ``rows[i]`` at row ``i`` of ``x``: ``out[i]``."""
     T, K = x.shape
     nc = f_r.shape[2]
-    for t in range(T):
+    for i in range(T):
         f = np.empty(nc)
         J = np.empty((nc, K))
-        out[t] = texel_cost(x[t], cfg, f_r, w, wi, wo, t, f, J)
+        out[i] = texel_cost(x[i], cfg, f_r, w, wi, wo, rows[i], f, J)
 
 
 @njit(cache=True, nogil=True)
