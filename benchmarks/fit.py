@@ -30,7 +30,11 @@ process CPU time is that of one core's work; numba's threads inside):
 maps as its ``start`` (as docs/fitting.md tells a user to);
 ``nested_alone``: the same for a 2-lobe node fitted alone.  ``converged_min``: the lowest
 ``X_conv``.  ``scaling_2``: the 2-lobe Fit node's wall time with one dask
-thread over that with two (median of pairs run in alternating order).
+thread over that with two (median of pairs run in alternating order).  At
+``--quick`` size the node is one task (a 32² tile), so there ``scaling_2`` is
+about 1 and says nothing; at full size the tile is fitted in strips of rows
+sized by memory (:func:`sbrdf_core.nodes.fit.fit_block`), whose balance over
+two threads bounds it.
 
 Sizes: full = 64×64 texels, 160 poses, 640×480 photographs; ``--quick`` =
 32×32 texels, 150 poses, 400×300 (about a minute once kernels are compiled).
