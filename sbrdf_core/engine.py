@@ -314,19 +314,20 @@ def project(form, x, limits) -> np.ndarray | None:
     return out
 
 
-def solve_linear(form, x, free, f_r, weight, wi, wo) -> np.ndarray:
-    """Packed fit-form rows ``x`` ``(T, K)`` with the ``free`` parameters (magnitudes: f_r is affine in them)
-    solved by least squares weighted by ``weight`` ``(T, S)``, the others held, clipped to the form's bounds: what
-    :meth:`~sbrdf_core.brdf.BRDFModel.refine_linear` computes, by the form's fit kernel."""
+def solve_linear(form, x, free, f_r, weight, wi, wo, with_cost: bool = False):
+    """Packed fit-form rows ``x`` ``(T, K)`` (clipped to the form's bounds) with the ``free`` parameters
+    (magnitudes: f_r is affine in them) solved by least squares weighted by ``weight`` ``(T, S)``, the others
+    held, clipped to the bounds: what :meth:`~sbrdf_core.brdf.BRDFModel.refine_linear` computes, by the form's
+    fit kernel.  ``with_cost``: ``(rows, objective Σ (weight (f − f_r))² at them)``, from the same pass."""
     T, K = x.shape
     lo, hi = (_c(b) for b in form.bounds())
-    out = np.empty((T, K))
+    out, cost = np.empty((T, K)), np.empty(T)
     x, free = _c(x), _c(free, np.uint8)
     f_r, wi, wo, w = _c(f_r), _c(wi), _c(wo), _c(np.broadcast_to(weight, np.shape(f_r)[:2]))
     mod, cfg = _compiled(form)
     over_texels(T, lambda a, b: mod.linear_solve(cfg, x[a:b], free, lo, hi, f_r[a:b], w[a:b], wi[a:b], wo[a:b],
-                                                 out[a:b]), T * f_r.shape[1])
-    return out
+                                                 out[a:b], cost[a:b]), T * f_r.shape[1])
+    return (out, cost) if with_cost else out
 
 
 def compiled_problem(form, f_r, weight, wi, wo) -> CompiledProblem | None:

@@ -204,7 +204,7 @@ class LafortuneFitForm(LafortuneModel):
         """ρ_d the 10th percentile of the samples (seed 000 §4.3); lobe 1's exponent the best of
         :data:`START_EXPONENTS` for the texel (the text's n = 10 among them), each scored with the lobes'
         magnitudes solved: every texel starts near its own sharpness, which saves LM iterations."""
-        from sbrdf_lib.lm import least_squares
+        from sbrdf_core.engine import solve_linear
 
         T = f_r.shape[0]
         params = self.defaults(T)
@@ -213,13 +213,12 @@ class LafortuneFitForm(LafortuneModel):
         params["rho_d"] = diffuse_percentile(f_r, valid, 10.0)
         if not self.lobes:
             return params
-        objective = least_squares(self, f_r, np.asarray(valid, np.float64), wi, wo)
-        lo, hi = self.bounds()
+        magnitudes = self._lobe_magnitudes()
         scored = []
-        for log_n in np.log(START_EXPONENTS):
-            guess = self.refine_linear({**params, "log_exponent_1": np.full((T, 1), log_n)}, f_r, valid, wi, wo)
-            x = np.clip(self.pack(guess), lo, hi)
-            scored.append((x, np.nan_to_num(objective.cost(x, np.arange(T)), nan=np.inf)))
+        for log_n in np.log(START_EXPONENTS):  # each scored by its solve's own pass (its cost, exact)
+            x, cost = solve_linear(self, self.pack({**params, "log_exponent_1": np.full((T, 1), log_n)}), magnitudes,
+                                   f_r, np.asarray(valid, np.float64), wi, wo, with_cost=True)
+            scored.append((x, np.nan_to_num(cost, nan=np.inf)))
         best, best_cost = scored[0]
         for x, cost in scored[1:]:  # the first lowest cost wins a tie, as it did when scanned in order
             better = cost < best_cost
@@ -235,12 +234,15 @@ class LafortuneFitForm(LafortuneModel):
             return {**params, **solve_magnitudes(self, params, f_r, valid, wi, wo)}
         from sbrdf_core.engine import solve_linear
 
-        where = self.slices()
-        free = np.zeros(self.size, bool)
+        solved = self.unpack(solve_linear(self, self.pack(params), self._lobe_magnitudes(), f_r, valid, wi, wo))
+        return {**params, **{f"rho_s_{j}": solved[f"rho_s_{j}"] for j in range(1, self.lobes + 1)}}
+
+    def _lobe_magnitudes(self) -> np.ndarray:
+        """Packed mask of the lobes' ρ_s: the parameters f_r is affine in that :meth:`refine_linear` solves."""
+        where, free = self.slices(), np.zeros(self.size, bool)
         for j in range(1, self.lobes + 1):
             free[where[f"rho_s_{j}"]] = True
-        solved = self.unpack(solve_linear(self, self.pack(params), free, f_r, valid, wi, wo))
-        return {**params, **{f"rho_s_{j}": solved[f"rho_s_{j}"] for j in range(1, self.lobes + 1)}}
+        return free
 
     @property
     def project_kernel(self):
