@@ -298,7 +298,7 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
     phis = energy_azimuths(model)
     todo = uncleared(model, out, albedo)  # texels the analytic bound clears need no quadrature
     if cleared is not None:
-        todo = todo[[_row(model, out, t) not in cleared for t in todo]].astype(np.intp)
+        todo = todo[[row.tobytes() not in cleared for row in model.pack(out)[todo]]].astype(np.intp)
     for _ in range(6):  # F0 is affine, not linear: later passes (on the texels still over) catch what is left
         if todo.size == 0:
             break
@@ -313,13 +313,8 @@ def enforce_energy(model, params, albedo: float | None, n_theta: int = 24, n_phi
             out[name][todo] = out[name][todo] * (albedo / a)[:, None]
         changed[todo] = True
     if cleared is not None:
-        cleared.update(_row(model, out, t) for t in range(T))
+        cleared.update(row.tobytes() for row in model.pack(out))
     return out, changed
-
-
-def _row(model, params, t: int) -> bytes:
-    """Texel ``t``'s parameters as bytes: :func:`enforce_energy`'s ``cleared`` key."""
-    return b"".join(np.ascontiguousarray(params[p.name][t], np.float64).tobytes() for p in model.parameters)
 
 
 #: Bits of the Fit node's ``bounded_by`` map: which bound moved a texel.

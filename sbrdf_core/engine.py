@@ -293,16 +293,17 @@ def project(form, x, limits) -> np.ndarray | None:
     and the compiled widening.  None where the form has neither, or no fit kernel."""
     if getattr(form, "kernel", None) is None:
         return None
+    kernel = getattr(form, "project_kernel", None)
     widths = getattr(form, "peak_widths", None)
-    widths = None if widths is None else widths()
-    if getattr(form, "project_kernel", None) is None and widths is None:
+    widths = None if kernel is not None or widths is None else widths()
+    if kernel is None and widths is None:
         return None
     T = x.shape[0]
     lo, hi = (_c(b) for b in _box(form, form.bounds(), limits, T))
     out = np.empty((T, x.shape[1]))
     x = _c(x)
     mod, cfg = _compiled(form)
-    if getattr(form, "project_kernel", None) is not None:
+    if kernel is not None:
         lim = _c(form.project_limits(limits, T))
         over_texels(T, lambda a, b: mod.project_rows(cfg, x[a:b], lim[a:b], lo[a:b], hi[a:b], out[a:b]),
                     T * x.shape[1])

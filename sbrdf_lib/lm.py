@@ -205,8 +205,8 @@ def _active_set_step(A, g, diag, lam, free, x, step, x_new, lo, hi, project, idx
 
 class Projection:
     """``project(x, idx)`` for :func:`levenberg_marquardt`: fit-form rows of texels ``idx`` through
-    ``form.constrain`` onto their ``limits``, compiled where the form has a projection kernel
-    (:func:`sbrdf_core.engine.project`).  A problem that solves LM itself (``levenberg_marquardt``) reads ``form``
+    ``form.constrain`` onto their ``limits``, compiled where the engine can (:func:`sbrdf_core.engine.project`:
+    the form's projection kernel, or its box and peak widening).  A problem that solves LM itself (``levenberg_marquardt``) reads ``form``
     and ``limits`` to project there."""
 
     def __init__(self, form, limits):

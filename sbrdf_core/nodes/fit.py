@@ -462,15 +462,15 @@ def keep_start(model: BRDFModel, params: dict, start: np.ndarray, f_r, train, wi
     2-lobe fit alone can end above a 1-lobe fit of the same samples on a few texels; given the 1-lobe maps
     as its ``start``, it never does.
     """
-    from ..coherence import training_cost
+    from ..coherence import training_costs
 
     x = model.pack(params)
     rows = np.flatnonzero(np.isfinite(start).all(axis=1) & train.any(axis=1))
     if rows.size == 0:
         return params
     mine, theirs = project(rows, x[rows]), project(rows, start[rows])
-    args = (f_r[rows], train[rows], wi[rows], wo[rows])
-    c_mine, c_theirs = training_cost(model, mine, *args), training_cost(model, theirs, *args)
+    cost_of = training_costs(model, f_r, train, wi, wo)
+    c_mine, c_theirs = cost_of(mine, rows), cost_of(theirs, rows)
     take = np.isfinite(c_theirs) & ~(c_mine <= c_theirs)
     x[rows] = np.where(take[:, None], theirs, mine)
     return model.unpack(x)
